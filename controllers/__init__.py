@@ -1,0 +1,1 @@
+"""Baseline controllers (to come): LQR, MPC, PID, visual tracking, intercept."""

@@ -1,0 +1,1 @@
+"""Robots shared by the environments; each receives the Simulation it lives in."""

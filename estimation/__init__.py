@@ -1,0 +1,1 @@
+"""Camera geometry, detectors, Kalman filters and the observer wrapper (to come)."""

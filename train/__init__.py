@@ -1,0 +1,1 @@
+"""The ``observer-gym`` command and the experiment layer behind it."""
