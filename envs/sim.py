@@ -8,6 +8,9 @@ about 28 MB).
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 from importlib import resources
 
 import pybullet
@@ -25,6 +28,24 @@ def asset_path(name: str) -> str:
     return str(path)
 
 
+@contextlib.contextmanager
+def _stdout_silenced():
+    """Silence C-level writes to stdout (file descriptor 1) inside the block."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):  # no real stdout (embedded interpreters): nothing to hide
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 class Simulation:
     """A PyBullet world in DIRECT mode with a fixed physics time step.
 
@@ -36,13 +57,26 @@ class Simulation:
         if not physics_dt_s > 0:
             raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
         self.physics_dt_s = float(physics_dt_s)
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        with _stdout_silenced():  # PyBullet prints "argv[0]=" on every connection
+            self.client = BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
+        self._configure()
+
+    def _configure(self) -> None:
         self.client.setGravity(0.0, 0.0, -GRAVITY_MPS2)
         self.client.setTimeStep(self.physics_dt_s)
-        # Deterministic solver order; the default is already deterministic in DIRECT mode,
-        # but say so explicitly (same seed, same pixels is a contract).
         self.client.setPhysicsEngineParameter(deterministicOverlappingPairs=1)
+
+    def clear(self) -> None:
+        """Remove every body and start afresh (keeps the connection and settings).
+
+        The reliable way to make an episode independent of the previous ones:
+        ``restoreState`` restores poses and velocities but neither constraint warm-start
+        impulses nor the renderer's caches, so a restored world can render and step a
+        little differently from a new one.
+        """
+        self.client.resetSimulation()
+        self._configure()
 
     @property
     def client_id(self) -> int:
@@ -58,12 +92,6 @@ class Simulation:
         step = self.client.stepSimulation
         for _ in range(substeps):
             step()
-
-    def save_state(self) -> int:
-        return self.client.saveState()
-
-    def restore_state(self, state_id: int) -> None:
-        self.client.restoreState(stateId=state_id)
 
     def close(self) -> None:
         """Disconnect the client. Safe to call more than once."""

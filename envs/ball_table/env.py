@@ -51,8 +51,9 @@ class BallTableEnv(gym.Env):
       ``observer_gym.envs.ball_table.STATE_NAMES`` (ball x, y, vx, vy in the table frame;
       tilt angles and rates), clipped to ``STATE_HIGH``.
     - ``obs_mode="measurements"``: a Dict with what a perfect detector reports for the
-      latest frame (no rendering): ``table_corners_px`` (4, 2), ``ball_px`` (u, v, radius)
-      and ``detected`` (table, ball) flags; with ``measurement_noise_px`` Gaussian noise.
+      latest frame (no rendering): ``table_corners_px`` (u0, v0, ..., u3, v3),
+      ``ball_px`` (u, v, radius) and ``detected`` (table, ball) flags; with
+      ``measurement_noise_px`` Gaussian noise.
 
     ``info`` always holds ``state`` (ground truth, unclipped), ``time_s``,
     ``T_world_table`` (4x4), ``camera`` (the current ``K``, ``T_world_cam``,
@@ -72,7 +73,7 @@ class BallTableEnv(gym.Env):
 
     ## Episode End
     Terminated when the ball's centre leaves the red square (|x| or |y| > L/2: over a
-    border). Truncated by the registered time limit (500 steps = 10 s).
+    border). Truncated by the registered time limit of 500 steps (10 s at the default 50 Hz).
 
     ## Arguments
     ``gym.make("observer_gym/BallTable-v0", **options)``; the options are the fields of
@@ -104,9 +105,7 @@ class BallTableEnv(gym.Env):
         self.observation_space = self._make_observation_space()
 
         self.sim = Simulation(cfg.physics_dt_s)
-        self.scene = BallTableScene(
-            self.sim, cfg.arm_position_gain, with_occluder=cfg.occluder_rate_hz > 0
-        )
+        self.scene = self._build_scene()  # builds once now, so a broken setup fails here
         self.camera = Camera(self.sim, self.intrinsics, near_m=0.05, far_m=3.0)
         self.disturbances = Disturbances(cfg)
         self._time_s = 0.0
@@ -125,7 +124,7 @@ class BallTableEnv(gym.Env):
         uv_high = np.array([w - 1, h - 1], dtype=np.float32)
         return spaces.Dict(
             {
-                CORNERS_PX: spaces.Box(np.zeros((4, 2), np.float32), np.tile(uv_high, (4, 1))),
+                CORNERS_PX: spaces.Box(np.zeros(8, np.float32), np.tile(uv_high, 4)),
                 BALL_PX: spaces.Box(
                     np.zeros(3, np.float32), np.array([w - 1, h - 1, max(w, h)], np.float32)
                 ),
@@ -157,7 +156,9 @@ class BallTableEnv(gym.Env):
         ball_pos = self._checked_option("ball_pos_table_m", ball_pos, geo.BALL_TRAVEL_M)
         ball_vel = self._checked_option("ball_vel_table_mps", ball_vel, 2.0)
 
-        self.scene.reset(ball_pos, ball_vel)
+        self.sim.clear()
+        self.scene = self._build_scene()
+        self.scene.place_ball(ball_pos, ball_vel)
         self.disturbances.reset(rng)
         self._time_s = 0.0
         self._frame_index = 0
@@ -199,6 +200,16 @@ class BallTableEnv(gym.Env):
             self.sim.close()
 
     # --- internals --------------------------------------------------------------------
+    def _build_scene(self) -> BallTableScene:
+        scene = BallTableScene(
+            self.sim,
+            self.config.arm_position_gain,
+            with_occluder=self.config.occluder_rate_hz > 0,
+            arm_home_q=getattr(self, "_arm_home_q", None),
+        )
+        self._arm_home_q = scene.arm.home_q
+        return scene
+
     @staticmethod
     def _checked_option(name: str, value, bound: float) -> np.ndarray:
         v = np.asarray(value, dtype=float)

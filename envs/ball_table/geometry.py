@@ -21,7 +21,7 @@ from observer_gym.envs.transforms import rot_x, rot_y
 TABLE_SIDE_M = 0.30  # L, the red top's side
 BALL_RADIUS_M = 0.025  # r
 BORDER_WIDTH_M = 0.01  # black borders stand just outside the red square
-BORDER_HEIGHT_M = 0.015  # above the top surface
+BORDER_HEIGHT_M = 0.03  # above the top surface; > r, so the ball stops at L/2 - r
 BALL_TRAVEL_M = TABLE_SIDE_M / 2 - BALL_RADIUS_M  # |x|, |y| of the ball centre at a border
 
 # The red top's corners in TRF, in this fixed order.

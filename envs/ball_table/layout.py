@@ -47,8 +47,7 @@ TILT_RATE = slice(StateIndex.TILT_RATE_X, StateIndex.TILT_RATE_Y + 1)
 STATE_HIGH = (1.0, 1.0, 10.0, 10.0, 1.5, 1.5, 20.0, 20.0)
 
 # Measurement keys.
-CORNERS_PX = (
-    "table_corners_px"  # (4, 2): u, v of the red top's corners, in TABLE_CORNERS_TABLE order
-)
+# (8,): u0, v0, ..., u3, v3 of the red top's corners, in TABLE_CORNERS_TABLE order
+CORNERS_PX = "table_corners_px"
 BALL_PX = "ball_px"  # (3,): u, v of the ball image's centre, and its semi-major axis
 DETECTED = "detected"  # (2,) MultiBinary: [table found, ball found]

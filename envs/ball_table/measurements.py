@@ -37,7 +37,7 @@ def segment_hits_box(start, end, box_centre, box_rotation, half_extents) -> bool
 
 def empty_measurement() -> dict:
     return {
-        CORNERS_PX: np.zeros((4, 2), dtype=np.float32),
+        CORNERS_PX: np.zeros(8, dtype=np.float32),
         BALL_PX: np.zeros(3, dtype=np.float32),
         DETECTED: np.zeros(2, dtype=np.int8),
     }
@@ -74,7 +74,7 @@ def perfect_measurement(
     corners_uv, depth = project_points(K, T_world_cam, corners_world)
     if depth.min() > 0 and all(in_image(uv) for uv in corners_uv.tolist()):
         if not any(hidden(c) for c in corners_world):
-            out[CORNERS_PX][:] = corners_uv
+            out[CORNERS_PX][:] = corners_uv.reshape(-1)
             out[DETECTED][0] = 1
     ellipse = sphere_image(K, T_world_cam, ball_pos_world, geo.BALL_RADIUS_M)
     if ellipse is not None and in_image(ellipse[0]) and not hidden(ball_pos_world):
@@ -86,7 +86,8 @@ def perfect_measurement(
         corner_noise = rng.normal(0.0, noise_px, size=(4, 2))
         ball_noise = rng.normal(0.0, noise_px, size=3)
         if out[DETECTED][0]:
-            out[CORNERS_PX][:] = np.clip(corners_uv + corner_noise, 0, [width - 1, height - 1])
+            noisy = np.clip(corners_uv + corner_noise, 0, [width - 1, height - 1])
+            out[CORNERS_PX][:] = noisy.reshape(-1)
         if out[DETECTED][1]:
             noisy = out[BALL_PX] + ball_noise
             out[BALL_PX][:2] = np.clip(noisy[:2], 0, [width - 1, height - 1])

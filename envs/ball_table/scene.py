@@ -1,7 +1,9 @@
 """The BallTable world: a KUKA iiwa holding the table, the ball, and an optional occluder.
 
-The scene is built once; ``reset`` restores a saved PyBullet state (microseconds, and
-deterministic) and then places the ball.
+The env builds a new scene in a cleared world at every reset (about 20 ms): PyBullet's
+``restoreState`` leaves constraint warm-starts and renderer caches behind, and a restored
+world stepped and rendered measurably differently from a new one. tests/envs/test_envs.py
+checks that a reset after use equals a fresh one, pixels included.
 """
 
 from __future__ import annotations
@@ -42,19 +44,29 @@ class BallTableScene:
     """Builds and drives the BallTable world.
 
     Args:
-        sim: the world.
+        sim: the (empty) world to build in.
         arm_position_gain: the arm's joint motor gain (see KukaIiwa).
         with_occluder: load the occluder slab.
+        arm_home_q: the exact home joint angles from an earlier build; when None they
+            are refined by IK from ``geometry.ARM_HOME_Q``.
     """
 
-    def __init__(self, sim: Simulation, arm_position_gain: float, with_occluder: bool) -> None:
+    def __init__(
+        self,
+        sim: Simulation,
+        arm_position_gain: float,
+        with_occluder: bool,
+        arm_home_q=None,
+    ) -> None:
         self.sim = sim
         client = sim.client
-        self.arm = KukaIiwa(sim, geo.ARM_BASE_WORLD, geo.ARM_HOME_Q, arm_position_gain)
+        home_q = geo.ARM_HOME_Q if arm_home_q is None else arm_home_q
+        self.arm = KukaIiwa(sim, geo.ARM_BASE_WORLD, home_q, arm_position_gain)
         self._table_centre_home = geo.TABLE_CENTRE_HOME_WORLD
         flange_offset = np.array([0.0, 0.0, geo.FLANGE_TO_TABLE_M])
         self._flange_offset = flange_offset
-        self.arm.settle_at_pose(self._table_centre_home - flange_offset, [0, 0, 0, 1])
+        if arm_home_q is None:
+            self.arm.settle_at_pose(self._table_centre_home - flange_offset, [0, 0, 0, 1])
         self.table = client.loadURDF(asset_path("table.urdf"), list(self._table_centre_home))
         self.arm.attach(self.table, flange_offset)
         self.ball = client.loadURDF(
@@ -72,19 +84,12 @@ class BallTableScene:
             self.occluder = client.loadURDF(
                 asset_path("occluder.urdf"), list(OCCLUDER_PARKED_WORLD), useFixedBase=True
             )
-        self._home_state = sim.save_state()
         self.occluder_pose_world = None  # (position, rotation) while in view
 
     # --- commands ---------------------------------------------------------------------
-    def reset(self, ball_pos_table, ball_vel_table) -> None:
-        """Arm at home, table level, the ball resting on it at the given TRF position and
-        rolling (without slipping) at the given TRF velocity."""
-        self.sim.restore_state(self._home_state)
-        self.arm.command_joints(self.arm.home_q)
-        self.place_ball(ball_pos_table, ball_vel_table)
-        self.park_occluder()
-
     def place_ball(self, ball_pos_table, ball_vel_table) -> None:
+        """Put the ball on the table at a TRF position (x, y), rolling without slipping
+        at a TRF velocity (vx, vy)."""
         T = self.table_pose()
         R = T[:3, :3]
         p_table = np.array([ball_pos_table[0], ball_pos_table[1], geo.BALL_RADIUS_M])
