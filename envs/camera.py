@@ -57,15 +57,17 @@ class PinholeIntrinsics:
     def gl_projection(self, near_m: float, far_m: float) -> list[float]:
         """OpenGL projection matrix (column-major, as PyBullet wants it) for this K.
 
-        OpenGL's window coordinate of pixel i's centre is i + 0.5, so the principal point
-        enters as c + 0.5; the v axis is flipped because OpenGL's y points up.
+        TinyRenderer puts pixel column i's centre at window x = i, and (its rows being
+        flipped) row j's centre at window y = height - 1 - j; the offsets below make a
+        rendered point land on the pixel ``project_points`` gives, which
+        tests/envs/test_ball_table_camera.py checks to a fraction of a pixel.
         """
         w, h = self.width_px, self.height_px
         m = np.zeros((4, 4))
         m[0, 0] = 2.0 * self.fx_px / w
-        m[0, 2] = 1.0 - 2.0 * (self.cx_px + 0.5) / w
+        m[0, 2] = 1.0 - 2.0 * self.cx_px / w
         m[1, 1] = 2.0 * self.fy_px / h
-        m[1, 2] = 2.0 * (self.cy_px + 0.5) / h - 1.0
+        m[1, 2] = 2.0 * (self.cy_px + 1.0) / h - 1.0
         m[2, 2] = -(far_m + near_m) / (far_m - near_m)
         m[2, 3] = -2.0 * far_m * near_m / (far_m - near_m)
         m[3, 2] = -1.0
