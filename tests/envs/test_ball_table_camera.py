@@ -30,7 +30,7 @@ def test_sphere_image_touches_the_projected_tangent_circle():
     rng = np.random.default_rng(0)
     K = np.array([[300.0, 0, 170], [0, 280.0, 130], [0, 0, 1]])
     for _ in range(50):
-        T = look_at(rng.normal(size=3) + [0, 0, 2.0], rng.normal(size=3) * 0.2)
+        T = look_at(np.array([0.0, 0.0, 2.0]) + rng.normal(size=3), rng.normal(size=3) * 0.2)
         centre = rng.normal(size=3) * 0.2
         radius = rng.uniform(0.02, 0.3)
         S = (centre - T[:3, 3]) @ T[:3, :3]
