@@ -32,15 +32,16 @@ def _check_value(name: str, value: Any, default: Any, meta: dict) -> None:
             raise ValueError(f"{name}={value!r} must be True or False")
         return
     if isinstance(default, (int, float)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{name}={value!r} must be a number")
-        if isinstance(default, int) and not isinstance(value, int):
-            raise ValueError(f"{name}={value!r} must be an integer")
-        if not math.isfinite(value):
-            raise ValueError(f"{name}={value!r} must be finite")
         low, high = meta["low"], meta["high"]
+        allowed = f"allowed: [{low}, {high}]"
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{name}={value!r} must be a number; {allowed}")
+        if isinstance(default, int) and not isinstance(value, int):
+            raise ValueError(f"{name}={value!r} must be an integer; {allowed}")
+        if not math.isfinite(value):
+            raise ValueError(f"{name}={value!r} must be finite; {allowed}")
         if (low is not None and value < low) or (high is not None and value > high):
-            raise ValueError(f"{name}={value!r} is out of range; allowed: [{low}, {high}]")
+            raise ValueError(f"{name}={value!r} is out of range; {allowed}")
 
 
 class EnvConfig:

@@ -27,9 +27,9 @@ import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
 from observer_gym.envs.ball_table.layout import BALL_POS, TILT
+from observer_gym.envs.sim import GRAVITY_MPS2
 
 ENV_ID = "observer_gym/BallTable-v0"
-GRAVITY_MPS2 = 9.81
 ROLLING_GAIN = 5.0 / 7.0  # a = (5/7) g sin(tilt) for a solid ball rolling without slipping
 CIRCLE_RADIUS_M = 0.06  # rho
 CIRCLE_RATE_RADPS = 1.5  # w
