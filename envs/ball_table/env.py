@@ -34,8 +34,12 @@ class BallTableEnv(gym.Env):
     of radius 0.025 m rolls on it. A camera above the table (the robot's eye: 320x240 px,
     90 deg horizontal field of view, 50 frames/s) watches. The agent commands the table's
     tilt; the arm tracks the command through inverse kinematics and joint position
-    motors running at the physics rate, so the arm's tracking lag (a first-order lag of
-    about 40 ms with the default gain) is part of the plant.
+    motors running at the physics rate, so the arm's tracking lag is part of the plant:
+    with the default gain a 0.05 rad step reaches 63 % in 0.04 s and stays within 5 %
+    after 0.10 s, without overshoot (bounds asserted in tests/envs/test_ball_table_physics.py:
+    settling <= 0.2 s, steady error <= 1 mrad; figures from
+    ``python benchmarks/quality_ball_table.py``). The ball rolls at 5/7 g sin(theta) to
+    within 0.1 % on a held incline.
 
     ## Action Space
     ``Box(-max_tilt_rad, max_tilt_rad, (2,), float32)``: the commanded table tilt
