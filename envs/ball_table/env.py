@@ -59,7 +59,9 @@ class BallTableEnv(gym.Env):
       ``ball_px`` (u, v, radius) and ``detected`` (table, ball) flags; with
       ``measurement_noise_px`` Gaussian noise.
 
-    ``info`` always holds ``state`` (ground truth, unclipped), ``time_s``,
+    ``env.state_space`` is the Box of the state layout whatever the obs_mode (an
+    observer's estimate lives there). ``info`` always holds ``state`` (ground truth,
+    unclipped), ``time_s``,
     ``T_world_table`` (4x4), ``camera`` (the current ``K``, ``T_world_cam``,
     ``image_size_px``) and ``frames``: the frames delivered this step (empty if dropped),
     each with ``camera_id``, ``capture_time_s``, ``K``, ``T_world_cam``, ``image_size_px``.
@@ -106,6 +108,9 @@ class BallTableEnv(gym.Env):
 
         tilt = np.full(2, cfg.max_tilt_rad, dtype=np.float32)
         self.action_space = spaces.Box(-tilt, tilt, dtype=np.float32)
+        high = np.array(STATE_HIGH, dtype=np.float32)
+        # The space of the ground-truth state (and of an observer's estimate of it).
+        self.state_space = spaces.Box(-high, high, dtype=np.float32)
         self.observation_space = self._make_observation_space()
 
         self.sim = Simulation(cfg.physics_dt_s)
@@ -123,8 +128,7 @@ class BallTableEnv(gym.Env):
         if cfg.obs_mode == "rgb":
             return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
         if cfg.obs_mode == "state":
-            high = np.array(STATE_HIGH, dtype=np.float32)
-            return spaces.Box(-high, high, dtype=np.float32)
+            return self.state_space
         uv_high = np.array([w - 1, h - 1], dtype=np.float32)
         return spaces.Dict(
             {
