@@ -1,0 +1,533 @@
+"""Kalman-filter core: time-varying C, variable measurement size, missed measurements,
+Joseph-form updates, cross-covariance R12, outlier gates and the steady-state gain.
+
+Notation follows spec/catcher.md (Linderoth et al., ICRA 2010); equation numbers in
+brackets are that paper's:
+
+    x(k+1) = Phi x(k) + Gamma u(k) + v(k),   y(k) = C(k) x(k) + e(k)          (1)(2)
+    E[v v^T] = R1 (here ``Q``), E[e e^T] = R2 (here ``R``), E[v e^T] = R12     (3)
+
+Filter form (5)-(7) lives in :class:`KalmanFilter`, the one-step predictor form (8)-(10)
+in :func:`predictor_step`, the outlier test (27)-(30) in :class:`PSigmaGate`.
+
+Innovation covariances S are Cholesky-factored and solved, never inverted, except for
+m = 1 and m = 2 (one camera point), which use the closed forms 1/s and adj(S)/det(S):
+exact to rounding for a 2x2 SPD matrix and ~10x cheaper than a LAPACK call at this size.
+Hand-written rather than filterpy's KalmanFilter: that has no R12 and no gating, does
+not symmetrise P or keep it positive definite, and is slower here
+(benchmarks/bench_filters.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import control
+import numpy as np
+import scipy.linalg
+import scipy.stats
+from scipy.linalg.lapack import dpotrf
+
+__all__ = [
+    "ChiSquareGate",
+    "Gate",
+    "KalmanFilter",
+    "PSigmaGate",
+    "SteadyStateKalmanFilter",
+    "UpdateResult",
+    "predictor_step",
+    "steady_state_gain",
+]
+
+
+class Gate(Protocol):
+    """Decides, before a measurement is used, whether it is an outlier."""
+
+    def accepts(
+        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
+    ) -> bool:
+        """``innovation`` d = y - C x (m,), ``S`` = R + C P C^T, ``R`` = R2, ``CPCt``."""
+        ...
+
+
+class PSigmaGate:
+    """The paper's outlier test, spec/catcher.md (27)-(30).
+
+    With d = y - C x (27) and R = R2 + C P C^T (28), sigma^2 = d^T R d / d^T d is the
+    variance along d (29); the measurement is an outlier if ||d|| > p sigma (30).
+    """
+
+    def __init__(self, p: float) -> None:
+        if not p > 0.0:
+            raise ValueError(f"PSigmaGate: p = {p!r}, must be > 0")
+        self.p = float(p)
+
+    def accepts(
+        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
+    ) -> bool:
+        d = np.asarray(innovation, dtype=float)
+        dd = float(d @ d)
+        if dd == 0.0:
+            return True
+        sigma2 = float(d @ S @ d) / dd  # (29), S = R2 + R_yhat (28)
+        return dd <= self.p * self.p * sigma2  # not an outlier: ||d|| <= p sigma (30)
+
+
+class ChiSquareGate:
+    """Accept when the NIS d^T S^-1 d is below the chi-square(m) ``probability`` quantile."""
+
+    def __init__(self, probability: float = 0.997) -> None:
+        if not 0.0 < probability < 1.0:
+            raise ValueError(f"ChiSquareGate: probability = {probability!r}, must be in (0, 1)")
+        self.probability = float(probability)
+        self._threshold: dict[int, float] = {}
+
+    def threshold(self, m: int) -> float:
+        """The NIS bound for an m-dimensional measurement (cached per m)."""
+        if m not in self._threshold:
+            self._threshold[m] = float(scipy.stats.chi2.ppf(self.probability, m))
+        return self._threshold[m]
+
+    def accepts(
+        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
+    ) -> bool:
+        d = np.asarray(innovation, dtype=float)
+        nis = float(d @ scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), d))
+        return nis <= self.threshold(d.shape[0])
+
+
+@dataclass(slots=True)
+class UpdateResult:
+    """What one :meth:`KalmanFilter.update` did.
+
+    ``accepted`` is False for a missed measurement (y None: all other fields None/NaN) and
+    for one the gate rejected (innovation, S and NIS are reported, gain is None).
+    """
+
+    accepted: bool
+    innovation: np.ndarray | None
+    innovation_cov: np.ndarray | None
+    nis: float
+    gain: np.ndarray | None
+
+    @property
+    def missed(self) -> bool:
+        """True when there was no measurement (y None)."""
+        return self.innovation is None
+
+
+_HALF = np.array(0.5)  # a 0-d array multiplies faster than the Python float
+
+
+def _symmetrised(P: np.ndarray) -> np.ndarray:
+    """(P + P^T) / 2 as a new array."""
+    P = P + P.T
+    P *= _HALF
+    return P
+
+
+def _syrk_is_symmetric() -> bool:
+    """Whether numpy returns U^T U exactly symmetric (it calls BLAS syrk for a product with
+    its own transpose); checked once, so the filter never relies on it blindly."""
+    U = np.triu(np.arange(1.0, 37.0).reshape(6, 6) ** 0.5)
+    product = U.T.dot(U)
+    return bool(np.array_equal(product, product.T))
+
+
+_SYRK_IS_SYMMETRIC = _syrk_is_symmetric()
+
+
+def _is_positive_definite(P: np.ndarray) -> bool:
+    """Whether a Cholesky factorisation of P succeeds (LAPACK dpotrf, ~0.4 us at n = 6)."""
+    return dpotrf(P)[1] == 0
+
+
+def _repaired(P: np.ndarray) -> np.ndarray:
+    """The nearest symmetric positive-definite matrix at the precision floor of P's scale.
+
+    Rounding resolves a matrix only to about n eps ||P||; a covariance whose true
+    eigenvalues span more than that (e.g. P0 = 1e12 I updated with R = 1e-12 I: 24 orders
+    of magnitude) comes out of any covariance-form update with eigenvalues of either sign
+    at the n eps ||P|| level. Raise the eigenvalues to that floor (x10 until a Cholesky
+    factorisation succeeds): P grows by no more than the precision it could not resolve.
+    """
+    lam, V = np.linalg.eigh(P)
+    if not np.all(np.isfinite(lam)):
+        raise FloatingPointError("covariance is not finite")
+    floor = P.shape[0] * np.finfo(float).eps * max(float(np.abs(lam).max()), 1e-300)
+    for _ in range(16):
+        repaired = _symmetrised((V * np.maximum(lam, floor)) @ V.T)
+        if _is_positive_definite(repaired):
+            return repaired
+        floor *= 10.0
+    raise np.linalg.LinAlgError("could not restore a positive-definite covariance")
+
+
+def _right_divide(B: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """B S^-1 for SPD S, by a Cholesky solve (raises LinAlgError if S is not PD)."""
+    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), B.T).T
+
+
+def _nis(S: np.ndarray, d: np.ndarray) -> float:
+    """d^T S^-1 d by a Cholesky solve."""
+    return float(d @ scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), d))
+
+
+class KalmanFilter:
+    """Linear Kalman filter, filter form (5)-(7) with a Joseph-form covariance update.
+
+    ``x`` (n,) and ``P`` (n, n) hold the current estimate: x(k|k), P(k|k) after
+    :meth:`update`, x(k+1|k), P(k+1|k) after :meth:`predict`. Each step assigns fresh
+    arrays (never writes into the old ones), so references kept from earlier steps stay
+    valid; to change them, assign new arrays. Matrix arguments must be float
+    ``numpy.ndarray``s: the hot path calls ``ndarray.dot`` (a third cheaper than ``np.dot``
+    at this size) and reuses private scratch buffers (benchmarks/bench_filters.py).
+
+    ``gate`` is None or an object with ``accepts(innovation, S, R, CPCt) -> bool``
+    (:class:`PSigmaGate`, :class:`ChiSquareGate`); a rejected measurement leaves x and P
+    unchanged and increments ``rejected_count``; used ones increment ``accepted_count``.
+
+    P is symmetrised after every step: (P + P^T) / 2 after predict; after update (the step
+    that subtracts) P = U^T U with U the Cholesky factor (LAPACK dpotrf) of the Joseph
+    product's upper triangle, which symmetrises it exactly and proves it positive definite
+    in one factorisation, cheaper than averaging and checking apart. If rounding has made
+    it indefinite (only when its eigenvalues span more than double
+    precision resolves, e.g. P0 = 1e12 I updated with R = 1e-12 I), it is repaired at the
+    precision floor (:func:`_repaired`) and ``pd_repairs`` counts it. predict adds Q >= 0
+    to the congruence Phi P Phi^T, which stays positive definite unless Q is below P's
+    rounding level; an update that meets an indefinite S repairs P first.
+    """
+
+    def __init__(self, x0: np.ndarray, P0: np.ndarray, gate: Gate | None = None) -> None:
+        x = np.array(x0, dtype=float).reshape(-1)
+        P = np.array(P0, dtype=float)
+        n = x.shape[0]
+        if P.shape != (n, n):
+            raise ValueError(f"KalmanFilter: P0 has shape {P.shape}, expected {(n, n)}")
+        if not np.allclose(P, P.T, rtol=1e-9, atol=0.0):
+            raise ValueError("KalmanFilter: P0 must be symmetric")
+        self.x = x
+        self.P = _symmetrised(P)
+        self.gate = gate
+        self.accepted_count = 0
+        self.rejected_count = 0
+        self.pd_repairs = 0
+        self._n = n
+        self._eye = np.eye(n)
+        self._Phi_P = np.empty((n, n))  # scratch, never handed out
+        self._P_unsym = np.empty((n, n))
+        self._s_inv_2x2 = np.empty((2, 2))
+        self._scratch: dict[int, tuple[np.ndarray, ...]] = {}  # per measurement size m
+        # Pending effect of R12 = E[v(k) e(k)^T] on the next predict(): the conditional
+        # mean of v(k) given the innovations, the reduction of its covariance, and
+        # Cov(x~(k|k), v~(k)). None when no update with R12 is pending.
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def dim_x(self) -> int:
+        return self._n
+
+    def predict(
+        self,
+        Phi: np.ndarray,
+        Q: np.ndarray,
+        Gamma: np.ndarray | None = None,
+        u: np.ndarray | None = None,
+    ) -> None:
+        """Time update (1): x <- Phi x + Gamma u, P <- Phi P Phi^T + Q, symmetrised.
+
+        ``Gamma`` (n, p) and ``u`` (p,) come together or not at all. After an
+        :meth:`update` with ``R12``, also adds the part of v(k) that the innovation
+        revealed, so that update + predict equals the predictor form (8)-(10).
+        """
+        if (Gamma is None) != (u is None):
+            raise ValueError("KalmanFilter.predict: give both Gamma and u, or neither")
+        x = Phi.dot(self.x)
+        if Gamma is not None:
+            x += Gamma.dot(u)  # (1): Phi x + Gamma u
+        P = Phi.dot(self.P, self._Phi_P).dot(Phi.T, self._P_unsym)
+        P += Q  # (1): Phi P Phi^T + R1
+        if self._pending is not None:
+            v_mean, v_cov_reduction, M = self._pending
+            x += v_mean  # E[v(k) | innovations]; R12 S^-1 d in (8)
+            PhiM = Phi.dot(M)  # Phi Cov(x~(k|k), v~(k)) = -Phi K_f R12^T in (10)
+            P += PhiM
+            P += PhiM.T
+            P -= v_cov_reduction  # R12 S^-1 R12^T in (10)
+            self._pending = None
+        self.x = x
+        P_sym = P + P.T  # symmetrised, inline: this is the hot path
+        P_sym *= _HALF
+        self.P = P_sym
+
+    def update(
+        self,
+        y: np.ndarray | None,
+        C: np.ndarray,
+        R: np.ndarray,
+        R12: np.ndarray | None = None,
+        _retried: bool = False,
+    ) -> UpdateResult:
+        """Measurement update (5)-(7), Joseph form, for y (m,) = C (m, n) x + e, E[ee^T] = R.
+
+        m may change from call to call. ``y`` None is a missed measurement: x and P stay
+        unchanged. ``R12`` (n, m) = E[v(k) e(k)^T], with v(k) the process noise of the
+        NEXT :meth:`predict`; x(k|k), P(k|k) do not depend on it, (5)-(7), but the next
+        prediction does (8)-(10), so it is carried over to :meth:`predict`.
+
+        Returns an :class:`UpdateResult`. If S turns out not positive definite (P lost
+        definiteness to rounding), P is repaired and the update retried once
+        (``_retried`` is that internal flag); if S is still indefinite (e.g. R is),
+        ``numpy.linalg.LinAlgError`` is raised.
+        """
+        if y is None:
+            return UpdateResult(False, None, None, float("nan"), None)
+        x, P = self.x, self.P
+        n, m = self._n, C.shape[0]
+        if R.shape != (m, m):
+            raise ValueError(f"KalmanFilter.update: R has shape {R.shape}, expected {(m, m)}")
+        CP, B, CtKt, WtB, P_unsym = (
+            self._scratch[m] if m in self._scratch else self._make_scratch(m)
+        )
+        d = y - C.dot(x)  # innovation y - C x(k|k-1), (5) and (27)
+        C.dot(P, CP)  # C P = (P C^T)^T, P symmetric
+        CPCt = CP.dot(C.T)
+        S = CPCt + R  # R2 + C P C^T, (6) and (28)
+        if self.gate is not None and not self.gate.accepts(d, S, R, CPCt):
+            self.rejected_count += 1
+            return UpdateResult(False, d, S, _nis(S, d), None)
+        # W = [A^T; K^T] with A = I - K C, so that the Joseph form is one block product.
+        W = np.empty((n + m, n))
+        Kt = W[n:]
+        if m == 2:  # K_f^T = S^-1 C P (6), closed form, inline: this is the hot path
+            (a, b), (b2, c) = S.tolist()
+            b = 0.5 * (b + b2)
+            det = a * c - b * b
+            if a > 0.0 and det > 0.0:
+                S_inv = self._s_inv_2x2
+                S_inv[0, 0] = c / det
+                S_inv[1, 1] = a / det
+                S_inv[0, 1] = S_inv[1, 0] = -b / det
+                S_inv.dot(CP, Kt)
+                d0, d1 = d.tolist()
+                nis = (c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1) / det
+            else:
+                nis = None
+        else:
+            nis = self._gain_transposed(S, CP, d, Kt)
+        if nis is None:  # S not positive definite: P lost definiteness to rounding
+            if _retried:
+                raise np.linalg.LinAlgError("S = C P C^T + R is not positive definite")
+            self.P = self._repair(P)
+            return self.update(y, C, R, R12, _retried=True)
+        K = Kt.T
+        if R12 is not None or self._pending is not None:
+            self._carry_cross_covariance(C, S, d, K, R12)
+        self.x = x + d.dot(Kt)  # (5): x + K_f (y - C x)
+        np.subtract(self._eye, C.T.dot(Kt, CtKt), W[:n])  # A^T = I - C^T K^T
+        B[:n, :n] = P
+        B[n:, n:] = R
+        # (7) in Joseph form: (I - K C) P (I - K C)^T + K R2 K^T = W^T diag(P, R2) W.
+        W.T.dot(B, WtB).dot(W, P_unsym)
+        # Symmetrise and check positive definiteness with one factorisation: dpotrf reads
+        # the upper triangle, and P = U^T U is exactly symmetric (BLAS syrk).
+        U, info = dpotrf(P_unsym)
+        if info == 0 and _SYRK_IS_SYMMETRIC:
+            self.P = U.T.dot(U)
+        else:
+            P_sym = _symmetrised(P_unsym)
+            self.P = P_sym if _is_positive_definite(P_sym) else self._repair(P_sym)
+        self.accepted_count += 1
+        return UpdateResult(True, d, S, nis, K)
+
+    def _repair(self, P: np.ndarray) -> np.ndarray:
+        """P made positive definite by :func:`_repaired`, counted in ``pd_repairs``."""
+        self.pd_repairs += 1
+        return _repaired(P)
+
+    def _make_scratch(self, m: int) -> tuple[np.ndarray, ...]:
+        n = self._n
+        scratch = (
+            np.empty((m, n)),  # C P
+            np.zeros((n + m, n + m)),  # diag(P, R); the off-diagonal blocks stay zero
+            np.empty((n, n)),  # C^T K^T
+            np.empty((n, n + m)),  # W^T diag(P, R)
+            np.empty((n, n)),  # Joseph product before symmetrisation
+        )
+        self._scratch[m] = scratch
+        return scratch
+
+    def _gain_transposed(
+        self, S: np.ndarray, CP: np.ndarray, d: np.ndarray, out: np.ndarray
+    ) -> float | None:
+        """Write K_f^T = S^-1 C P (6) into ``out`` (m, n); return the NIS d^T S^-1 d.
+
+        None if S is not positive definite. (m = 2 is inlined in :meth:`update`.)
+        """
+        if S.shape[0] == 1:
+            s = float(S[0, 0])
+            if s > 0.0:
+                np.divide(CP, s, out=out)
+                return float(d[0]) ** 2 / s
+        try:
+            factor = scipy.linalg.cho_factor(S)
+        except np.linalg.LinAlgError:
+            return None
+        out[...] = scipy.linalg.cho_solve(factor, CP)
+        return float(d @ scipy.linalg.cho_solve(factor, d))
+
+    def _carry_cross_covariance(
+        self, C: np.ndarray, S: np.ndarray, d: np.ndarray, K: np.ndarray, R12: np.ndarray | None
+    ) -> None:
+        """Condition the next step's process noise v(k) on this innovation d.
+
+        With M = Cov(x~, v~) (zero before the first update of a step), the innovation's
+        covariance with v~ is N = M^T C^T + R12, so E[v | d] += N S^-1 d, Cov(v~) -= N S^-1 N^T
+        and M <- M - K_f N^T. For M = 0 these give the R12 terms of (8)-(10).
+        """
+        n, m = self.dim_x, d.shape[0]
+        if self._pending is None:
+            v_mean, v_red, M = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
+        else:
+            v_mean, v_red, M = self._pending
+        N = np.dot(M.T, C.T)
+        if R12 is not None:
+            N = N + np.asarray(R12, dtype=float).reshape(n, m)
+        L = _right_divide(N, S)
+        self._pending = (v_mean + np.dot(L, d), v_red + np.dot(L, N.T), M - np.dot(K, N.T))
+
+
+def predictor_step(
+    x_pred: np.ndarray,
+    P_pred: np.ndarray,
+    y: np.ndarray | None,
+    C: np.ndarray,
+    Phi: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    R12: np.ndarray | None = None,
+    Gamma: np.ndarray | None = None,
+    u: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the one-step predictor (8)-(10): (x(k|k-1), P(k|k-1)) -> (k+1|k).
+
+    x(k+1|k) = Phi x(k|k-1) + Gamma u(k) + K(k) (y(k) - C x(k|k-1))             (8)
+    K(k)     = (Phi P C^T + R12) (R2 + C P C^T)^-1                              (9)
+    P(k+1|k) = Phi P Phi^T + R1 - K(k) (Phi P C^T + R12)^T                      (10)
+
+    (R1 = ``Q``, R2 = ``R``.) (10) is evaluated in the algebraically equal Joseph-like form
+    (Phi - K C) P (Phi - K C)^T + [I, -K] [[R1, R12], [R12^T, R2]] [I, -K]^T, a sum of PSD
+    terms, then symmetrised. With ``y`` None it is pure prediction (the measurement terms
+    of (8) and (10) vanish).
+    """
+    x_pred = np.asarray(x_pred, dtype=float)
+    P_pred = np.asarray(P_pred, dtype=float)
+    if (Gamma is None) != (u is None):
+        raise ValueError("predictor_step: give both Gamma and u, or neither")
+    x_next = np.dot(Phi, x_pred)
+    if Gamma is not None:
+        x_next = x_next + np.dot(Gamma, u)
+    if y is None:
+        P_next = _symmetrised(np.dot(np.dot(Phi, P_pred), Phi.T) + Q)
+        return x_next, P_next if _is_positive_definite(P_next) else _repaired(P_next)
+    n, m = x_pred.shape[0], C.shape[0]
+    R12 = np.zeros((n, m)) if R12 is None else np.asarray(R12, dtype=float).reshape(n, m)
+    N = np.dot(np.dot(Phi, P_pred), C.T) + R12  # Phi P C^T + R12
+    S = np.dot(np.dot(C, P_pred), C.T) + R  # R2 + C P C^T
+    K = _right_divide(N, S)  # (9)
+    x_next = x_next + np.dot(K, np.asarray(y, dtype=float) - np.dot(C, x_pred))  # (8)
+    A = Phi - np.dot(K, C)
+    KR12t = np.dot(K, R12.T)
+    P_next = np.dot(np.dot(A, P_pred), A.T) + Q + np.dot(np.dot(K, R), K.T) - KR12t - KR12t.T
+    P_next = _symmetrised(P_next)  # (10)
+    return x_next, P_next if _is_positive_definite(P_next) else _repaired(P_next)
+
+
+def steady_state_gain(
+    Phi: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    R12: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stationary filter gain K_f (n, m) and prediction covariance P = P(k+1|k) (n, n).
+
+    P solves the filter DARE, the stationary form of (10):
+
+        Phi P Phi^T - P - (Phi P C^T + R12) (C P C^T + R)^-1 (C P Phi^T + R12^T) + Q = 0,
+
+    which is python-control's ``dare(A, B, Q, R, S)`` (A^T X A - X - (A^T X B + S)
+    (B^T X B + R)^-1 (B^T X A + S^T) + Q = 0) for the dual system A = Phi^T, B = C^T,
+    S = R12. The filter gain is K_f = P C^T (C P C^T + R)^-1 (6); the predictor gain (9)
+    is Phi K_f + R12 (C P C^T + R)^-1.
+    """
+    Phi, C = np.asarray(Phi, dtype=float), np.asarray(C, dtype=float)
+    Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
+    S = None if R12 is None else np.asarray(R12, dtype=float)
+    P, _, _ = control.dare(Phi.T, C.T, Q, R, S, method="scipy")
+    P = _symmetrised(np.asarray(P, dtype=float))
+    K = _right_divide(np.dot(P, C.T), np.dot(np.dot(C, P), C.T) + R)  # (6)
+    return K, P
+
+
+class SteadyStateKalmanFilter:
+    """Fixed-gain Kalman filter for an LTI model: (1) and (5) with a constant K_f.
+
+    Preallocated buffers, in-place updates: ``x`` is modified in place at every step
+    (copy it to keep it). ``P_pred`` and ``P_filt`` are the stationary covariances, valid
+    while a measurement arrives every step.
+    """
+
+    def __init__(
+        self,
+        x0: np.ndarray,
+        gain: np.ndarray,
+        C: np.ndarray,
+        P_pred: np.ndarray | None = None,
+    ) -> None:
+        self.x = np.array(x0, dtype=float).reshape(-1)
+        self.gain = np.array(gain, dtype=float)
+        self.C = np.array(C, dtype=float)
+        n, m = self.x.shape[0], self.C.shape[0]
+        if self.gain.shape != (n, m) or self.C.shape != (m, n):
+            raise ValueError(
+                f"SteadyStateKalmanFilter: gain {self.gain.shape} and C {self.C.shape} "
+                f"must be {(n, m)} and {(m, n)}"
+            )
+        self.P_pred = P_pred
+        self.P_filt = None
+        if P_pred is not None:
+            A = np.eye(n) - np.dot(self.gain, self.C)
+            self.P_filt = _symmetrised(np.dot(A, P_pred))  # (7)
+        self._x_spare = np.empty(n)  # predict() writes here, then swaps it with x
+        self._x_step = np.empty(n)
+        self._gamma_u = np.empty(n)
+        self._innovation = np.empty(m)
+
+    @classmethod
+    def from_model(
+        cls, x0: np.ndarray, Phi: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
+    ) -> SteadyStateKalmanFilter:
+        """Gain from :func:`steady_state_gain` for the model (Phi, C, Q, R)."""
+        K, P_pred = steady_state_gain(Phi, C, Q, R)
+        return cls(x0, K, C, P_pred)
+
+    def predict(
+        self, Phi: np.ndarray, Gamma: np.ndarray | None = None, u: np.ndarray | None = None
+    ) -> None:
+        """x <- Phi x + Gamma u (1)."""
+        x_next = self._x_spare
+        Phi.dot(self.x, x_next)
+        if Gamma is not None:
+            x_next += Gamma.dot(u, self._gamma_u)
+        self._x_spare = self.x
+        self.x = x_next
+
+    def update(self, y: np.ndarray | None) -> None:
+        """x <- x + K_f (y - C x) (5); y None (missed) leaves x unchanged."""
+        if y is None:
+            return
+        d = self._innovation
+        np.subtract(y, self.C.dot(self.x, d), out=d)
+        self.x += self.gain.dot(d, self._x_step)

@@ -1,0 +1,107 @@
+"""The observer wrapper: camera frames in, state estimates out.
+
+``VisionObserver(env)`` wraps an env made with ``obs_mode="rgb"`` or ``"measurements"``.
+Its observation is the estimate of the env's ground-truth state, with exactly the layout
+of ``obs_mode="state"`` (``env.unwrapped.state_space``), so a controller or policy runs
+unchanged on the oracle state or on the estimate. ``info["estimate"]`` carries the mean,
+the covariance, whether a measurement was used this step, and the raw measurement.
+
+What turns frames into estimates is a *pipeline* (detector + filters) chosen for the env
+by :func:`default_pipeline`; pass ``pipeline=`` to use another.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One step's state estimate, in the env's state layout."""
+
+    mean: np.ndarray  # (n,)
+    covariance: np.ndarray  # (n, n)
+    measurement_used: bool  # a new measurement updated the estimate this step
+    measurement: Any  # the raw detection (None when no new frame arrived)
+    time_s: float
+
+    def as_info(self) -> dict[str, Any]:
+        return {
+            "mean": self.mean.copy(),
+            "covariance": self.covariance.copy(),
+            "measurement_used": self.measurement_used,
+            "measurement": self.measurement,
+            "time_s": self.time_s,
+        }
+
+
+class ObserverPipeline(Protocol):
+    """Detector + filters for one env. ``observe`` is called after every reset and step
+    with what the env returned and the action (clipped, as the env applied it) that led
+    there; None after a reset."""
+
+    def reset(self) -> None: ...
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate: ...
+
+
+def default_pipeline(env: gym.Env, **options: Any) -> ObserverPipeline:
+    """The pipeline made for ``env``'s system."""
+    from observer_gym.envs.ball_table import BallTableEnv
+
+    base = env.unwrapped
+    if isinstance(base, BallTableEnv):
+        from observer_gym.estimation.ball_table_observer import BallTableObserver
+
+        return BallTableObserver(base, **options)
+    raise ValueError(f"no default observer pipeline for {type(base).__name__}; pass pipeline=")
+
+
+class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Replace an env's camera observation by the state estimate of an observer.
+
+    Args:
+        env: an observer-gym env made with ``obs_mode="rgb"`` or ``"measurements"``.
+        pipeline: the detector + filters to use; default :func:`default_pipeline`.
+        **options: passed to the default pipeline (ignored when ``pipeline`` is given).
+    """
+
+    def __init__(self, env: gym.Env, pipeline: ObserverPipeline | None = None, **options: Any):
+        # Recorded so that gymnasium can re-create the wrapped env from its spec (a given
+        # pipeline instance would then be shared; the default one is built afresh).
+        gym.utils.RecordConstructorArgs.__init__(self, pipeline=pipeline, **options)
+        gym.Wrapper.__init__(self, env)
+        base = env.unwrapped
+        obs_mode = getattr(getattr(base, "config", None), "obs_mode", None)
+        if obs_mode not in ("rgb", "measurements"):
+            raise ValueError(
+                f"VisionObserver needs an env made with obs_mode='rgb' or 'measurements', "
+                f"got obs_mode={obs_mode!r}"
+            )
+        if pipeline is not None and options:
+            raise ValueError(f"options {sorted(options)} apply to the default pipeline only")
+        self.pipeline = pipeline if pipeline is not None else default_pipeline(env, **options)
+        self.observation_space = base.state_space
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.pipeline.reset()
+        return self._estimate(obs, info, None)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        space = self.action_space
+        applied = np.clip(np.asarray(action, dtype=np.float64), space.low, space.high)
+        estimate_obs, info = self._estimate(obs, info, applied)
+        return estimate_obs, reward, terminated, truncated, info
+
+    def _estimate(self, obs, info: dict, action):
+        estimate = self.pipeline.observe(obs, info, action)
+        info = {**info, "estimate": estimate.as_info()}
+        space = self.observation_space
+        mean = np.clip(estimate.mean, space.low, space.high).astype(space.dtype)
+        return mean, info

@@ -1,0 +1,139 @@
+"""The observer wrapper on BallTable-v0 against the simulator's ground truth."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from scipy.stats import chi2
+
+import observer_gym.envs  # noqa: F401  (registers the envs)
+from observer_gym.estimation import VisionObserver
+
+ENV_ID = "observer_gym/BallTable-v0"
+DT_S = 0.02
+# Documented bounds (measured values in the comments; `python benchmarks/quality_observer.py`).
+POS_RMSE_BOUND_M = 0.0007  # measured 0.43-0.45 mm over 20 s from rgb (seeds 0-3)
+VEL_RMSE_BOUND_MPS = 0.01  # measured 5.8-6.9 mm/s
+TILT_RMSE_BOUND_RAD = 0.004  # measured ~2-3 mrad
+RECOVERY_S = 0.3  # after a blind spell the position error is back under RECOVERED_ERR_M
+RECOVERED_ERR_M = 0.005
+
+
+def circle_tracking_action(time_s: float, estimate: np.ndarray, phase: float) -> np.ndarray:
+    """Closed loop through the observer: a PD tilt law on the estimate makes the ball follow
+    a 5 cm circle, so it keeps rolling without resting on a border (test scaffolding, not a
+    controller: a = k_p (r - p) - k_d v, inverted through a = (5/7) g tilt, spec
+    "Dynamics")."""
+    omega_radps, radius_m, k_p, k_d = 0.8, 0.05, 4.0, 3.0
+    angle = omega_radps * time_s + phase
+    ref = radius_m * np.array([np.cos(angle), np.sin(angle)])
+    accel = k_p * (ref - estimate[0:2]) - k_d * estimate[2:4]
+    gain = 5.0 / 7.0 * 9.81
+    return np.clip([-accel[1] / gain, accel[0] / gain], -0.1, 0.1).astype(np.float32)
+
+
+def run_observed(seed: int, seconds: float, **env_kwargs):
+    """Run the observer in closed loop; per-step truth, estimate, covariance, flags."""
+    env = VisionObserver(gym.make(ENV_ID, max_episode_steps=int(seconds / DT_S) + 1, **env_kwargs))
+    phase = np.random.default_rng(seed).uniform(0, 2 * np.pi)
+    rows = []
+    try:
+        estimate, info = env.reset(seed=seed)
+        for k in range(int(seconds / DT_S)):
+            action = circle_tracking_action(k * DT_S, estimate, phase)
+            estimate, _, terminated, truncated, info = env.step(action)
+            est = info["estimate"]
+            detection = est["measurement"]
+            raw = (
+                detection.ball_pos_table_m
+                if detection is not None and detection.ball_found
+                else np.full(2, np.nan)
+            )
+            rows.append(
+                (info["state"], est["mean"], est["covariance"], est["measurement_used"], raw)
+            )
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    truth, mean, cov, used, raw = (np.array(c) for c in zip(*rows, strict=True))
+    return truth, mean, cov, used.astype(bool), raw
+
+
+@pytest.mark.parametrize("obs_mode", ["rgb", "measurements"])
+def test_observer_passes_check_env(obs_mode):
+    env = VisionObserver(gym.make(ENV_ID, obs_mode=obs_mode))
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check_env(env, skip_render_check=True)
+        # check_env says it is handed a wrapped env: the wrapper is what is checked here.
+        messages = [str(w.message) for w in caught if "has a wrapper applied" not in str(w.message)]
+        assert messages == []
+        assert env.observation_space == env.unwrapped.state_space
+    finally:
+        env.close()
+
+
+def test_observer_refuses_state_mode():
+    with pytest.raises(ValueError, match="obs_mode"):
+        VisionObserver(gym.make(ENV_ID, obs_mode="state"))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
+    truth, mean, cov, used, raw = run_observed(seed, 20.0, obs_mode="rgb")
+    assert len(truth) == 1000 and used.mean() > 0.99
+    skip = 25  # the first 0.5 s: the velocity estimate starts from zero
+    pos_err = mean[skip:, 0:2] - truth[skip:, 0:2]
+    vel_err = mean[skip:, 2:4] - truth[skip:, 2:4]
+    pos_rmse = np.sqrt(np.mean(np.sum(pos_err**2, axis=1)))
+    vel_rmse = np.sqrt(np.mean(np.sum(vel_err**2, axis=1)))
+    raw_rmse = np.sqrt(np.nanmean(np.sum((raw[skip:] - truth[skip:, 0:2]) ** 2, axis=1)))
+    raw_vel = (raw[skip + 1 :] - raw[skip:-1]) / DT_S  # velocity from differenced detections
+    raw_vel_rmse = np.sqrt(np.nanmean(np.sum((raw_vel - truth[skip + 1 :, 2:4]) ** 2, axis=1)))
+    tilt_rmse = np.sqrt(np.mean(np.sum((mean[skip:, 4:6] - truth[skip:, 4:6]) ** 2, axis=1)))
+    assert pos_rmse < POS_RMSE_BOUND_M
+    assert vel_rmse < VEL_RMSE_BOUND_MPS
+    assert tilt_rmse < TILT_RMSE_BOUND_RAD
+    # Filtering beats the raw detections: a little in position (their error is mostly a
+    # slowly varying bias no filter can remove), by far in velocity.
+    assert pos_rmse < raw_rmse
+    assert vel_rmse < 0.5 * raw_vel_rmse
+    # Consistency: the time-averaged NEES of (x, y, vx, vy) lies in its 95 % chi-square
+    # band, counting one independent sample per 10 steps (errors correlate over ~10 steps).
+    err = np.concatenate([pos_err, vel_err], axis=1)
+    nees = np.einsum("ki,kij,kj->k", err, np.linalg.inv(cov[skip:, 0:4, 0:4]), err)
+    n_indep = len(nees) // 10
+    low, high = chi2.ppf([0.025, 0.975], 4 * n_indep) / n_indep
+    assert low < nees.mean() < high, (nees.mean(), low, high)
+
+
+def test_observer_rides_out_dropped_frames_and_an_occluded_ball():
+    truth, mean, cov, used, _raw = run_observed(
+        3, 12.0, obs_mode="rgb", frame_drop_prob=0.1, occluder_rate_hz=0.3, occluder_pass_s=3.5
+    )
+    assert np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))
+    # Blind spells: consecutive steps without a ball measurement.
+    blind = ~used
+    assert 0.05 < blind.mean() < 0.5
+    spells, start = [], None
+    for k, b in enumerate(blind):
+        if b and start is None:
+            start = k
+        if not b and start is not None:
+            spells.append((start, k))
+            start = None
+    longest = max(spells, key=lambda s: s[1] - s[0])
+    assert (longest[1] - longest[0]) * DT_S >= 0.5  # the occluder hid the ball for >= 0.5 s
+    pos_var = cov[:, 0, 0] + cov[:, 1, 1]
+    a, b = longest
+    assert np.all(np.diff(pos_var[a:b]) > 0)  # the covariance grows while blind
+    recovery_steps = round(RECOVERY_S / DT_S)
+    pos_err = np.linalg.norm(mean[:, 0:2] - truth[:, 0:2], axis=1)
+    assert pos_err[b + recovery_steps] < RECOVERED_ERR_M  # recovered within 0.3 s
+    assert np.all(pos_err[b + recovery_steps :] < 5 * RECOVERED_ERR_M)  # and stays recovered
