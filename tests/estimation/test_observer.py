@@ -137,3 +137,39 @@ def test_observer_rides_out_dropped_frames_and_an_occluded_ball():
     pos_err = np.linalg.norm(mean[:, 0:2] - truth[:, 0:2], axis=1)
     assert pos_err[b + recovery_steps] < RECOVERED_ERR_M  # recovered within 0.3 s
     assert np.all(pos_err[b + recovery_steps :] < 5 * RECOVERED_ERR_M)  # and stays recovered
+
+
+def _observed_ball_table(obs_mode: str = "rgb"):
+    """Module-level env factory, so spawned workers can unpickle it."""
+
+    return VisionObserver(gym.make(ENV_ID, obs_mode=obs_mode))
+
+
+def test_observer_runs_in_spawned_subprocess_vec_env():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    vec_env = SubprocVecEnv([_observed_ball_table, _observed_ball_table], start_method="spawn")
+    try:
+        vec_env.seed(5)
+        obs = vec_env.reset()
+        for _ in range(10):
+            obs, _, _, infos = vec_env.step(np.zeros((2, 2), np.float32))
+        assert obs.shape == (2, 8) and np.all(np.isfinite(obs))
+        for worker_obs, info in zip(obs, infos, strict=True):
+            # Each worker's observation is its own estimate, close to its own ground truth.
+            np.testing.assert_allclose(worker_obs, info["estimate"]["mean"], atol=1e-6)
+            assert np.linalg.norm(worker_obs[0:2] - info["state"][0:2]) < 0.002
+        assert not np.allclose(obs[0], obs[1])  # different seeds, different episodes
+    finally:
+        vec_env.close()
+
+
+def test_observer_on_perfect_measurements_is_nearly_exact():
+    """The measurements obs_mode feeds the same geometry and filters without pixels; with
+    perfect features the remaining error is the filter's own."""
+    truth, mean, _cov, used, raw = run_observed(4, 6.0, obs_mode="measurements")
+    skip = 25
+    assert used[skip:].all()
+    assert np.abs(raw[skip:] - truth[skip:, 0:2]).max() < 2e-4  # geometry stage: 0.2 mm
+    assert np.sqrt(np.mean(np.sum((mean[skip:, 0:2] - truth[skip:, 0:2]) ** 2, axis=1))) < 3e-4
+    assert np.sqrt(np.mean(np.sum((mean[skip:, 4:6] - truth[skip:, 4:6]) ** 2, axis=1))) < 1e-3
