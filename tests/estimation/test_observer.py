@@ -97,6 +97,14 @@ def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
     raw_vel = (raw[skip + 1 :] - raw[skip:-1]) / DT_S  # velocity from differenced detections
     raw_vel_rmse = np.sqrt(np.nanmean(np.sum((raw_vel - truth[skip + 1 :, 2:4]) ** 2, axis=1)))
     tilt_rmse = np.sqrt(np.mean(np.sum((mean[skip:, 4:6] - truth[skip:, 4:6]) ** 2, axis=1)))
+    err = np.concatenate([pos_err, vel_err], axis=1)
+    nees = np.einsum("ki,kij,kj->k", err, np.linalg.inv(cov[skip:, 0:4, 0:4]), err)
+    print(
+        f"\nseed {seed}: position RMSE {pos_rmse * 1e3:.3f} mm (raw detections "
+        f"{raw_rmse * 1e3:.3f} mm), velocity RMSE {vel_rmse * 1e3:.2f} mm/s (differenced "
+        f"detections {raw_vel_rmse * 1e3:.2f} mm/s), tilt RMSE {tilt_rmse * 1e3:.2f} mrad, "
+        f"average NEES {nees.mean():.2f}"
+    )
     assert pos_rmse < POS_RMSE_BOUND_M
     assert vel_rmse < VEL_RMSE_BOUND_MPS
     assert tilt_rmse < TILT_RMSE_BOUND_RAD
@@ -106,8 +114,6 @@ def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
     assert vel_rmse < 0.5 * raw_vel_rmse
     # Consistency: the time-averaged NEES of (x, y, vx, vy) lies in its 95 % chi-square
     # band, counting one independent sample per 10 steps (errors correlate over ~10 steps).
-    err = np.concatenate([pos_err, vel_err], axis=1)
-    nees = np.einsum("ki,kij,kj->k", err, np.linalg.inv(cov[skip:, 0:4, 0:4]), err)
     n_indep = len(nees) // 10
     low, high = chi2.ppf([0.025, 0.975], 4 * n_indep) / n_indep
     assert low < nees.mean() < high, (nees.mean(), low, high)
@@ -135,6 +141,12 @@ def test_observer_rides_out_dropped_frames_and_an_occluded_ball():
     assert np.all(np.diff(pos_var[a:b]) > 0)  # the covariance grows while blind
     recovery_steps = round(RECOVERY_S / DT_S)
     pos_err = np.linalg.norm(mean[:, 0:2] - truth[:, 0:2], axis=1)
+    print(
+        f"\nblind {blind.mean():.1%} of steps; longest spell {(b - a) * DT_S:.2f} s, position "
+        f"std {np.sqrt(pos_var[a]) * 1e3:.2f} -> {np.sqrt(pos_var[b - 1]) * 1e3:.2f} mm, "
+        f"error at its end {pos_err[b - 1] * 1e3:.2f} mm, {RECOVERY_S} s later "
+        f"{pos_err[b + recovery_steps] * 1e3:.2f} mm"
+    )
     assert pos_err[b + recovery_steps] < RECOVERED_ERR_M  # recovered within 0.3 s
     assert np.all(pos_err[b + recovery_steps :] < 5 * RECOVERED_ERR_M)  # and stays recovered
 
