@@ -77,6 +77,28 @@ def discretize(
     return Phi, Gamma, 0.5 * (Qd + Qd.T)
 
 
+class LinearModel:
+    """A continuous-time linear model x' = A x + B u + G w (w white, intensity Qc), with
+    its exact zero-order-hold discretisation per step, cached per dt.
+
+    Subclasses define :meth:`continuous`.
+    """
+
+    def continuous(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, G, Qc)."""
+        raise NotImplementedError
+
+    def matrices(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Phi, Gamma, Q) for the step ``dt_s`` with u held, exact, cached (read-only)."""
+        cache = self.__dict__.setdefault("_cache", {})  # made on first use: no super().__init__
+        key = float(dt_s)
+        cached = cache.get(key)
+        if cached is None:
+            Phi, Gamma, Q = discretize(*self.continuous(), key)
+            cached = cache[key] = (_readonly(Phi), _readonly(Gamma), _readonly(Q))
+        return cached
+
+
 @dataclass(frozen=True)
 class RollingBallParams:
     """Noise parameters of :class:`RollingBallModel` (spec/table_ball.md).
@@ -108,7 +130,7 @@ class RollingBallParams:
                 raise ValueError(f"RollingBallParams.{name} = {value!r}, must be finite and > 0")
 
 
-class RollingBallModel:
+class RollingBallModel(LinearModel):
     """The BallTable estimator model, both table axes (spec/table_ball.md).
 
     State x = (p_x, p_y, v_x, v_y, w_x, w_y): ball position (m) and velocity (m/s) in the
@@ -126,7 +148,6 @@ class RollingBallModel:
 
     def __init__(self, params: RollingBallParams | None = None) -> None:
         self.params = RollingBallParams() if params is None else params
-        self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         C = np.zeros((2, 6))
         C[0, 0] = C[1, 1] = 1.0
         self.C = _readonly(C)
@@ -149,15 +170,6 @@ class RollingBallModel:
         q_w2 = 2.0 * beta * sigma_w**2  # m^2/s^5
         Qc = np.diag([q_w1, q_w1, q_w2, q_w2])
         return A, B, G, Qc
-
-    def matrices(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Phi, Gamma, Q) for the step ``dt_s``, exact, cached per dt (read-only)."""
-        key = float(dt_s)
-        cached = self._cache.get(key)
-        if cached is None:
-            Phi, Gamma, Q = discretize(*self.continuous(), key)
-            cached = self._cache[key] = (_readonly(Phi), _readonly(Gamma), _readonly(Q))
-        return cached
 
     @staticmethod
     def gravity_acceleration(Z_gnd_table: np.ndarray) -> np.ndarray:
@@ -212,7 +224,7 @@ class RollingBallModel:
         return out
 
 
-class ConstantVelocityModel:
+class ConstantVelocityModel(LinearModel):
     """White-acceleration (constant-velocity) model for ``dim`` coordinates.
 
     State (q_1..q_dim, q'_1..q'_dim); q'' = a + w with a an optional input and w white with
@@ -231,7 +243,6 @@ class ConstantVelocityModel:
         C = np.zeros((self.dim, self.n))
         C[:, : self.dim] = np.eye(self.dim)
         self.C = _readonly(C)
-        self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def continuous(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(A, B, G, Qc) of x' = A x + B a + G w."""
@@ -242,17 +253,8 @@ class ConstantVelocityModel:
         B[d:, :] = eye
         return A, B, B.copy(), self.accel_std**2 * eye
 
-    def matrices(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Phi, Gamma, Q) for the step ``dt_s``, exact, cached per dt (read-only)."""
-        key = float(dt_s)
-        cached = self._cache.get(key)
-        if cached is None:
-            Phi, Gamma, Q = discretize(*self.continuous(), key)
-            cached = self._cache[key] = (_readonly(Phi), _readonly(Gamma), _readonly(Q))
-        return cached
 
-
-class TiltLagModel:
+class TiltLagModel(LinearModel):
     """The arm's tilt tracking: a first-order lag from the commanded tilt to the table's.
 
     The arm's joint motors close the fraction k_p of their error every physics step
@@ -273,7 +275,6 @@ class TiltLagModel:
         self.rate_noise_std = float(rate_noise_std)
         self.dim = self.n = int(dim)
         self.C = _readonly(np.eye(self.dim))
-        self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     @classmethod
     def from_arm(
@@ -288,15 +289,6 @@ class TiltLagModel:
         """(A, B, G, Qc) of theta' = A theta + B u + G w."""
         eye = np.eye(self.dim)
         return -eye / self.tau_s, eye / self.tau_s, eye, self.rate_noise_std**2 * eye
-
-    def matrices(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Phi, Gamma, Q) for the step ``dt_s`` with u held, exact, cached per dt."""
-        key = float(dt_s)
-        cached = self._cache.get(key)
-        if cached is None:
-            Phi, Gamma, Q = discretize(*self.continuous(), key)
-            cached = self._cache[key] = (_readonly(Phi), _readonly(Gamma), _readonly(Q))
-        return cached
 
     def rate(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
         """theta' = (u - theta) / tau."""

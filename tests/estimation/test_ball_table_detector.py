@@ -193,6 +193,13 @@ def _check_vouched(detection, info) -> None:
         assert pos_error < WORST_BALL_POS_ERROR_BOUND_M
 
 
+def _detect_frame(detector: BallTableDetector, obs, info):
+    """Both stages on one rendered frame, with its calibration from info."""
+    camera = info["camera"]
+    features = extract_features(obs, camera["K"], camera["T_world_cam"])
+    return detector.detect(features, camera["K"], camera["T_world_cam"])
+
+
 def test_table_out_of_view_is_flagged():
     """Narrow field of view (the corners fall outside the image), and a head moving by
     15 deg: whenever the perfect detector says the table is not all in view, the detector
@@ -205,12 +212,7 @@ def test_table_out_of_view_is_flagged():
         assert not detector.detect(features, camera["K"], camera["T_world_cam"]).table_found
     out_of_view = 0
     for obs, info, measured in _paired(0, 100, camera_motion="head", head_motion_deg=15.0):
-        camera = info["camera"]
-        detection = detector.detect(
-            extract_features(obs, camera["K"], camera["T_world_cam"]),
-            camera["K"],
-            camera["T_world_cam"],
-        )
+        detection = _detect_frame(detector, obs, info)
         if not measured[DETECTED][0]:
             out_of_view += 1
             assert not detection.table_found
@@ -224,12 +226,7 @@ def test_occluder_hides_the_ball():
     detector = BallTableDetector()
     hidden = 0
     for obs, info, measured in _paired(2, 100, occluder_rate_hz=2.0, occluder_pass_s=1.0):
-        camera = info["camera"]
-        detection = detector.detect(
-            extract_features(obs, camera["K"], camera["T_world_cam"]),
-            camera["K"],
-            camera["T_world_cam"],
-        )
+        detection = _detect_frame(detector, obs, info)
         if not measured[DETECTED][1]:
             hidden += 1
             assert not detection.ball_found
