@@ -14,6 +14,8 @@ rolling without slipping ... a = (5/7) g sin(theta)"; the ball goes to the lower
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from observer_gym.envs.transforms import rot_x, rot_y
@@ -67,5 +69,9 @@ def tilt_rates(omega_table: np.ndarray, tilt_y: float) -> tuple[float, float]:
 
 
 def up_in_table(tilt_x: float, tilt_y: float) -> np.ndarray:
-    """Z_gnd,table: the world's up axis in the table frame (spec, "Dynamics")."""
-    return tilt_rotation(tilt_x, tilt_y).T @ np.array([0.0, 0.0, 1.0])
+    """Z_gnd,table: the world's up axis in the table frame (spec, "Dynamics"), the third
+    row of R_x(tilt_x) R_y(tilt_y): (-sin(tilt_y) cos(tilt_x), sin(tilt_x),
+    cos(tilt_y) cos(tilt_x))."""
+    cx, sx = math.cos(tilt_x), math.sin(tilt_x)
+    cy, sy = math.cos(tilt_y), math.sin(tilt_y)
+    return np.array([-sy * cx, sx, cy * cx])

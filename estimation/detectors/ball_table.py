@@ -34,7 +34,12 @@ Beyond the spec, and why (numbers from tests/estimation/test_ball_table_detector
   - outline alone (a red corner painted over): 8.1 mrad
 
   IPPE_SQUARE has the lower tilt error, so it is the default ``pnp_method``; with the
-  outline both methods give the same pose (it only vouches for the red top first).
+  outline both methods give the same pose (the square's PnP only runs when the joint
+  pose fails, to tell why).
+- Beside the red top, the outline's corners come from the red top's: its sides are cut
+  where it reaches farthest toward each red corner, then refined like the red top's
+  (:func:`outline_beside_red_top`); steps 2-5 run on the outline only when the red top
+  gave no corners.
 - The ball's centre is its blob's centroid, taken on the raw pixels of a window around
   the blob (0.05 px RMS against the exact ellipse; minEnclosingCircle's centre 0.13 px,
   and on the blurred mask the shading moved it 0.15 px): see :func:`ball_circle`.
@@ -46,8 +51,10 @@ Beyond the spec, and why (numbers from tests/estimation/test_ball_table_detector
   circle badly, or whose image size does not fit its distance: each gives "not found" with
   a reason (``BallTableFeatures.table_failure``, ``BallTableDetection.failure``).
 
-Cost (``python benchmarks/bench_detector.py``, one core): ~0.6 ms per frame, about 1.8x a
-bare OpenCV pass over the whole frame; the pixel work is done on a region of interest.
+Cost (``python benchmarks/bench_detector.py``, one core): ~0.43 ms per frame, about 1.25x
+a bare OpenCV pass over the whole frame (~0.58 ms and 1.7x with the observer's filters).
+The pixel work is done on a region of interest found by a look at every 4th pixel
+(:func:`locate`), which also finds the ball's window.
 """
 
 from __future__ import annotations
@@ -67,8 +74,10 @@ BORDER_OUTLINE = "border_outline"  # outer top edges of the borders: (+-(L/2 + w
 
 # --- image stage parameters -------------------------------------------------------------
 COARSE_STEP_PX = 4  # the region-of-interest search looks at every 4th pixel
-ROI_MARGIN_PX = 8  # a coarse pixel's reach (3) + blur and morphology (2) + spare
+ROI_MARGIN_PX = 6  # a coarse pixel's reach (3) + the blur's (1) + 1 px outside + spare
 ROI_RED_LOW, ROI_RED_HIGH = (107, 0, 0), (255, 60, 60)  # RGB; the red top is (203, 11, 11)
+# RGB; the ball's lit to shaded green runs from (24, 202, 24) to (15, 122, 15)
+ROI_GREEN_LOW, ROI_GREEN_HIGH = (0, 66, 0), (60, 255, 60)
 BLUR_KSIZE = (3, 3)
 # HLS thresholds (OpenCV units: H in [0, 180), L and S in [0, 255]) for the RGB frame
 # converted as if it were BGR (see to_hls): red is at H = 120 there, green at H = 60.
@@ -89,10 +98,17 @@ BALL_HULL_MARGIN_PX = 0.5  # hull points within rho + this of the ball are dropp
 BALL_EDGE_MARGIN_PX = 2.0  # the refinement ignores outline pixels within rho + this
 SIDE_END_MARGIN_PX = 3  # the refinement leaves out this many pixels at each end of a side
 MIN_SIDE_POINTS = 6
+# Outline corner to red-top corner, of the red top's side: the borders' corner is 1.4 cm
+# (w sqrt 2) out in the table plane plus their 3 cm height's parallax; measured 0.105-0.150
+# on rendered frames (fixed camera, head motion up to 15 deg).
+OUTLINE_CORNER_OFFSET_RANGE = (0.05, 0.3)
 BORDER_PROBES = (0.2, 0.35, 0.5, 0.65, 0.8)  # where the border check looks along each side
 BORDER_PROBE_PX = 2.0  # how far outside (red top) or inside (outline) a side it looks
 BORDER_MIN_DARK_FRACTION = 0.75
 BALL_WINDOW_MARGIN_PX = 3
+# The coarse look's ball window: a coarse pixel's reach (3), a disc's curvature between
+# sampled rows (< 1 px for rho >= 2), the margin above. A blob it cuts is looked for again.
+BALL_COARSE_MARGIN_PX = COARSE_STEP_PX + BALL_WINDOW_MARGIN_PX
 # minEnclosingCircle of the blob's boundary pixel centres is too small: they lie up to a
 # pixel inside the outline (a half on average, less near the ends of the major axis, which
 # set the circle). Measured on 492 rendered frames against the exact ellipse: 0.375 px
@@ -190,27 +206,42 @@ class BallTableDetection(_ComparedByValue):
 
 
 # === image stage =========================================================================
-def table_roi(rgb: np.ndarray) -> tuple[int, int, int, int] | None:
-    """(x0, y0, x1, y1): a box around the table (red top + borders), from a look at every
-    COARSE_STEP_PX-th pixel; None when nothing red is in view. A locator only, so it
-    thresholds the RGB pixels directly (ROI_RED_*), not in HLS: the box around the red
-    blob and the dark region that holds it (the borders; the largest dark thing in view can
-    be the occluder), widened by ROI_MARGIN_PX."""
+class Located(NamedTuple):
+    """What the coarse look (:func:`locate`) found, as boxes (x0, y0, x1, y1) of full-size
+    pixels (end exclusive); None where nothing was seen."""
+
+    table: tuple[int, int, int, int] | None  # the region of interest: red top + borders
+    ball: tuple[int, int, int, int] | None  # a window around the ball's coarse pixels
+
+
+def locate(rgb: np.ndarray) -> Located:
+    """A look at every COARSE_STEP_PX-th pixel: a box around the table (the red blob and
+    the dark region that holds it, i.e. the borders; the largest dark thing in view can be
+    the occluder) and a window around the ball (every green pixel: the ball is the only
+    green thing in view). A locator only, so it thresholds the RGB pixels directly
+    (ROI_RED_*, ROI_GREEN_*), not in HLS. The table box is widened by ROI_MARGIN_PX, the
+    ball's by BALL_COARSE_MARGIN_PX."""
     step = COARSE_STEP_PX
     height, width = rgb.shape[:2]
     small = cv2.resize(rgb, (width // step, height // step), interpolation=cv2.INTER_NEAREST)
+
+    def box(rect: tuple[int, int, int, int], margin: int) -> tuple[int, int, int, int]:
+        x, y, w, h = rect
+        return (
+            max(x * step - margin, 0),
+            max(y * step - margin, 0),
+            min((x + w - 1) * step + 1 + margin, width),
+            min((y + h - 1) * step + 1 + margin, height),
+        )
+
+    green = cv2.boundingRect(cv2.inRange(small, ROI_GREEN_LOW, ROI_GREEN_HIGH))
+    ball = box(green, BALL_COARSE_MARGIN_PX) if green[2] else None
     red = cv2.inRange(small, ROI_RED_LOW, ROI_RED_HIGH)
     red_top = _largest_contour(red, (0, 0))
     if red_top is None:
-        return None
+        return Located(None, ball)
     table = _contour_holding(cv2.bitwise_or(red, dark_mask(small)), (0, 0), red_top)
-    x, y, w, h = cv2.boundingRect(table)
-    return (
-        max(x * step - ROI_MARGIN_PX, 0),
-        max(y * step - ROI_MARGIN_PX, 0),
-        min((x + w - 1) * step + 1 + ROI_MARGIN_PX, width),
-        min((y + h - 1) * step + 1 + ROI_MARGIN_PX, height),
-    )
+    return Located(box(cv2.boundingRect(table), ROI_MARGIN_PX), ball)
 
 
 def blur(rgb: np.ndarray) -> np.ndarray:
@@ -227,29 +258,31 @@ def to_hls(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb, cv2.COLOR_BGR2HLS)
 
 
-def color_masks(hls: np.ndarray, blurred: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(red, green, dark) masks: table step 1's and ball step 1's inRange, and the black
-    borders (with any other dark pixels) for the outline."""
-    return (
-        cv2.inRange(hls, RED_LOW, RED_HIGH),
-        cv2.inRange(hls, GREEN_LOW, GREEN_HIGH),
-        dark_mask(blurred),
-    )
+def red_mask(hls: np.ndarray) -> np.ndarray:
+    """Table step 1: inRange on the red hue range, then the morphological clean-up."""
+    return clean_mask(cv2.inRange(hls, RED_LOW, RED_HIGH))
 
 
 def dark_mask(rgb: np.ndarray) -> np.ndarray:
-    """The black borders (and other dark pixels) of the (blurred) RGB frame."""
+    """The black borders (and other dark pixels) of the (blurred) RGB frame, for the
+    outline."""
     return cv2.inRange(rgb, (0, 0, 0), DARK_HIGH_RGB)
 
 
 _KERNEL = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
+_KERNEL_5 = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
 
 
 def clean_mask(mask: np.ndarray) -> np.ndarray:
     """Table step 1: morphological open (specks) then close (pinholes), 3x3. A digital
-    straight edge survives both unchanged; corners are rounded by about a pixel."""
-    opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL)
-    return cv2.morphologyEx(opened, cv2.MORPH_CLOSE, _KERNEL)
+    straight edge survives both unchanged; corners are rounded by about a pixel.
+
+    Written as erode 3x3, dilate 5x5, erode 3x3: the open's dilation and the close's
+    are one 5x5 dilation (a 3x3 square plus a 3x3 square is a 5x5 one, also at the image's
+    edge, which both ignore), so three passes instead of four; the masks are the same as
+    morphologyEx's open then close (checked on every rendered frame of the benchmark and on
+    random masks)."""
+    return cv2.erode(cv2.dilate(cv2.erode(mask, _KERNEL), _KERNEL_5), _KERNEL)
 
 
 def _largest_contour(mask: np.ndarray, offset: tuple[int, int]) -> np.ndarray | None:
@@ -259,6 +292,8 @@ def _largest_contour(mask: np.ndarray, offset: tuple[int, int]) -> np.ndarray | 
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=offset)
     if not contours:
         return None
+    if len(contours) == 1:
+        return contours[0]
     return max(contours, key=cv2.contourArea)
 
 
@@ -267,6 +302,8 @@ def _contour_holding(mask: np.ndarray, offset: tuple[int, int], inner: np.ndarra
     ``mask``): the red top's own outline in the red + dark mask, not the largest dark
     thing in view (the grey occluder can be larger)."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=offset)
+    if len(contours) == 1:
+        return contours[0]
     seed = (float(inner[0, 0, 0]), float(inner[0, 0, 1]))
     for contour in contours:
         if cv2.pointPolygonTest(contour, seed, False) >= 0:
@@ -274,8 +311,9 @@ def _contour_holding(mask: np.ndarray, offset: tuple[int, int], inner: np.ndarra
     return max(contours, key=cv2.contourArea)  # not reached: mask holds inner
 
 
-def _touches_image_edge(contour: np.ndarray, image_size: tuple[int, int]) -> bool:
-    x, y, w, h = cv2.boundingRect(contour)
+def _touches_image_edge(rect: tuple[int, int, int, int], image_size: tuple[int, int]) -> bool:
+    """Whether a bounding rectangle (x, y, w, h) reaches the image's edge."""
+    x, y, w, h = rect
     return x <= 0 or y <= 0 or x + w >= image_size[0] or y + h >= image_size[1]
 
 
@@ -292,44 +330,77 @@ def table_outlines(
     return red_contour, _contour_holding(cv2.bitwise_or(red, dark), offset, red_contour)
 
 
+_CUT = "cut"  # the ball's window cut its blob: look again in a wider one
+
+
 def ball_circle(
-    green: np.ndarray, rgb: np.ndarray, offset: tuple[int, int]
+    rgb: np.ndarray,
+    window: tuple[int, int, int, int] | None,
+    hls: np.ndarray,
+    offset: tuple[int, int],
 ) -> tuple[np.ndarray | None, str | None]:
     """Ball step 1 -> ((u, v, rho), None) or (None, reason).
 
-    inRange on green gives the ball's blob (the only green thing in view). The blur blends the
-    ball's shaded green with the red top, and where a blend crosses a fixed hue threshold
-    depends on the shade (more of the dark side's edge is lost): on rendered frames that
-    moved the centre 0.15 px toward the light. So the blob is taken again from the raw
-    pixels of a window around it (the renderer draws flat colours, so this mask is exact).
-    Its centroid is the centre c (the centroid of a filled ellipse is its centre: 0.05 px
-    RMS against the exact ellipse, where minEnclosingCircle's centre, set by two or three
-    extreme pixels, gave 0.13 px); minEnclosingCircle gives rho, plus
+    inRange on green gives the ball's blob (the only green thing in view), in a window of
+    the raw frame: the coarse look's (:func:`locate`) or, when that saw no green or its
+    window cuts the blob, the one around every green pixel of the blurred region of
+    interest (``hls``, at ``offset``). Raw pixels, because the blur blends the ball's
+    shaded green with the red top, and where a blend crosses a fixed hue threshold depends
+    on the shade (more of the dark side's edge is lost): on rendered frames that moved the
+    centre 0.15 px toward the light; the renderer draws flat colours, so the raw mask is
+    exact. Its centroid is the centre c (the centroid of a filled ellipse is its centre:
+    0.05 px RMS against the exact ellipse, where minEnclosingCircle's centre, set by two
+    or three extreme pixels, gave 0.13 px); minEnclosingCircle gives rho, plus
     BALL_RADIUS_CORRECTION_PX (the boundary pixel centres lie inside the outline).
     """
-    x, y, w, h = cv2.boundingRect(green)  # of every green pixel: the ball is the only green
+    if window is not None:
+        found = _ball_in_window(rgb, window, cut_is_final=False)
+        if found[1] is not _CUT:
+            return found
+    x, y, w, h = cv2.boundingRect(cv2.inRange(hls, GREEN_LOW, GREEN_HIGH))
     if w == 0:
         return None, "no_blob"
-    x, y = x + offset[0], y + offset[1]
     height, width = rgb.shape[:2]
-    x0, y0 = max(x - BALL_WINDOW_MARGIN_PX, 0), max(y - BALL_WINDOW_MARGIN_PX, 0)
-    x1 = min(x + w + BALL_WINDOW_MARGIN_PX, width)
-    y1 = min(y + h + BALL_WINDOW_MARGIN_PX, height)
-    window = cv2.inRange(to_hls(rgb[y0:y1, x0:x1]), GREEN_LOW, GREEN_HIGH)
-    contours, _ = cv2.findContours(
-        window, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x0, y0)
+    x, y = x + offset[0], y + offset[1]
+    margin = BALL_WINDOW_MARGIN_PX
+    window = (
+        max(x - margin, 0),
+        max(y - margin, 0),
+        min(x + w + margin, width),
+        min(y + h + margin, height),
     )
-    if len(contours) != 1:  # none, or the ball cut in parts (by the occluder)
-        return None, "no_blob" if not contours else "partly_hidden"
-    contour = contours[0]
-    if _touches_image_edge(contour, (width, height)):
+    return _ball_in_window(rgb, window, cut_is_final=True)
+
+
+def _ball_in_window(
+    rgb: np.ndarray, window: tuple[int, int, int, int], cut_is_final: bool
+) -> tuple[np.ndarray | None, str | None]:
+    """:func:`ball_circle` in one window of the raw frame; (None, _CUT) when the blob
+    reaches a side of the window that is not the image's edge (unless ``cut_is_final``).
+    The raw pixels are flat colours, so green is thresholded in RGB (ROI_GREEN_*): the
+    same mask as GREEN_* in HLS on every rendered frame checked (402, with the occluder
+    and head motion), without converting the window."""
+    x0, y0, x1, y1 = window
+    height, width = rgb.shape[:2]
+    mask = cv2.inRange(rgb[y0:y1, x0:x1], ROI_GREEN_LOW, ROI_GREEN_HIGH)
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0:
+        return None, "no_blob"
+    if not cut_is_final and (
+        (x == 0 < x0) or (y == 0 < y0) or (x0 + x + w == x1 < width) or (y0 + y + h == y1 < height)
+    ):
+        return None, _CUT
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if len(contours) != 1:  # the ball cut in parts (by the occluder)
+        return None, "partly_hidden"
+    if _touches_image_edge((x0 + x, y0 + y, w, h), (width, height)):
         return None, "clipped"
-    _, rho = cv2.minEnclosingCircle(contour)
+    _, rho = cv2.minEnclosingCircle(contours[0])
     rho += BALL_RADIUS_CORRECTION_PX
     if rho < MIN_BALL_RADIUS_PX:
         return None, "too_small"
-    moments = cv2.moments(window, binaryImage=True)
-    if moments["m00"] < MIN_BALL_FILL * np.pi * rho * rho:  # a partly hidden ball
+    moments = cv2.moments(mask, binaryImage=True)
+    if moments["m00"] < MIN_BALL_FILL * math.pi * rho * rho:  # a partly hidden ball
         return None, "partly_hidden"
     u = x0 + moments["m10"] / moments["m00"]
     v = y0 + moments["m01"] / moments["m00"]
@@ -340,8 +411,8 @@ class CoarseQuad(NamedTuple):
     """A quadrilateral found on an outline: its corners and, for each side, the range of
     the outline's pixels between the side's two hull vertices."""
 
-    corners: np.ndarray  # (4, 2), corner k ends side k (outline order)
-    arcs: tuple[tuple[int, int], ...]  # side k: contour indices [start, end), cyclic
+    corners: list[tuple[float, float]]  # corner k ends side k (outline order)
+    arcs: list[tuple[int, int]]  # side k: contour indices [start, end), cyclic
 
 
 def coarse_corners(
@@ -361,38 +432,41 @@ def coarse_corners(
     """
     if contour is None:
         return None, "no_blob"
-    if _touches_image_edge(contour, image_size):
-        return None, "clipped"
     hull_index = cv2.convexHull(contour, returnPoints=False).ravel()
-    hull = contour[hull_index]
+    hull = contour[hull_index].reshape(-1, 2)
+    if _touches_image_edge(cv2.boundingRect(hull), image_size):  # its extremes are the hull's
+        return None, "clipped"
     poly = cv2.approxPolyDP(hull, APPROX_EPSILON_FRACTION * image_size[0], True)
-    index_of = dict(zip(map(tuple, hull.reshape(-1, 2).tolist()), hull_index.tolist(), strict=True))
-    vertices = [(x, y, index_of[(x, y)]) for x, y in poly.reshape(-1, 2).tolist()]
+    # Each vertex with its index in the contour, through its hull point (x, y) -> x * 2^16 + y.
+    keys = (hull[:, 0] * 65536 + hull[:, 1]).tolist()
+    index_of = dict(zip(keys, hull_index.tolist(), strict=True))
+    vertices = [(x, y, index_of[x * 65536 + y]) for x, y in poly.reshape(-1, 2).tolist()]
     if ball_px is not None:  # step 3
-        bu, bv = float(ball_px[0]), float(ball_px[1])
-        reach2 = (float(ball_px[2]) + BALL_HULL_MARGIN_PX) ** 2
+        bu, bv, rho = ball_px.tolist()
+        reach2 = (rho + BALL_HULL_MARGIN_PX) ** 2
         vertices = [p for p in vertices if (p[0] - bu) ** 2 + (p[1] - bv) ** 2 > reach2]
     n = len(vertices)
     if n < 4:
         return None, "corners"
     size = len(contour)
     # The hull runs along the contour one way or the other: one lap forward, or n - 1.
-    forward = sum((vertices[(i + 1) % n][2] - vertices[i][2]) % size for i in range(n)) == size
-    segments = []  # (x, y, dx, dy, squared length, arc)
+    forward = sum((vertices[i][2] - vertices[i - 1][2]) % size for i in range(n)) == size
+    segments = []  # (squared length, x, y, dx, dy, arc), in outline order
     for i in range(n):
         (x, y, a), (x1, y1, b) = vertices[i], vertices[(i + 1) % n]
-        arc = (a, b) if forward else (b, a)
-        segments.append((x, y, x1 - x, y1 - y, (x1 - x) ** 2 + (y1 - y) ** 2, arc))
-    longest = sorted(sorted(range(n), key=lambda i: -segments[i][4])[:4])  # in outline order
-    segments = [segments[i] for i in longest]
-    corners = np.empty((4, 2))
+        dx, dy = x1 - x, y1 - y
+        segments.append((dx * dx + dy * dy, x, y, dx, dy, (a, b) if forward else (b, a)))
+    if n > 4:  # the 4 longest, still in outline order
+        longest = sorted(sorted(range(n), key=lambda i: -segments[i][0])[:4])
+        segments = [segments[i] for i in longest]
+    corners = [(0.0, 0.0)] * 4
     for a in range(4):
+        _, xa, ya, dxa, dya, _ = segments[a]
         for b in range(a + 1, 4):
-            xa, ya, dxa, dya = segments[a][:4]
-            xb, yb, dxb, dyb = segments[b][:4]
+            _, xb, yb, dxb, dyb, _ = segments[b]
             denominator = dxa * dyb - dya * dxb
             if abs(denominator) < 1e-9:
-                if b - a in (1, 3):
+                if b - a != 2:
                     return None, "corners"  # neighbouring sides must meet
                 continue
             gx, gy = xb - xa, yb - ya
@@ -406,19 +480,12 @@ def coarse_corners(
             if not valid:
                 return None, "corners"
             corners[a if b == a + 1 else b] = (xa + s_a * dxa, ya + s_a * dya)
-    return CoarseQuad(corners, tuple(segment[5] for segment in segments)), None
-
-
-def _arc(contour: np.ndarray, start: int, end: int) -> np.ndarray:
-    """contour[start:end], cyclic."""
-    if start <= end:
-        return contour[start:end]
-    return np.concatenate([contour[start:], contour[:end]])
+    return CoarseQuad(corners, [s[5] for s in segments]), None
 
 
 def refine_corners(
     contour: np.ndarray, quad: CoarseQuad, ball_px: np.ndarray | None
-) -> tuple[np.ndarray | None, str | None]:
+) -> tuple[list[tuple[float, float]] | None, str | None]:
     """Sub-pixel corners, or (None, "refinement"): each side's line is fitted (cv2.fitLine)
     to the outline's pixels between its two hull vertices, less SIDE_END_MARGIN_PX at each
     end (rounded corners) and those near the ball; the lines are intersected.
@@ -431,83 +498,96 @@ def refine_corners(
     """
     size = len(contour)
     margin = SIDE_END_MARGIN_PX
-    fits = np.empty((4, 4))
     corners = quad.corners
+    ball = None if ball_px is None else ball_px.tolist()
+    lines = []
     for k, (start, end) in enumerate(quad.arcs):
         if (end - start) % size - 2 * margin < MIN_SIDE_POINTS:
             return None, "refinement"
-        points = _arc(contour, (start + margin) % size, (end - margin) % size)
-        if ball_px is not None and _ball_near_side(ball_px, corners[k - 1], corners[k]):
+        a, b = (start + margin) % size, (end - margin) % size
+        points = contour[a:b] if a <= b else np.concatenate((contour[a:], contour[:b]))
+        if ball is not None and _near_segment(
+            *ball, corners[k - 1], corners[k], BALL_EDGE_MARGIN_PX
+        ):
             offsets = points.reshape(-1, 2) - ball_px[:2]
-            reach = ball_px[2] + BALL_EDGE_MARGIN_PX
-            points = points[np.sum(offsets * offsets, axis=1) > reach * reach]
+            reach = ball[2] + BALL_EDGE_MARGIN_PX
+            points = points[np.einsum("ij,ij->i", offsets, offsets) > reach * reach]
             if len(points) < MIN_SIDE_POINTS:
                 return None, "refinement"
-        fits[k] = cv2.fitLine(points, cv2.DIST_L2, 0, 0.01, 0.01).ravel()[[2, 3, 0, 1]]
-    refined = _intersect_sides(fits, corners.mean(axis=0))
-    if refined is None:
-        return None, "refinement"
-    return refined, None
+        lines.append(cv2.fitLine(points, cv2.DIST_L2, 0, 0.01, 0.01).ravel().tolist())
+    return _intersect_sides(lines, corners)
 
 
-def _ball_near_side(ball_px: np.ndarray, start: np.ndarray, end: np.ndarray) -> bool:
-    """Whether the ball's image comes within BALL_EDGE_MARGIN_PX of the segment."""
-    (bu, bv, rho), (x0, y0), (x1, y1) = ball_px.tolist(), start.tolist(), end.tolist()
+def _near_segment(bu: float, bv: float, rho: float, start, end, margin: float) -> bool:
+    """Whether the circle (bu, bv, rho) comes within ``margin`` (+ 1 px) of the segment
+    start-end."""
+    (x0, y0), (x1, y1) = start, end
+    reach = rho + margin + 1.0
     dx, dy = x1 - x0, y1 - y0
     s = min(max(((bu - x0) * dx + (bv - y0) * dy) / (dx * dx + dy * dy), 0.0), 1.0)
-    reach = rho + BALL_EDGE_MARGIN_PX + 1.0
     return (x0 + s * dx - bu) ** 2 + (y0 + s * dy - bv) ** 2 < reach * reach
 
 
-def _intersect_sides(fits: np.ndarray, centre: np.ndarray) -> np.ndarray | None:
-    """Corner k where side k meets side k+1, after moving each fitted line out by the
-    half-pixel bias (see :func:`refine_corners`)."""
-    cx, cy = float(centre[0]), float(centre[1])
-    lines = []
-    for x0, y0, vx, vy in fits.tolist():
+def _intersect_sides(
+    lines: list[list[float]], coarse: list[tuple[float, float]]
+) -> tuple[list[tuple[float, float]] | None, str | None]:
+    """Corner k where side k meets side k+1, after moving each fitted line (cv2.fitLine's
+    vx, vy, x0, y0) out by the half-pixel bias (see :func:`refine_corners`)."""
+    cx = 0.25 * (coarse[0][0] + coarse[1][0] + coarse[2][0] + coarse[3][0])
+    cy = 0.25 * (coarse[0][1] + coarse[1][1] + coarse[2][1] + coarse[3][1])
+    shifted = []
+    for vx, vy, x0, y0 in lines:
         nx, ny = -vy, vx
         if (x0 - cx) * nx + (y0 - cy) * ny < 0.0:
             nx, ny = vy, -vx  # outward
         shift = 0.5 * max(abs(nx), abs(ny))
-        lines.append((x0 + shift * nx, y0 + shift * ny, vx, vy))
-    corners = np.empty((4, 2))
+        shifted.append((x0 + shift * nx, y0 + shift * ny, vx, vy))
+    corners = []
     for k in range(4):
-        (px, py, ux, uy), (qx, qy, vx, vy) = lines[k], lines[(k + 1) % 4]
+        (px, py, ux, uy), (qx, qy, vx, vy) = shifted[k], shifted[k - 3]
         denominator = ux * vy - uy * vx
         if abs(denominator) < 1e-9:
-            return None
+            return None, "refinement"
         s = ((qx - px) * vy - (qy - py) * vx) / denominator
-        corners[k] = (px + s * ux, py + s * uy)
-    return corners
+        corners.append((px + s * ux, py + s * uy))
+    return corners, None
 
 
-def order_corners(corners: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray | None:
+def image_axes(K: np.ndarray, T_world_cam: np.ndarray) -> list[list[float]]:
+    """K d for d = R_world_cam^T e, e the world's +x and +y: how a point moving along them
+    moves in the image (see :func:`order_corners`); once per frame, for both outlines."""
+    return (K @ T_world_cam[:3, :2]).T.tolist()
+
+
+def order_corners(
+    corners: list[tuple[float, float]], axes: list[list[float]]
+) -> list[tuple[float, float]] | None:
     """Table step 5's ordering, in TABLE_CORNERS_TABLE order: (+,+), (-,+), (-,-), (+,-).
 
     The table tilts by at most ~0.3 rad and keeps its home yaw, at which its x, y axes are
     the world's; so the signs of each corner's offset from the quadrilateral's centre along
     the images of world +x and +y (in that non-orthogonal image basis) name the corner.
     A point at pixel p moving along world direction e moves in the image along
-    (K d)_uv - p (K d)_3 with d = R_world_cam^T e, whatever its depth. None when the signs
-    do not give one corner per quadrant.
+    (K d)_uv - p (K d)_3 with d = R_world_cam^T e, whatever its depth (``axes``:
+    :func:`image_axes`). None when the signs do not give one corner per quadrant.
     """
-    cu, cv = corners.mean(axis=0).tolist()
-    kx, ky = (K @ T_world_cam[:3, :2]).T.tolist()  # K d for world +x and +y
+    cu = 0.25 * (corners[0][0] + corners[1][0] + corners[2][0] + corners[3][0])
+    cv = 0.25 * (corners[0][1] + corners[1][1] + corners[2][1] + corners[3][1])
+    kx, ky = axes
     ax, ay = kx[0] - cu * kx[2], kx[1] - cv * kx[2]
     bx, by = ky[0] - cu * ky[2], ky[1] - cv * ky[2]
     determinant = ax * by - ay * bx
     if abs(determinant) < 1e-12:
         return None
-    slots = []
-    for u, v in corners.tolist():
+    ordered = [None] * 4
+    for u, v in corners:
         du, dv = u - cu, v - cv
-        along_x = (du * by - dv * bx) / determinant
-        along_y = (ax * dv - ay * du) / determinant
-        slots.append(_QUADRANT_SLOT[(along_x > 0.0, along_y > 0.0)])
-    if sorted(slots) != [0, 1, 2, 3]:
-        return None
-    ordered = np.empty((4, 2))
-    ordered[slots] = corners
+        along_x = (du * by - dv * bx) * determinant > 0.0
+        along_y = (ax * dv - ay * du) * determinant > 0.0
+        slot = _QUADRANT_SLOT[along_x, along_y]
+        if ordered[slot] is not None:
+            return None
+        ordered[slot] = (u, v)
     return ordered
 
 
@@ -515,7 +595,7 @@ _QUADRANT_SLOT = {(True, True): 0, (False, True): 1, (False, False): 2, (True, F
 
 
 def borders_confirmed(
-    corners: np.ndarray,
+    corners: list[tuple[float, float]],
     hls: np.ndarray,
     offset: tuple[int, int],
     ball_px: np.ndarray | None,
@@ -526,51 +606,118 @@ def borders_confirmed(
     something else (the occluder's edge, the image's edge, paint) fails. (Plain Python:
     a few dozen probes.)"""
     height, width = hls.shape[:2]
-    points = corners.tolist()
-    cu, cv = corners.mean(axis=0).tolist()
-    bu, bv, reach2 = 0.0, 0.0, -1.0
-    if ball_px is not None:
-        bu, bv = float(ball_px[0]), float(ball_px[1])
-        reach2 = (float(ball_px[2]) + BORDER_PROBE_PX) ** 2
+    lightness = hls[:, :, 1]
+    ox, oy = offset
+    cu = 0.25 * (corners[0][0] + corners[1][0] + corners[2][0] + corners[3][0])
+    cv = 0.25 * (corners[0][1] + corners[1][1] + corners[2][1] + corners[3][1])
     shift = BORDER_PROBE_PX if outside else -BORDER_PROBE_PX
+    bu, bv, reach2 = 0.0, 0.0, -1.0  # probes within reach of the ball's centre are skipped
+    if ball_px is not None:
+        bu, bv, rho = ball_px.tolist()
+        reach2 = (rho + BORDER_PROBE_PX) ** 2
     for k in range(4):
-        (x0, y0), (x1, y1) = points[k], points[(k + 1) % 4]
+        (x0, y0), (x1, y1) = corners[k], corners[k - 3]
         dx, dy = x1 - x0, y1 - y0
         length = math.hypot(dx, dy)
         nx, ny = -dy / length, dx / length
         if (x0 - cu) * nx + (y0 - cv) * ny < 0.0:
             nx, ny = -nx, -ny  # outward
+        sx, sy = x0 + shift * nx, y0 + shift * ny
         used = dark = 0
         for f in BORDER_PROBES:
-            x, y = x0 + f * dx + shift * nx, y0 + f * dy + shift * ny
+            x, y = sx + f * dx, sy + f * dy
             if (x - bu) ** 2 + (y - bv) ** 2 <= reach2:
                 continue
-            i, j = round(x) - offset[0], round(y) - offset[1]
+            i, j = round(x) - ox, round(y) - oy
             if 0 <= i < width and 0 <= j < height:
                 used += 1
-                dark += int(hls[j, i, 1]) < BORDER_PROBE_MAX_L
+                if lightness[j, i] < BORDER_PROBE_MAX_L:
+                    dark += 1
         if used < 3 or dark < BORDER_MIN_DARK_FRACTION * used:
             return False
     return True
 
 
 def check_corners(
-    corners: np.ndarray,
+    corners: list[tuple[float, float]],
     hls: np.ndarray,
     offset: tuple[int, int],
     ball_px: np.ndarray | None,
-    K: np.ndarray,
-    T_world_cam: np.ndarray,
+    axes: list[list[float]],
     model: str,
 ) -> tuple[np.ndarray | None, str | None]:
     """Refined corners of ``model`` named (table step 5's ordering) and their borders
-    confirmed, or (None, reason)."""
-    ordered = order_corners(corners, K, T_world_cam)
+    confirmed, as a (4, 2) array, or (None, reason)."""
+    ordered = order_corners(corners, axes)
     if ordered is None:
         return None, "ordering"
     if not borders_confirmed(ordered, hls, offset, ball_px, outside=model == RED_TOP):
         return None, "borders"
-    return ordered, None
+    return np.array(ordered), None
+
+
+def find_corners(
+    model: str,
+    contour: np.ndarray | None,
+    image_size: tuple[int, int],
+    ball_px: np.ndarray | None,
+    hls: np.ndarray,
+    offset: tuple[int, int],
+    axes: list[list[float]],
+) -> tuple[np.ndarray | None, str | None]:
+    """Table steps 2-5 (up to PnP) on one outline: its named corners, or (None, reason)."""
+    quad, failure = coarse_corners(contour, image_size, ball_px)
+    if quad is None:
+        return None, failure
+    corners, failure = refine_corners(contour, quad, ball_px)
+    if corners is None:
+        return None, failure
+    return check_corners(corners, hls, offset, ball_px, axes, model)
+
+
+def outline_beside_red_top(
+    contour: np.ndarray | None,
+    red_corners: np.ndarray,
+    image_size: tuple[int, int],
+    ball_px: np.ndarray | None,
+) -> tuple[np.ndarray | None, str | None]:
+    """The borders' outline's named corners once the red top's are known, or (None,
+    reason): the cheap path beside the red top, in place of steps 2-5 on the outline.
+
+    Outline corner k is the outline's farthest pixel from the red top's centre in the
+    direction of red corner k (the borders run parallel to the red top's sides, a few
+    pixels out), which names it; it must lie OUTLINE_CORNER_OFFSET_RANGE of the red top's
+    side from red corner k. Those 4 pixels cut the outline into its sides, which are
+    refined like the red top's (:func:`refine_corners`). No border probes here: the joint
+    pose checks all 8 corners against each other (``BallTableDetector.table_pose``), and a
+    side made by anything but the borders puts its two corners off by more than that
+    allows; on the occluder and head-motion frames of the tests the same frames are found
+    with or without them.
+    """
+    if contour is None:
+        return None, "no_blob"
+    if _touches_image_edge(cv2.boundingRect(contour), image_size):
+        return None, "clipped"
+    red = red_corners.tolist()
+    cu = 0.25 * (red[0][0] + red[1][0] + red[2][0] + red[3][0])
+    cv = 0.25 * (red[0][1] + red[1][1] + red[2][1] + red[3][1])
+    directions = np.array([[x - cu for x, _ in red], [y - cv for _, y in red]])
+    points = contour.reshape(-1, 2)
+    index = (points @ directions).argmax(axis=0).tolist()
+    coarse = points[index].tolist()
+    side = 0.25 * sum(math.dist(red[k - 1], red[k]) for k in range(4))
+    low, high = (fraction * side for fraction in OUTLINE_CORNER_OFFSET_RANGE)
+    if not all(low <= math.dist(red[k], coarse[k]) <= high for k in range(4)):
+        return None, "corners"
+    size = len(points)
+    forward = sum((index[k] - index[k - 1]) % size for k in range(4)) == size
+    if not forward and sum((index[k - 1] - index[k]) % size for k in range(4)) != size:
+        return None, "corners"
+    arcs = [(index[k - 1], index[k]) if forward else (index[k], index[k - 1]) for k in range(4)]
+    corners, failure = refine_corners(contour, CoarseQuad(coarse, arcs), ball_px)
+    if corners is None:
+        return None, failure
+    return np.array(corners), None
 
 
 def assemble_features(
@@ -597,29 +744,28 @@ def extract_features(rgb: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) ->
     """The image stage on one RGB frame (uint8, HxWx3) with its calibration.
 
     ``T_world_cam`` only serves to name the corners (:func:`order_corners`). The pixel work
-    is done on a region of interest around the table (:func:`table_roi`).
+    is done on a region of interest around the table, found by a coarse look
+    (:func:`locate`), which also finds the ball's window.
     """
     height, width = rgb.shape[:2]
     image_size = (width, height)
-    roi = table_roi(rgb)
-    x0, y0, x1, y1 = roi if roi is not None else (0, 0, width, height)
+    located = locate(rgb)
+    x0, y0, x1, y1 = located.table or (0, 0, width, height)
     offset = (x0, y0)
-    blurred = blur(rgb[y0:y1, x0:x1])
+    blurred = blur(rgb[y0:y1, x0:x1])  # table step 1
     hls = to_hls(blurred)
-    red, green, dark = color_masks(hls, blurred)
-    red = clean_mask(red)
-    ball_px, ball_failure = ball_circle(green, rgb, offset)
-    red_contour, outline_contour = table_outlines(red, dark, offset)
-    outlines = {RED_TOP: red_contour, BORDER_OUTLINE: outline_contour}
-    found = {}
-    for model, contour in outlines.items():
-        corners, failure = coarse_corners(contour, image_size, ball_px)
-        if corners is not None:
-            corners, failure = refine_corners(contour, corners, ball_px)
-        if corners is not None:
-            corners, failure = check_corners(corners, hls, offset, ball_px, K, T_world_cam, model)
-        found[model] = (corners, failure)
-    return assemble_features(found, ball_px, ball_failure)
+    red, dark = red_mask(hls), dark_mask(blurred)
+    ball_px, ball_failure = ball_circle(rgb, located.ball, hls, offset)  # ball step 1
+    red_contour, outline_contour = table_outlines(red, dark, offset)  # table step 2
+    axes = image_axes(K, T_world_cam)
+    red = find_corners(RED_TOP, red_contour, image_size, ball_px, hls, offset, axes)
+    if red[0] is not None:
+        outline = outline_beside_red_top(outline_contour, red[0], image_size, ball_px)
+    else:
+        outline = find_corners(
+            BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
+        )
+    return assemble_features({RED_TOP: red, BORDER_OUTLINE: outline}, ball_px, ball_failure)
 
 
 def features_from_measurement(obs: dict) -> BallTableFeatures:
@@ -691,7 +837,7 @@ def _reprojection_px(points_table: list, corners_px: np.ndarray, K, R_cam_table,
     """Each corner's reprojection error, px (inf if a corner is behind the camera). Plain
     Python floats: a few points, where NumPy's per-call cost would dominate."""
     (r0, r1, r2), (tx, ty, tz) = R_cam_table.tolist(), t_cam_table.tolist()
-    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    (fx, _, cx), (_, fy, cy), _ = K.tolist()
     errors = []
     for (x, y, z), (u, v) in zip(points_table, corners_px.tolist(), strict=True):
         depth = r2[0] * x + r2[1] * y + r2[2] * z + tz
@@ -749,12 +895,12 @@ class BallTableDetector:
         T_cam_table[:3, :3], T_cam_table[:3, 3] = R_cam_table, t_cam_table
         T_world_table = T_world_cam @ T_cam_table
         R_world_table = T_world_table[:3, :3]
-        tilt_x, tilt_y = geo.tilt_angles(R_world_table)
-        tilt = np.array([tilt_x, tilt_y])
-        yaw = math.atan2(R_world_table[1, 0], R_world_table[0, 0])
+        # geo.tilt_angles and the yaw, on plain floats.
+        (r00, _, r02), (r10, _, r12), (_, _, r22) = R_world_table.tolist()
+        tilt_x, tilt_y = math.atan2(-r12, r22), math.asin(min(max(r02, -1.0), 1.0))
         if (
             max(abs(tilt_x), abs(tilt_y)) > MAX_PLAUSIBLE_TILT_RAD
-            or abs(yaw) > MAX_PLAUSIBLE_YAW_RAD
+            or abs(math.atan2(r10, r00)) > MAX_PLAUSIBLE_YAW_RAD
         ):
             return BallTableDetection(
                 False, False, features.corner_model, failure="table: implausible pose"
@@ -764,7 +910,7 @@ class BallTableDetector:
             "R_cam_table": R_cam_table,
             "t_cam_table": t_cam_table,
             "T_world_table": T_world_table,
-            "tilt_rad": tilt,
+            "tilt_rad": np.array([tilt_x, tilt_y]),
             "up_in_table": R_world_table[2].copy(),  # Z_gnd,table = R_world_table^T e_z
             "corner_reprojection_px": reprojection_px,
         }
@@ -787,8 +933,26 @@ class BallTableDetector:
 
     def table_pose(self, features: BallTableFeatures, K: np.ndarray):
         """Table step 5: PnP -> (R_cam_table, t_cam_table, RMS corner reprojection px), or
-        the reason the pose was rejected."""
+        the reason the pose was rejected.
+
+        With the outline beside the red top, the joint 8-corner pose comes first: when it
+        fits every corner within MAX_JOINT_REPROJECTION_PX it also vouches for the red top
+        (the square's own PnP could only fit its 4 corners better, well within
+        MAX_SQUARE_RMS_PX), so the square's PnP only runs when the joint pose fails, to
+        tell why: the red top is no square, or it and the outline disagree.
+        """
         corners_px, model = features.corners_px, features.corner_model
+        outline = features.outline_corners_px
+        if self.use_outline and model == RED_TOP and outline is not None:
+            joint = self._joint_pose(np.concatenate((corners_px, outline)), K)
+            if not isinstance(joint, str):
+                return joint
+            square = self._square_pose(corners_px, model, K)
+            return square if isinstance(square, str) else joint
+        return self._square_pose(corners_px, model, K)
+
+    def _square_pose(self, corners_px: np.ndarray, model: str, K: np.ndarray):
+        """The pose from one model's 4 corners (``pnp_method``), or why it was rejected."""
         square_points, image_order = _PNP_SQUARES[(model, self._flag)]
         image_points = corners_px[image_order] if image_order is not None else corners_px
         ok, rvec, tvec = cv2.solvePnP(square_points, image_points, K, None, flags=self._flag)
@@ -800,21 +964,24 @@ class BallTableDetector:
         errors_px = _reprojection_px(_CORNERS_TABLE[model], corners_px, K, R_cam_table, t_cam_table)
         if not _rms(errors_px) <= MAX_SQUARE_RMS_PX:
             return "table: corners are no square"
-        outline = features.outline_corners_px
-        if self.use_outline and model == RED_TOP and outline is not None:
-            points_px = np.vstack([corners_px, outline])
-            ok, rvec, tvec = cv2.solvePnP(
-                _JOINT_CORNERS_TABLE, points_px, K, None, flags=cv2.SOLVEPNP_SQPNP
-            )
-            if not ok:
-                return "table: joint PnP failed"
-            R_cam_table, _ = cv2.Rodrigues(rvec)
-            t_cam_table = tvec.reshape(3)
-            errors_px = _reprojection_px(
-                _CORNERS_TABLE["joint"], points_px, K, R_cam_table, t_cam_table
-            )
-            if not max(errors_px) <= MAX_JOINT_REPROJECTION_PX:
-                return "table: red top and border outline disagree"
+        return R_cam_table, t_cam_table, _rms(errors_px)
+
+    @staticmethod
+    def _joint_pose(points_px: np.ndarray, K: np.ndarray):
+        """The pose from the red top's and the outline's 8 corners (SQPNP), or why it was
+        rejected."""
+        ok, rvec, tvec = cv2.solvePnP(
+            _JOINT_CORNERS_TABLE, points_px, K, None, flags=cv2.SOLVEPNP_SQPNP
+        )
+        if not ok:
+            return "table: joint PnP failed"
+        R_cam_table, _ = cv2.Rodrigues(rvec)
+        t_cam_table = tvec.reshape(3)
+        errors_px = _reprojection_px(
+            _CORNERS_TABLE["joint"], points_px, K, R_cam_table, t_cam_table
+        )
+        if not max(errors_px) <= MAX_JOINT_REPROJECTION_PX:
+            return "table: red top and border outline disagree"
         return R_cam_table, t_cam_table, _rms(errors_px)
 
     def ball_position(self, ball_px, K, R_cam_table, t_cam_table):
@@ -825,7 +992,7 @@ class BallTableDetector:
         with plain floats for speed: ~10x cheaper than NumPy on 3-vectors.
         """
         u, v, rho = (float(x) for x in ball_px[:3])
-        fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+        (fx, _, cx), (_, fy, cy), _ = K.tolist()
         # Step 2: the major axis's vertices c +- rho e, e the unit vector from the principal
         # point toward c (any direction when c is at the principal point).
         norm = math.hypot(u - cx, v - cy)
