@@ -114,6 +114,7 @@ class BallTableEnv(gym.Env):
         self.observation_space = self._make_observation_space()
 
         self.sim = Simulation(cfg.physics_dt_s)
+        self._arm_home_q = None  # refined by IK at the first build, reused by the next ones
         self.scene = self._build_scene()  # builds once now, so a broken setup fails here
         self.camera = Camera(self.sim, self.intrinsics, near_m=0.05, far_m=3.0)
         self.disturbances = Disturbances(cfg)
@@ -213,7 +214,7 @@ class BallTableEnv(gym.Env):
             self.sim,
             self.config.arm_position_gain,
             with_occluder=self.config.occluder_rate_hz > 0,
-            arm_home_q=getattr(self, "_arm_home_q", None),
+            arm_home_q=self._arm_home_q,
         )
         self._arm_home_q = scene.arm.home_q
         return scene

@@ -54,10 +54,10 @@ def tilt_rotation(tilt_x: float, tilt_y: float) -> np.ndarray:
 
 
 def tilt_angles(R_home_table: np.ndarray) -> tuple[float, float]:
-    """Inverse of :func:`tilt_rotation` (ignoring any residual yaw)."""
-    tilt_y = float(np.arcsin(np.clip(R_home_table[0, 2], -1.0, 1.0)))
-    tilt_x = float(np.arctan2(-R_home_table[1, 2], R_home_table[2, 2]))
-    return tilt_x, tilt_y
+    """Inverse of :func:`tilt_rotation` (ignoring any residual yaw). Plain floats: it runs
+    in every env step and every detection, where NumPy's scalar calls cost more."""
+    (_, _, r02), (_, _, r12), (_, _, r22) = R_home_table.tolist()
+    return math.atan2(-r12, r22), math.asin(min(max(r02, -1.0), 1.0))
 
 
 def tilt_rates(omega_table: np.ndarray, tilt_y: float) -> tuple[float, float]:

@@ -895,12 +895,11 @@ class BallTableDetector:
         T_cam_table[:3, :3], T_cam_table[:3, 3] = R_cam_table, t_cam_table
         T_world_table = T_world_cam @ T_cam_table
         R_world_table = T_world_table[:3, :3]
-        # geo.tilt_angles and the yaw, on plain floats.
-        (r00, _, r02), (r10, _, r12), (_, _, r22) = R_world_table.tolist()
-        tilt_x, tilt_y = math.atan2(-r12, r22), math.asin(min(max(r02, -1.0), 1.0))
+        tilt_x, tilt_y = geo.tilt_angles(R_world_table)  # TRF is parallel to the world at home
+        yaw_rad = math.atan2(R_world_table[1, 0], R_world_table[0, 0])
         if (
             max(abs(tilt_x), abs(tilt_y)) > MAX_PLAUSIBLE_TILT_RAD
-            or abs(math.atan2(r10, r00)) > MAX_PLAUSIBLE_YAW_RAD
+            or abs(yaw_rad) > MAX_PLAUSIBLE_YAW_RAD
         ):
             return BallTableDetection(
                 False, False, features.corner_model, failure="table: implausible pose"
