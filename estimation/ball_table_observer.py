@@ -57,6 +57,9 @@ class BallTableObserverParams:
     start_speed_std_mps: float = 0.05  # the env's random start speed is up to 0.05 m/s
     gate_probability: float = 0.9999  # chi-square gate on the ball measurement
     reacquire_after: int = 3  # consecutive gate rejections that restart the ball filter
+    # Both filters take the converged-gain path (KalmanFilter.converged_rtol) once a cycle
+    # moves P by less than this, relative; None runs the full recursion on every frame.
+    converged_rtol: float | None = 1e-9
 
 
 class BallTableObserver:
@@ -86,6 +89,7 @@ class BallTableObserver:
         self._tilt_cmd = np.zeros(2)  # the arm is commanded level at reset
         self._rejections_in_a_row = 0
         self.reacquisitions = 0
+        self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # --- per step -----------------------------------------------------------------------
     def detect(self, obs: Any, frame: dict):
@@ -111,7 +115,10 @@ class BallTableObserver:
         else:
             if action is not None:
                 self._tilt_cmd = np.asarray(action, dtype=float)
-            dt_s = time_s - self._time_s
+            # To the nanosecond: the frame period is one number, not a few that differ in
+            # the last bits of the summed time (one cached discretisation, and a filter
+            # that sees the same matrices can take its converged-gain path).
+            dt_s = round(time_s - self._time_s, 9)
             tilt_before = self._tilt()
             used = self._update_tilt(dt_s, tilt_rad)
             used |= self._update_ball(dt_s, tilt_before, self._tilt(), ball_pos)
@@ -121,9 +128,10 @@ class BallTableObserver:
     # --- filters ------------------------------------------------------------------------
     def _start_tilt(self, tilt_rad: np.ndarray | None) -> None:
         if tilt_rad is None:
-            self._tilt_kf = KalmanFilter(np.zeros(2), np.eye(2) * 0.1**2)
+            x0, P0 = np.zeros(2), np.eye(2) * 0.1**2
         else:
-            self._tilt_kf = KalmanFilter(np.asarray(tilt_rad, dtype=float), self._tilt_R.copy())
+            x0, P0 = np.asarray(tilt_rad, dtype=float), self._tilt_R
+        self._tilt_kf = KalmanFilter(x0, P0, converged_rtol=self.params.converged_rtol)
 
     def _start_ball(self, ball_pos_table_m: np.ndarray | None) -> None:
         p = self.params
@@ -132,7 +140,9 @@ class BallTableObserver:
         pos_std = p.ball.sigma_v_m if seen else p.start_pos_std_m
         P0 = np.diag([pos_std**2] * 2 + [p.start_speed_std_mps**2] * 2 + [p.ball.sigma_w**2] * 2)
         gate = ChiSquareGate(probability=p.gate_probability)
-        self._ball_kf = KalmanFilter(np.concatenate([pos0, np.zeros(4)]), P0, gate=gate)
+        self._ball_kf = KalmanFilter(
+            np.concatenate([pos0, np.zeros(4)]), P0, gate=gate, converged_rtol=p.converged_rtol
+        )
 
     def _tilt(self) -> np.ndarray:
         return self._tilt_kf.x
@@ -172,11 +182,18 @@ class BallTableObserver:
         return mean
 
     def _covariance(self) -> np.ndarray:
+        """Read-only; the same array while both filters keep their P (converged)."""
+        P_ball, P_tilt = self._ball_kf.P, self._tilt_kf.P
+        cached = self._cov_cache
+        if cached is not None and cached[0] is P_ball and cached[1] is P_tilt:
+            return cached[2]
         # rate = (u - theta) / tau with u known: cov(rate) = P / tau^2, cov(theta, rate) = -P / tau
         cov = np.zeros((STATE_DIM, STATE_DIM))
-        cov[0:4, 0:4] = self._ball_kf.P[0:4, 0:4]
-        P_tilt, tau = self._tilt_kf.P, self.tilt_model.tau_s
+        cov[0:4, 0:4] = P_ball[0:4, 0:4]
+        tau = self.tilt_model.tau_s
         cov[4:6, 4:6] = P_tilt
         cov[4:6, 6:8] = cov[6:8, 4:6] = -P_tilt / tau
         cov[6:8, 6:8] = P_tilt / tau**2
+        cov.flags.writeable = False
+        self._cov_cache = (P_ball, P_tilt, cov)
         return cov

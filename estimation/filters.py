@@ -205,9 +205,27 @@ class KalmanFilter:
     precision floor (:func:`_repaired`) and ``pd_repairs`` counts it. predict adds Q >= 0
     to the congruence Phi P Phi^T, which stays positive definite unless Q is below P's
     rounding level; an update that meets an indefinite S repairs P first.
+
+    ``converged_rtol`` (off by default) switches on the converged-gain path. When a
+    predict + update cycle with the same ``Phi``, ``Q``, ``C`` and ``R`` objects (the
+    cached, read-only matrices a :class:`~observer_gym.estimation.models.LinearModel`
+    hands out) changes P(k|k) by at most ``converged_rtol`` times its largest entry, the
+    Riccati recursion has reached its fixed point: the filter keeps that cycle's
+    P(k|k-1), P(k|k), S and K_f, and the next cycles only propagate x, (1) and (5) with
+    the stored K_f, gated with the stored S, as the steady-state filter would. Any other
+    cycle leaves this path and runs the full recursion until it converges again: a missed
+    or rejected measurement, other matrices, an R12, or a P assigned from outside (each
+    is noticed because P is then not the stored array). ``steady_cycles`` counts the
+    cycles taken on this path.
     """
 
-    def __init__(self, x0: np.ndarray, P0: np.ndarray, gate: Gate | None = None) -> None:
+    def __init__(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        gate: Gate | None = None,
+        converged_rtol: float | None = None,
+    ) -> None:
         x = np.array(x0, dtype=float).reshape(-1)
         P = np.array(P0, dtype=float)
         n = x.shape[0]
@@ -215,9 +233,22 @@ class KalmanFilter:
             raise ValueError(f"KalmanFilter: P0 has shape {P.shape}, expected {(n, n)}")
         if not np.allclose(P, P.T, rtol=1e-9, atol=0.0):
             raise ValueError("KalmanFilter: P0 must be symmetric")
+        if converged_rtol is not None and not 0.0 < converged_rtol < 1.0:
+            raise ValueError(
+                f"KalmanFilter: converged_rtol = {converged_rtol!r}, must be None or in (0, 1)"
+            )
         self.x = x
         self.P = _symmetrised(P)
         self.gate = gate
+        self.converged_rtol = converged_rtol
+        self.steady_cycles = 0
+        # Converged-gain path: (Phi, Q, C, R, P_pred, P_filt, S, CPCt, K^T) once converged;
+        # the last full cycle's (Phi, Q, C, R, P_filt) for the convergence test; the
+        # (Phi, Q) of the last full predict; whether the last predict was a steady one.
+        self._steady: tuple[np.ndarray, ...] | None = None
+        self._last_cycle: tuple[np.ndarray, ...] | None = None
+        self._last_predict: tuple[np.ndarray, np.ndarray] | None = None
+        self._steady_predicted = False
         self.accepted_count = 0
         self.rejected_count = 0
         self.pd_repairs = 0
@@ -254,6 +285,21 @@ class KalmanFilter:
         x = Phi.dot(self.x)
         if Gamma is not None:
             x += Gamma.dot(u)  # (1): Phi x + Gamma u
+        steady = self._steady
+        if (
+            steady is not None
+            and Phi is steady[0]
+            and Q is steady[1]
+            and self.P is steady[5]
+            and self._pending is None
+        ):
+            self.x = x
+            self.P = steady[4]  # P(k+1|k) at the Riccati fixed point
+            self._steady_predicted = True
+            return
+        self._steady = None
+        self._steady_predicted = False
+        self._last_predict = (Phi, Q)
         P = Phi.dot(self.P, self._Phi_P).dot(Phi.T, self._P_unsym)
         P += Q  # (1): Phi P Phi^T + R1
         if self._pending is not None:
@@ -290,7 +336,13 @@ class KalmanFilter:
         ``numpy.linalg.LinAlgError`` is raised.
         """
         if y is None:
+            self._last_cycle = None  # a cycle without an update is no Riccati step
             return UpdateResult(False, None, None, float("nan"), None)
+        if self._steady_predicted:
+            self._steady_predicted = False
+            steady = self._steady
+            if C is steady[2] and R is steady[3] and R12 is None and self.P is steady[4]:
+                return self._steady_update(y, steady)
         x, P = self.x, self.P
         n, m = self._n, C.shape[0]
         if R.shape != (m, m):
@@ -304,6 +356,7 @@ class KalmanFilter:
         S = CPCt + R  # R2 + C P C^T, (6) and (28)
         if self.gate is not None and not self.gate.accepts(d, S, R, CPCt):
             self.rejected_count += 1
+            self._last_cycle = None
             return UpdateResult(False, d, S, _nis(S, d), None)
         # W = [A^T; K^T] with A = I - K C, so that the Joseph form is one block product.
         W = np.empty((n + m, n))
@@ -347,7 +400,40 @@ class KalmanFilter:
             P_sym = _symmetrised(P_unsym)
             self.P = P_sym if _is_positive_definite(P_sym) else self._repair(P_sym)
         self.accepted_count += 1
+        if self.converged_rtol is not None:
+            self._check_converged(C, R, P, S, CPCt, Kt, R12)
         return UpdateResult(True, d, S, nis, K)
+
+    def _check_converged(self, C, R, P_pred, S, CPCt, Kt, R12) -> None:
+        """After a full update: enter the converged-gain path if this cycle repeated the
+        last one's matrices and moved P(k|k) by at most ``converged_rtol``."""
+        last, predicted = self._last_cycle, self._last_predict
+        self._last_predict = None
+        if predicted is None or R12 is not None or self._pending is not None:
+            self._last_cycle = None  # not a plain predict + update cycle
+            return
+        Phi, Q = predicted
+        P = self.P
+        self._last_cycle = (Phi, Q, C, R, P)
+        if last is None or not (last[0] is Phi and last[1] is Q and last[2] is C and last[3] is R):
+            return
+        change = np.abs(P - last[4]).max()
+        if change <= self.converged_rtol * np.abs(P).max():
+            self._steady = (Phi, Q, C, R, P_pred, P, S.copy(), CPCt.copy(), Kt.copy())
+
+    def _steady_update(self, y: np.ndarray, steady: tuple[np.ndarray, ...]) -> UpdateResult:
+        """(5) with the stored K_f; a rejected measurement leaves the path."""
+        C, R, S, CPCt, Kt = steady[2], steady[3], steady[6], steady[7], steady[8]
+        d = y - C.dot(self.x)
+        if self.gate is not None and not self.gate.accepts(d, S, R, CPCt):
+            self.rejected_count += 1
+            self._steady = self._last_cycle = None
+            return UpdateResult(False, d, S, _nis(S, d), None)
+        self.x = self.x + d.dot(Kt)  # (5): x + K_f (y - C x)
+        self.P = steady[5]
+        self.accepted_count += 1
+        self.steady_cycles += 1
+        return UpdateResult(True, d, S, _nis(S, d), Kt.T)
 
     def _repair(self, P: np.ndarray) -> np.ndarray:
         """P made positive definite by :func:`_repaired`, counted in ``pd_repairs``."""

@@ -188,16 +188,17 @@ class RollingBallModel(LinearModel):
         """Border constraint (spec): a position beyond +-``limit_m`` (L/2 - r) is clamped
         there and that axis's velocity zeroed (fully inelastic collision).
 
-        Returns (x', P'), new arrays; P' is P unchanged (None if P is None): clamping
-        projects the estimate onto the feasible square, which holds the true position, so
-        the position error cannot grow, and keeping P is the conservative choice.
+        Returns (x', P'): x' a new array, P' the given P itself: clamping projects the
+        estimate onto the feasible square, which holds the true position, so the position
+        error cannot grow, and keeping P is the conservative choice. (Returning P itself
+        keeps a converged KalmanFilter on its converged-gain path.)
         """
         x = np.array(x, dtype=float)
         for axis in (0, 1):
             if abs(x[axis]) > limit_m:
                 x[axis] = np.copysign(limit_m, x[axis])
                 x[2 + axis] = 0.0
-        return x, None if P is None else np.array(P, dtype=float)
+        return x, P
 
     def predict_ahead(
         self,

@@ -395,6 +395,65 @@ def test_steady_state_filter_matches_the_converged_kalman_filter():
     assert np.array_equal(ss.x, x_before)
 
 
+def _rolling_ball_run(kf: KalmanFilter, seed: int, steps: int = 1500) -> np.ndarray:
+    """Estimates over a simulated rolling-ball run with a stretch of 10 % missed
+    measurements, an outlier burst the gate rejects, a P assigned from outside and a
+    change of dt."""
+    rng = np.random.default_rng(seed)
+    model = RollingBallModel()
+    x_true, u = np.zeros(6), np.array([0.3, -0.2])
+    estimates = np.empty((steps, 6))
+    for k in range(steps):
+        dt_s = DT_S if k < 1200 else 2 * DT_S
+        Phi, Gamma, Q = model.matrices(dt_s)
+        x_true = Phi @ x_true + Gamma @ u + rng.multivariate_normal(np.zeros(6), Q)
+        y = model.C @ x_true + rng.normal(0.0, model.params.sigma_v_m, 2)
+        if 400 <= k < 403:
+            y = y + 1.0  # an outlier burst, far outside the gate
+        kf.predict(Phi, Q, Gamma, u)
+        if k == 800:
+            kf.P = kf.P.copy()  # assigned from outside, like a border clamp would
+        missed = rng.random() < 0.1 and 1000 <= k < 1100
+        kf.update(None if missed else y, model.C, model.R)
+        estimates[k] = kf.x
+    return estimates
+
+
+def test_converged_gain_path_equals_the_full_recursion():
+    """A filter with converged_rtol takes the cheap path for most steps and its estimates
+    match the full recursion's through dropouts, rejections, an outside P and a new dt."""
+    P0 = np.diag([1e-4, 1e-4, 1e-2, 1e-2, 1.0, 1.0])
+    full = KalmanFilter(np.zeros(6), P0, gate=ChiSquareGate(0.9999))
+    fast = KalmanFilter(np.zeros(6), P0, gate=ChiSquareGate(0.9999), converged_rtol=1e-9)
+    reference, estimates = _rolling_ball_run(full, seed=3), _rolling_ball_run(fast, seed=3)
+    assert fast.steady_cycles > 500
+    assert full.steady_cycles == 0
+    assert fast.rejected_count == full.rejected_count >= 3
+    # Each state's largest difference, relative to its range over the run: ~5e-9 measured.
+    scale = np.abs(reference).max(axis=0)
+    assert np.all(np.abs(estimates - reference).max(axis=0) <= 1e-7 * scale)
+    np.testing.assert_allclose(fast.P, full.P, rtol=1e-7, atol=0)
+
+
+def test_converged_gain_path_holds_the_dare_covariance():
+    model = RollingBallModel()
+    Phi, _, Q = model.matrices(DT_S)
+    kf = KalmanFilter(np.zeros(6), np.eye(6), converged_rtol=1e-9)
+    for _ in range(400):
+        kf.predict(Phi, Q)
+        kf.update(np.zeros(2), model.C, model.R)
+    assert kf.steady_cycles > 100
+    _, P_pred = steady_state_gain(Phi, model.C, Q, model.R)
+    kf.predict(Phi, Q)
+    np.testing.assert_allclose(kf.P, P_pred, rtol=1e-6)
+
+
+@pytest.mark.parametrize("rtol", [0.0, 1.0, -1e-9, float("nan")])
+def test_converged_rtol_out_of_range_raises(rtol):
+    with pytest.raises(ValueError, match="converged_rtol"):
+        KalmanFilter(np.zeros(2), np.eye(2), converged_rtol=rtol)
+
+
 def test_predict_requires_gamma_and_u_together():
     kf = KalmanFilter(np.zeros(2), np.eye(2))
     with pytest.raises(ValueError, match="Gamma and u"):
