@@ -1,1 +1,26 @@
-"""Baseline controllers (to come): LQR, MPC, PID, visual tracking, intercept."""
+"""Controllers with stable-baselines3's ``predict`` signature: LQR, MPC (OSQP), PID.
+
+``make_controller(name, env, **options)`` designs one for an env from the nominal model in
+observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an SB3 agent.
+"""
+
+from observer_gym.controllers.base import Controller, StateFeedbackController
+from observer_gym.controllers.lqr import LQRController
+from observer_gym.controllers.mpc import MPCController
+from observer_gym.controllers.pid import PIDController
+from observer_gym.controllers.plant import BallTablePlant
+from observer_gym.controllers.registry import CONTROLLERS, make_controller
+from observer_gym.controllers.weights import ball_table_weights, check_weights
+
+__all__ = [
+    "CONTROLLERS",
+    "BallTablePlant",
+    "Controller",
+    "LQRController",
+    "MPCController",
+    "PIDController",
+    "StateFeedbackController",
+    "ball_table_weights",
+    "check_weights",
+    "make_controller",
+]

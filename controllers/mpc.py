@@ -1,0 +1,182 @@
+"""Linear MPC on the BallTable model: a sparse QP per step, solved by OSQP.
+
+Over the horizon N, with x_0 the observed state and the plant's exact discretisation
+(Phi, Gamma) of estimation/ball_table_model.py:
+
+    minimise   sum_{k<N} (x_k^T Q x_k + u_k^T R u_k) + x_N^T P x_N
+    subject to x_{k+1} = Phi x_k + Gamma u_k                 (the model)
+               |u_k| <= tilt_limit                           (commanded tilt)
+               |theta_k| <= tilt_limit,             k = 1..N (table tilt)
+               |u_k - theta_k| <= tau * rate_limit, k < N    (tilt rate (u - theta) / tau)
+               |p_k| <= ball_limit,                 k = 1..N (ball on the table)
+
+P is the LQR's DARE solution for the same (Q, R), so without constraints
+(``constrained=False``) the first move equals the LQR's -K x_0 exactly: the infinite-horizon
+cost-to-go is x^T P x. The QP keeps the states as variables (sparse, no condensing), is set
+up once, and per step only x_0's bounds change; OSQP warm-starts from the last solution.
+When OSQP does not solve the QP (an infeasible start, the iteration limit), the action is
+the LQR's saturated at the tilt bound, a finite in-bounds action; ``last_status`` and
+``failures`` report it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from observer_gym.controllers.base import StateFeedbackController
+from observer_gym.controllers.lqr import LQRController
+from observer_gym.controllers.plant import BallTablePlant
+from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M
+
+__all__ = ["MPCController"]
+
+_SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
+DEFAULT_TILT_RATE_LIMIT_RADPS = 1.5
+DEFAULT_OSQP_SETTINGS = {
+    "eps_abs": 1e-6,
+    "eps_rel": 1e-6,
+    "max_iter": 4000,
+    "polishing": True,
+    "warm_starting": True,
+    "verbose": False,
+}
+
+
+class MPCController(StateFeedbackController):
+    """Arguments: ``plant``; ``horizon`` N (steps, default 20); ``Q``, ``R`` as for
+    :class:`LQRController`; ``constrained`` (default True); ``tilt_limit_rad`` (default the
+    env's bound), ``tilt_rate_limit_radps`` (default 1.5), ``ball_limit_m`` (default
+    L/2 - r, the ball touching a border); ``osqp_settings`` overriding
+    :data:`DEFAULT_OSQP_SETTINGS`.
+
+    After each step: ``last_status`` (OSQP's status text), ``last_solve_time_s`` (OSQP's
+    setup-free solve time), ``failures`` (steps that fell back to the LQR action),
+    ``predicted_states`` (N + 1, 6) and ``planned_actions`` (N, 2) of the last solve.
+    """
+
+    name = "mpc"
+
+    def __init__(
+        self,
+        plant: BallTablePlant,
+        horizon: int = 20,
+        Q=None,
+        R=None,
+        constrained: bool = True,
+        tilt_limit_rad: float | None = None,
+        tilt_rate_limit_radps: float = DEFAULT_TILT_RATE_LIMIT_RADPS,
+        ball_limit_m: float = BALL_TRAVEL_M,
+        osqp_settings: dict | None = None,
+    ) -> None:
+        super().__init__(plant.obs_dim, *plant.action_bounds)
+        if int(horizon) != horizon or horizon < 1:
+            raise ValueError(f"MPCController: horizon = {horizon!r}, must be an integer >= 1")
+        tilt_limit = plant.max_tilt_rad if tilt_limit_rad is None else float(tilt_limit_rad)
+        for name, value in (
+            ("tilt_limit_rad", tilt_limit),
+            ("tilt_rate_limit_radps", tilt_rate_limit_radps),
+            ("ball_limit_m", ball_limit_m),
+        ):
+            if not (np.isfinite(value) and value > 0.0):
+                raise ValueError(f"MPCController: {name} = {value!r}, must be finite and > 0")
+        self.plant = plant
+        self.horizon = int(horizon)
+        self.lqr = LQRController(plant, Q, R)  # checks Q and R; its P is the terminal cost
+        self.constrained = bool(constrained)
+        self.tilt_limit_rad = min(tilt_limit, plant.max_tilt_rad)
+        self.tilt_rate_limit_radps = float(tilt_rate_limit_radps)
+        self.ball_limit_m = float(ball_limit_m)
+        self.settings = {**DEFAULT_OSQP_SETTINGS, **(osqp_settings or {})}
+        self._setup()
+        self.failures = 0
+        self.last_status = "not run"
+        self.last_solve_time_s = float("nan")
+        self.predicted_states: np.ndarray | None = None
+        self.planned_actions: np.ndarray | None = None
+
+    # --- the QP -------------------------------------------------------------------------
+    def _setup(self) -> None:
+        N, nx = self.horizon, self.plant.model.n
+        Phi, Gamma = self.lqr.Phi, self.lqr.Gamma
+        self._n_x_vars = (N + 1) * nx
+        cost = sp.block_diag(
+            [sp.kron(sp.eye(N), self.lqr.Q), self.lqr.P, sp.kron(sp.eye(N), self.lqr.R)],
+            format="csc",
+        )
+        # x_0 = x(k); x_{k+1} - Phi x_k - Gamma u_k = 0
+        A_x = sp.kron(sp.eye(N + 1), -sp.eye(nx)) + sp.kron(sp.eye(N + 1, k=-1), Phi)
+        A_u = sp.kron(sp.vstack([sp.csc_matrix((1, N)), sp.eye(N)]), Gamma)
+        rows = [sp.hstack([A_x, A_u])]
+        lower = [np.zeros((N + 1) * nx)]
+        upper = [np.zeros((N + 1) * nx)]
+        if self.constrained:
+            rows_c, bounds = self._constraint_rows()
+            rows.append(rows_c)
+            lower.append(-bounds)
+            upper.append(bounds)
+        A = sp.vstack(rows, format="csc")
+        self._lower, self._upper = np.concatenate(lower), np.concatenate(upper)
+        self._solver = osqp.OSQP()
+        self._solver.setup(
+            cost, np.zeros(cost.shape[0]), A, self._lower, self._upper, **self.settings
+        )
+
+    def _constraint_rows(self) -> tuple[sp.csc_matrix, np.ndarray]:
+        """Rows G z with bounds |G z| <= b for the inputs, tilts, tilt rates and ball."""
+        N, nx, nu = self.horizon, self.plant.model.n, self.plant.model.m
+        n_z = self._n_x_vars + N * nu
+
+        def pick(var_index: np.ndarray, coef: float = 1.0) -> sp.csc_matrix:
+            return sp.csc_matrix(
+                (np.full(len(var_index), coef), (np.arange(len(var_index)), var_index)),
+                shape=(len(var_index), n_z),
+            )
+
+        steps = np.arange(N)
+        u_idx = (self._n_x_vars + nu * steps[:, None] + np.arange(nu)).ravel()
+        theta_now = (nx * steps[:, None] + np.arange(4, 6)).ravel()  # theta_k, k < N
+        theta_next = (nx * (steps[:, None] + 1) + np.arange(4, 6)).ravel()  # k = 1..N
+        ball_next = (nx * (steps[:, None] + 1) + np.arange(0, 2)).ravel()
+        tau = self.plant.model.tau_s
+        G = sp.vstack(
+            [pick(u_idx), pick(theta_next), pick(u_idx) - pick(theta_now), pick(ball_next)]
+        )
+        b = np.concatenate(
+            [
+                np.full(N * nu, self.tilt_limit_rad),
+                np.full(N * nu, self.tilt_limit_rad),
+                np.full(N * nu, tau * self.tilt_rate_limit_radps),
+                np.full(N * 2, self.ball_limit_m),
+            ]
+        )
+        return G.tocsc(), b
+
+    # --- per step -----------------------------------------------------------------------
+    def solve(self, x0: np.ndarray) -> tuple[np.ndarray, bool]:
+        """(u_0, solved) for the state x0 (6,); the LQR fallback when not solved."""
+        nx = self.plant.model.n
+        self._lower[:nx] = -x0
+        self._upper[:nx] = -x0
+        self._solver.update(l=self._lower, u=self._upper)
+        result = self._solver.solve()
+        self.last_status = result.info.status
+        self.last_solve_time_s = float(result.info.solve_time)
+        z = result.x
+        solved = (
+            result.info.status_val in _SOLVED and z is not None and bool(np.all(np.isfinite(z)))
+        )
+        if not solved:
+            self.failures += 1
+            self.predicted_states = self.planned_actions = None
+            u = np.clip(-self.lqr.K @ x0, self.action_low, self.action_high)
+            return u, False
+        N = self.horizon
+        self.predicted_states = z[: self._n_x_vars].reshape(N + 1, nx)
+        self.planned_actions = z[self._n_x_vars :].reshape(N, self.plant.model.m)
+        return self.planned_actions[0].copy(), True
+
+    def act(self, obs: np.ndarray, episode_start: np.ndarray) -> np.ndarray:
+        nx = self.plant.model.n
+        return np.array([self.solve(row[:nx])[0] for row in obs])
