@@ -160,7 +160,7 @@ class MPCController(StateFeedbackController):
         self._lower[:nx] = -x0
         self._upper[:nx] = -x0
         self._solver.update(l=self._lower, u=self._upper)
-        result = self._solver.solve()
+        result = self._solver.solve(raise_error=False)  # a failure is a status, not an error
         self.last_status = result.info.status
         self.last_solve_time_s = float(result.info.solve_time)
         z = result.x
