@@ -46,6 +46,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return value
+
+
 # --- demo ------------------------------------------------------------------------------
 def _demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -85,18 +96,125 @@ def _demo_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- run -------------------------------------------------------------------------------
+# The choices are listed here so that parsing needs no heavy import; run_experiment checks
+# them against observer_gym.train.run.OBSERVERS and observer_gym.controllers.CONTROLLERS.
+RUN_OBSERVERS = ("oracle", "kf", "kf-measurements")
+RUN_CONTROLLERS = ("lqr", "mpc", "pid")
+
+
+def env_name(text: str) -> str:
+    """argparse type: a registered env id, with or without its ``observer_gym/`` prefix."""
+    from observer_gym.train.run import resolve_env_id  # deferred: imports the envs
+
+    try:
+        return resolve_env_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _run_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--env",
+        type=env_name,
+        default="BallTable-v0",
+        help="environment (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--observer",
+        choices=RUN_OBSERVERS,
+        required=True,
+        help=(
+            "what the controller sees: oracle (the true state), kf (Kalman-filter estimate "
+            "from camera pixels), kf-measurements (the same from perfect-detector pixel "
+            "measurements, no rendering)"
+        ),
+    )
+    parser.add_argument(
+        "--controller",
+        choices=RUN_CONTROLLERS,
+        required=True,
+        help="lqr (python-control's dlqr), mpc (OSQP, constrained) or pid (per axis)",
+    )
+    parser.add_argument(
+        "--episodes", type=positive_int, default=10, help="episodes to run (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=nonnegative_int,
+        default=0,
+        help="episode i resets with seed + i (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: ./observer-gym-out/run-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="cap each episode at K steps (default: the env's time limit, 500 steps = 10 s)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        default=1,
+        metavar="W",
+        help="run the episodes in W processes; results are identical (default: %(default)s)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def _run_run(args: argparse.Namespace) -> int:
+    from observer_gym.train.run import default_out_dir, run_experiment  # deferred: PyBullet
+
+    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    cli_args.pop("run", None)
+    run_experiment(
+        env_id=args.env,
+        observer=args.observer,
+        controller=args.controller,
+        episodes=args.episodes,
+        seed=args.seed,
+        out_dir=args.out if args.out is not None else default_out_dir(),
+        steps=args.steps,
+        workers=args.workers,
+        progress=not args.no_progress,
+        cli_args=cli_args,
+    )
+    return 0
+
+
 COMMANDS: dict[str, Command] = {
     "demo": Command(
-        help="run BallTable-v0 under a scripted tilt; save frames, a plot and a summary",
+        help="centre the ball on BallTable-v0 from camera frames: pixel observer + LQR",
         description=(
-            "Run observer_gym/BallTable-v0 with camera (rgb) observations for a few seconds. "
-            "No controller exists yet: the table follows a SCRIPTED, open-loop tilt meant to "
-            "roll the ball around a 0.06 m circle, so the ball drifts. Writes "
+            "Run observer_gym/BallTable-v0 with camera (rgb) observations: the pixel observer "
+            "(VisionObserver: detector + Kalman filters) estimates the state and the LQR "
+            "acts on the estimate, from a ball starting 0.1 m from the centre. Writes "
             "frames/frame_XXXX.png, trajectory.png and summary.json into the output folder "
-            "and prints its path."
+            "and prints the results and its path."
         ),
         add_arguments=_demo_arguments,
         run=_demo_run,
+    ),
+    "run": Command(
+        help="run a controller in closed loop on the true state or an observer's estimate",
+        description=(
+            "Run closed-loop episodes of BallTable-v0: the controller (lqr, mpc or pid) acts "
+            "on the true state (--observer oracle) or on the Kalman-filter estimate from the "
+            "camera (kf) or from perfect-detector measurements (kf-measurements). Episode i "
+            "resets with seed + i and runs to the time limit (10 s) or the ball leaving the "
+            "table. Writes results.json (config, versions, per-episode metrics, summary), "
+            "path.png, error.png and, for the observers, estimate.png into the output "
+            "folder, and prints a table of the summary."
+        ),
+        add_arguments=_run_arguments,
+        run=_run_run,
     ),
 }
 

@@ -1,18 +1,15 @@
-"""``observer-gym demo``: a short BallTable-v0 run that writes frames, a plot and a summary.
+"""``observer-gym demo``: BallTable-v0 controlled through its camera.
 
-There is no controller yet, so the demo drives the table with a SCRIPTED, open-loop tilt
-that should roll the ball around a circle. Being open loop, the ball drifts off the
-circle; the plot shows how far, honestly.
+The camera's frames go through the pixel observer (``VisionObserver``: detector + Kalman
+filters) and the LQR acts on its estimate, from a start 0.1 m from the table's centre.
+Writes camera frames, a plot (the ball's path, its distance from the centre, estimate
+against truth with the filter's 2-sigma band) and ``summary.json``.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 import time
 from datetime import datetime
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -24,48 +21,23 @@ from matplotlib.figure import Figure
 from tqdm import tqdm
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
+from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
-from observer_gym.envs.ball_table.layout import BALL_POS, TILT
-from observer_gym.envs.sim import GRAVITY_MPS2
+from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
+from observer_gym.estimation import VisionObserver
+from observer_gym.train.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
+from observer_gym.train.outputs import package_versions, write_json_atomic
 
 ENV_ID = "observer_gym/BallTable-v0"
-ROLLING_GAIN = 5.0 / 7.0  # a = (5/7) g sin(tilt) for a solid ball rolling without slipping
-CIRCLE_RADIUS_M = 0.06  # rho
-CIRCLE_RATE_RADPS = 1.5  # w
-ARM_LAG_S = 0.04  # the arm's first-order tilt lag; the command is evaluated this far ahead
-VERSIONED_PACKAGES = ("observer-gym", "gymnasium", "pybullet", "numpy")
-
-
-def circle_tilt_rad(time_s: float) -> np.ndarray:
-    """The tilt command (tilt_x, tilt_y) that rolls the ball around the demo circle.
-
-    The path p(t) = rho (cos wt, sin wt) needs the acceleration a = -rho w^2 (cos wt, sin wt).
-    Inverting a_x = (5/7) g tilt_y and a_y = -(5/7) g tilt_x (small angles) gives the tilt.
-    The caller passes a time ``ARM_LAG_S`` ahead to make up for the arm's lag.
-    """
-    accel_scale_mps2 = CIRCLE_RADIUS_M * CIRCLE_RATE_RADPS**2
-    phase_rad = CIRCLE_RATE_RADPS * time_s
-    accel_x_mps2 = -accel_scale_mps2 * np.cos(phase_rad)
-    accel_y_mps2 = -accel_scale_mps2 * np.sin(phase_rad)
-    gain_mps2 = ROLLING_GAIN * GRAVITY_MPS2
-    return np.array([-accel_y_mps2 / gain_mps2, accel_x_mps2 / gain_mps2])
+CONTROLLER = "lqr"
+START_DISTANCE_M = 0.1
+START_DIRECTION_RAD = np.deg2rad(135.0)  # towards the camera's left, away from it
 
 
 def default_out_dir() -> Path:
     """``observer-gym-out/demo-YYYYmmdd-HHMMSS`` under the current directory."""
     return Path.cwd() / "observer-gym-out" / f"demo-{datetime.now():%Y%m%d-%H%M%S}"
-
-
-def package_versions() -> dict[str, str]:
-    """Installed versions of the packages that decide what the demo computes."""
-    versions = {}
-    for name in VERSIONED_PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
 
 
 def run_demo(
@@ -75,19 +47,18 @@ def run_demo(
     frame_every: int = 50,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run BallTable-v0 (rgb observations, default config) under a scripted tilt.
+    """Run BallTable-v0 from camera frames with the pixel observer and the LQR.
 
-    No controller exists yet: the tilt is SCRIPTED and open loop (see
-    :func:`circle_tilt_rad`), aiming the ball around a circle of radius 0.06 m at
-    1.5 rad/s from the reset state ball_pos_table_m = (rho, 0), ball_vel_table_mps =
-    (0, rho w). The ball drifts; nothing corrects it. An episode that terminates (ball
+    The ball starts at rest ``START_DISTANCE_M`` from the centre (``START_DIRECTION_RAD``);
+    the camera's frames (obs_mode="rgb") go through ``VisionObserver`` and the LQR of
+    ``make_controller("lqr", env)`` acts on the estimate. An episode that terminates (ball
     over a border) stops early and is recorded as such.
 
     Writes into ``out_dir`` (default :func:`default_out_dir`; created if missing):
     ``frames/frame_XXXX.png`` (the camera frame every ``frame_every`` steps, XXXX the step),
-    ``trajectory.png`` (ball path in the table frame; distance and tilt vs time) and
-    ``summary.json`` (written atomically). Prints a note, shows a tqdm progress bar when
-    ``progress`` is set, and prints the output folder at the end.
+    ``trajectory.png`` (ball path, distance from the centre, estimate vs truth) and
+    ``summary.json`` (written atomically). Shows a tqdm progress bar when ``progress`` is
+    set and prints the results and the output folder.
 
     Args:
         out_dir: the output folder.
@@ -97,8 +68,9 @@ def run_demo(
         progress: show the progress bar.
 
     Returns:
-        The summary written to ``summary.json``; ``trajectory`` holds the recorded ground
-        truth (``info["state"]``) after reset and after every step.
+        The summary written to ``summary.json``; ``trajectory`` holds the ground truth
+        (``info["state"]``), the estimate and its standard deviation after reset and after
+        every step.
 
     Raises:
         ValueError: ``seconds`` is not positive and finite, or ``frame_every`` < 1.
@@ -111,16 +83,21 @@ def run_demo(
     frames_dir = out_dir / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
 
-    print(
-        "observer-gym demo: no controller yet, so the table follows a SCRIPTED open-loop "
-        f"tilt meant to roll the ball around a {CIRCLE_RADIUS_M} m circle; expect drift."
-    )
     dt_s = BallTableConfig().dt_s
     steps_wanted = max(1, round(seconds / dt_s))
     # Our own time limit: the registered one (10 s) would cut longer demos short.
-    env = gym.make(ENV_ID, obs_mode="rgb", max_episode_steps=steps_wanted)
+    env = VisionObserver(
+        gym.make(ENV_ID, obs_mode="rgb", render_mode="rgb_array", max_episode_steps=steps_wanted)
+    )
     try:
-        record = _run_episode(env, dt_s, steps_wanted, seed, frame_every, frames_dir, progress)
+        controller = make_controller(CONTROLLER, env)
+        print(
+            f"observer-gym demo: {ENV_ID} from camera frames; pixel observer + "
+            f"{CONTROLLER.upper()}, ball starting {START_DISTANCE_M} m from the centre"
+        )
+        record = _run_episode(
+            env, controller, steps_wanted, seed, frame_every, frames_dir, progress
+        )
     finally:
         env.close()
 
@@ -128,18 +105,25 @@ def run_demo(
     _plot_trajectory(record, out_dir / "trajectory.png")
     files += ["trajectory.png", "summary.json"]
 
-    ball_pos_m = np.array(record["ball_pos_table_m"])
-    distance_m = np.linalg.norm(ball_pos_m, axis=1)
+    time_s = np.array(record["time_s"])
+    truth = np.array(record["state"])
+    estimate = np.array(record["estimate"])
+    distance_m = np.linalg.norm(truth[:, BALL_POS], axis=1)
     summary = {
         "env_id": ENV_ID,
+        "observer": "kf (VisionObserver on rgb frames)",
+        "controller": CONTROLLER,
         "seed": seed,
         "seconds": seconds,
         "dt_s": dt_s,
         "steps": record["steps"],
-        "controller": "scripted open-loop circle (no feedback)",
+        "start_ball_pos_table_m": record["start_ball_pos_table_m"],
         "mean_ball_distance_m": float(np.mean(distance_m)),
         "final_ball_distance_m": float(distance_m[-1]),
-        "max_abs_tilt_rad": float(np.max(np.abs(record["tilt_rad"]))),
+        "settling_time_s": settling_time_s(time_s, distance_m),
+        "time_within_1cm_s": time_within_s(time_s, distance_m),
+        "ball_pos_rmse_m": rmse(estimate[:, BALL_POS], truth[:, BALL_POS]),
+        "ball_vel_rmse_mps": rmse(estimate[:, BALL_VEL], truth[:, BALL_VEL]),
         "max_abs_tilt_cmd_rad": float(np.max(np.abs(record["tilt_cmd_rad"]))),
         "terminated": record["terminated"],
         "mean_step_time_s": record["mean_step_time_s"],
@@ -147,14 +131,20 @@ def run_demo(
         "files": files,
         "trajectory": {
             "time_s": record["time_s"],
-            "ball_pos_table_m": record["ball_pos_table_m"],
-            "tilt_rad": record["tilt_rad"],
+            "state": record["state"],
+            "estimate": record["estimate"],
+            "estimate_std": record["estimate_std"],
         },
     }
-    _write_json_atomic(summary, out_dir / "summary.json")
+    write_json_atomic(out_dir / "summary.json", summary)
+    settled = summary["settling_time_s"]
     print(
-        f"steps {summary['steps']}, mean ball distance {summary['mean_ball_distance_m']:.4f} m,"
-        f" final {summary['final_ball_distance_m']:.4f} m, terminated {summary['terminated']}"
+        f"steps {summary['steps']}: within {TOLERANCE_M * 100:.0f} cm of the centre from "
+        + (f"{settled:.2f} s on" if settled is not None else "never (not settled)")
+        + f"; mean distance {summary['mean_ball_distance_m'] * 1000:.1f} mm, final "
+        f"{summary['final_ball_distance_m'] * 1000:.2f} mm; estimate RMSE "
+        f"{summary['ball_pos_rmse_m'] * 1000:.2f} mm, "
+        f"{summary['ball_vel_rmse_mps'] * 1000:.1f} mm/s; terminated {summary['terminated']}"
     )
     print(f"output: {out_dir}")
     return summary
@@ -162,45 +152,51 @@ def run_demo(
 
 def _run_episode(
     env: gym.Env,
-    dt_s: float,
+    controller,
     steps_wanted: int,
     seed: int,
     frame_every: int,
     frames_dir: Path,
     progress: bool,
 ) -> dict[str, Any]:
-    """Reset, step under the scripted tilt, save frames; the recorded ground truth."""
-    start_pos_m = (CIRCLE_RADIUS_M, 0.0)
-    start_vel_mps = (0.0, CIRCLE_RADIUS_M * CIRCLE_RATE_RADPS)
-    obs, info = env.reset(
-        seed=seed, options={"ball_pos_table_m": start_pos_m, "ball_vel_table_mps": start_vel_mps}
+    """Reset, run the closed loop, save frames; the recorded truth and estimates."""
+    start_m = START_DISTANCE_M * np.array(
+        [np.cos(START_DIRECTION_RAD), np.sin(START_DIRECTION_RAD)]
     )
-    record: dict[str, Any] = {"time_s": [], "ball_pos_table_m": [], "tilt_rad": []}
+    obs, info = env.reset(seed=seed, options={"ball_pos_table_m": start_m})
+    controller.reset()
+    record: dict[str, Any] = {"time_s": [], "state": [], "estimate": [], "estimate_std": []}
     record["tilt_cmd_rad"] = []
     record["frame_paths"] = []
+    record["start_ball_pos_table_m"] = start_m.tolist()
 
-    def remember(info: dict) -> None:
-        state = info["state"]
+    def remember(obs: np.ndarray, info: dict) -> None:
         record["time_s"].append(round(float(info["time_s"]), 9))
-        record["ball_pos_table_m"].append([float(v) for v in state[BALL_POS]])
-        record["tilt_rad"].append([float(v) for v in state[TILT]])
+        record["state"].append([float(v) for v in info["state"]])
+        record["estimate"].append([float(v) for v in obs])
+        std = np.sqrt(np.diag(info["estimate"]["covariance"]))
+        record["estimate_std"].append([float(v) for v in std])
 
-    remember(info)
-    record["frame_paths"].append(_save_frame(obs, frames_dir, 0))
+    def save_frame(step: int) -> None:
+        frame = env.unwrapped.render()  # the camera frame the observer got at this step
+        record["frame_paths"].append(_save_frame(frame, frames_dir, step))
+
+    remember(obs, info)
+    save_frame(0)
     terminated = truncated = False
     step_time_s = 0.0
     steps = 0
     with tqdm(total=steps_wanted, unit="step", desc="demo", disable=not progress) as bar:
         while steps < steps_wanted and not (terminated or truncated):
-            tilt_cmd_rad = circle_tilt_rad(steps * dt_s + ARM_LAG_S)
             tic_s = time.perf_counter()
-            obs, _, terminated, truncated, info = env.step(tilt_cmd_rad.astype(np.float32))
+            action, _ = controller.predict(obs)
+            obs, _, terminated, truncated, info = env.step(action)
             step_time_s += time.perf_counter() - tic_s
             steps += 1
-            record["tilt_cmd_rad"].append([float(v) for v in tilt_cmd_rad])
-            remember(info)
+            record["tilt_cmd_rad"].append([float(v) for v in action])
+            remember(obs, info)
             if steps % frame_every == 0:
-                record["frame_paths"].append(_save_frame(obs, frames_dir, steps))
+                save_frame(steps)
             bar.update(1)
     record.update(
         steps=steps, terminated=bool(terminated), mean_step_time_s=step_time_s / max(steps, 1)
@@ -217,15 +213,17 @@ def _save_frame(rgb: np.ndarray, frames_dir: Path, step: int) -> Path:
 
 
 def _plot_trajectory(record: dict[str, Any], path: Path) -> None:
-    """Left: ball path in the table frame. Right: distance from centre and tilt vs time."""
+    """Left: ball path in the table frame, truth and estimate. Middle: distance from the
+    centre with the 1 cm band. Right: estimate minus truth per axis with the 2-sigma band."""
     time_s = np.array(record["time_s"])
-    ball_pos_m = np.array(record["ball_pos_table_m"])
-    tilt_rad = np.array(record["tilt_rad"])
-    distance_m = np.linalg.norm(ball_pos_m, axis=1)
+    truth = np.array(record["state"])
+    estimate = np.array(record["estimate"])
+    std = np.array(record["estimate_std"])
+    distance_m = np.linalg.norm(truth[:, BALL_POS], axis=1)
 
-    fig = Figure(figsize=(11, 4.8), layout="constrained")
+    fig = Figure(figsize=(15, 4.6), layout="constrained")
     FigureCanvasAgg(fig)
-    path_ax, time_ax = fig.subplots(1, 2, width_ratios=(1, 1.4))
+    path_ax, dist_ax, err_ax = fig.subplots(1, 3, width_ratios=(1, 1.3, 1.3))
 
     def square(ax, half_m: float, **style) -> None:
         xs = half_m * np.array([1, -1, -1, 1, 1])
@@ -234,42 +232,40 @@ def _plot_trajectory(record: dict[str, Any], path: Path) -> None:
 
     square(path_ax, TABLE_SIDE_M / 2, color="k", lw=1.5, label="table edge (±0.15 m)")
     square(path_ax, BALL_TRAVEL_M, color="0.5", ls="--", lw=1, label="reachable (±0.125 m)")
-    phase_rad = np.linspace(0, 2 * np.pi, 200)
+    circle_rad = np.linspace(0, 2 * np.pi, 100)
     path_ax.plot(
-        CIRCLE_RADIUS_M * np.cos(phase_rad),
-        CIRCLE_RADIUS_M * np.sin(phase_rad),
-        color="tab:green",
-        ls=":",
-        label="scripted circle",
+        TOLERANCE_M * np.cos(circle_rad), TOLERANCE_M * np.sin(circle_rad), color="tab:green"
     )
-    path_ax.plot(ball_pos_m[:, 0], ball_pos_m[:, 1], color="tab:blue", lw=1.2, label="ball")
-    path_ax.plot(*ball_pos_m[0], "o", color="tab:blue", label="start")
-    path_ax.plot(*ball_pos_m[-1], "x", color="tab:red", label="end")
+    path_ax.plot(truth[:, 0], truth[:, 1], color="tab:blue", lw=1.2, label="ball (truth)")
+    path_ax.plot(
+        estimate[:, 0], estimate[:, 1], color="tab:orange", lw=0.8, ls="--", label="estimate"
+    )
+    path_ax.plot(*truth[0, BALL_POS], "o", color="tab:blue", label="start")
     path_ax.set(xlabel="x table (m)", ylabel="y table (m)", title="Ball path, table frame")
     path_ax.set_aspect("equal")
     path_ax.legend(loc="upper right", fontsize=7)
 
-    time_ax.plot(time_s, distance_m, color="tab:blue", label="ball distance from centre")
-    time_ax.axhline(CIRCLE_RADIUS_M, color="tab:green", ls=":", label="circle radius")
-    time_ax.set(xlabel="time (s)", ylabel="distance (m)", title="Scripted open-loop tilt")
-    tilt_ax = time_ax.twinx()
-    tilt_ax.plot(time_s, tilt_rad[:, 0], color="tab:orange", lw=1, label="tilt_x")
-    tilt_ax.plot(time_s, tilt_rad[:, 1], color="tab:purple", lw=1, label="tilt_y")
+    dist_ax.semilogy(time_s, np.maximum(distance_m, 1e-5), color="tab:blue", label="distance")
+    dist_ax.axhline(TOLERANCE_M, color="tab:green", ls=":", label="1 cm")
+    dist_ax.set(xlabel="time (s)", ylabel="distance from centre (m)", title="Pixel observer + LQR")
+    tilt_ax = dist_ax.twinx()
+    tilt_ax.plot(time_s, truth[:, TILT][:, 0], color="tab:orange", lw=0.8, label="tilt_x")
+    tilt_ax.plot(time_s, truth[:, TILT][:, 1], color="tab:purple", lw=0.8, label="tilt_y")
     tilt_ax.set_ylabel("tilt (rad)")
-    lines = time_ax.get_lines() + tilt_ax.get_lines()
-    time_ax.legend(lines, [line.get_label() for line in lines], loc="upper left", fontsize=7)
+    lines = dist_ax.get_lines() + tilt_ax.get_lines()
+    dist_ax.legend(lines, [line.get_label() for line in lines], loc="upper right", fontsize=7)
+
+    for axis, color in ((0, "tab:blue"), (1, "tab:red")):
+        error_mm = (estimate[:, axis] - truth[:, axis]) * 1000
+        band_mm = 2 * std[:, axis] * 1000
+        name = "xy"[axis]
+        err_ax.fill_between(time_s, -band_mm, band_mm, color=color, alpha=0.15)
+        err_ax.plot(time_s, error_mm, color=color, lw=0.8, label=f"{name} error, ±2σ band")
+    err_ax.set(
+        xlabel="time (s)",
+        ylabel="estimate − truth (mm)",
+        title="Ball position estimate",
+        ylim=(-1.5, 1.5),
+    )
+    err_ax.legend(loc="upper right", fontsize=7)
     fig.savefig(path, dpi=110)
-
-
-def _write_json_atomic(data: dict[str, Any], path: Path) -> None:
-    """Write JSON to a temp file beside ``path``, then rename it into place."""
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
-        os.chmod(tmp_name, 0o644)  # mkstemp makes it owner-only
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
