@@ -128,9 +128,10 @@ class MPCController(StateFeedbackController):
         N, nx, nu = self.horizon, self.plant.model.n, self.plant.model.m
         n_z = self._n_x_vars + N * nu
 
-        def pick(var_index: np.ndarray, coef: float = 1.0) -> sp.csc_matrix:
+        def pick(var_index: np.ndarray) -> sp.csc_matrix:
+            """Rows selecting the variables ``var_index`` of z."""
             return sp.csc_matrix(
-                (np.full(len(var_index), coef), (np.arange(len(var_index)), var_index)),
+                (np.ones(len(var_index)), (np.arange(len(var_index)), var_index)),
                 shape=(len(var_index), n_z),
             )
 

@@ -10,7 +10,7 @@ and commands the tilt theta = G^-1 a_des (a signed axis swap, so the axes stay
 independent). The derivative term uses the observed velocity (the state or its
 estimate), not a differenced position. The default gains place the double integrator's
 poles at natural frequency ``omega_radps`` with damping ``damping`` (kp = omega^2,
-kd = 2 zeta omega), ki = ``integral_fraction`` * kp * omega / 10 by default. The integral
+kd = 2 zeta omega), and ki = kp omega / 10 by default. The integral
 is clamped so that its term alone never asks for more than the tilt bound (anti-windup),
 and it is not accumulated while the command saturates.
 """

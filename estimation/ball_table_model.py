@@ -74,7 +74,3 @@ class BallTableControlModel(LinearModel):
         B = np.zeros((6, 2))
         B[4:6, :] = np.eye(2) / self.tau_s
         return A, B, np.zeros((6, 1)), np.zeros((1, 1))
-
-    def tilt_rate(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """theta' = (u - theta) / tau, rad/s."""
-        return self.tilt_model.rate(theta, u)

@@ -169,7 +169,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.run import default_out_dir, run_experiment  # deferred: PyBullet
+    from observer_gym.train.outputs import default_out_dir
+    from observer_gym.train.run import run_experiment  # deferred: PyBullet
 
     cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     cli_args.pop("run", None)
@@ -179,7 +180,7 @@ def _run_run(args: argparse.Namespace) -> int:
         controller=args.controller,
         episodes=args.episodes,
         seed=args.seed,
-        out_dir=args.out if args.out is not None else default_out_dir(),
+        out_dir=args.out if args.out is not None else default_out_dir("run"),
         steps=args.steps,
         workers=args.workers,
         progress=not args.no_progress,

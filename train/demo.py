@@ -9,7 +9,6 @@ against truth with the filter's 2-sigma band) and ``summary.json``.
 from __future__ import annotations
 
 import time
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -23,21 +22,16 @@ from tqdm import tqdm
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table import BallTableConfig
-from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
 from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
 from observer_gym.train.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
-from observer_gym.train.outputs import package_versions, write_json_atomic
+from observer_gym.train.outputs import default_out_dir, package_versions, write_json_atomic
+from observer_gym.train.plots import draw_table
 
 ENV_ID = "observer_gym/BallTable-v0"
 CONTROLLER = "lqr"
 START_DISTANCE_M = 0.1
 START_DIRECTION_RAD = np.deg2rad(135.0)  # towards the camera's left, away from it
-
-
-def default_out_dir() -> Path:
-    """``observer-gym-out/demo-YYYYmmdd-HHMMSS`` under the current directory."""
-    return Path.cwd() / "observer-gym-out" / f"demo-{datetime.now():%Y%m%d-%H%M%S}"
 
 
 def run_demo(
@@ -54,7 +48,7 @@ def run_demo(
     ``make_controller("lqr", env)`` acts on the estimate. An episode that terminates (ball
     over a border) stops early and is recorded as such.
 
-    Writes into ``out_dir`` (default :func:`default_out_dir`; created if missing):
+    Writes into ``out_dir`` (default ``observer-gym-out/demo-<time>``; created if missing):
     ``frames/frame_XXXX.png`` (the camera frame every ``frame_every`` steps, XXXX the step),
     ``trajectory.png`` (ball path, distance from the centre, estimate vs truth) and
     ``summary.json`` (written atomically). Shows a tqdm progress bar when ``progress`` is
@@ -79,7 +73,7 @@ def run_demo(
         raise ValueError(f"seconds must be a positive, finite number, got {seconds!r}")
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every!r}")
-    out_dir = Path(out_dir) if out_dir is not None else default_out_dir()
+    out_dir = Path(out_dir) if out_dir is not None else default_out_dir("demo")
     frames_dir = out_dir / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
 
@@ -225,17 +219,7 @@ def _plot_trajectory(record: dict[str, Any], path: Path) -> None:
     FigureCanvasAgg(fig)
     path_ax, dist_ax, err_ax = fig.subplots(1, 3, width_ratios=(1, 1.3, 1.3))
 
-    def square(ax, half_m: float, **style) -> None:
-        xs = half_m * np.array([1, -1, -1, 1, 1])
-        ys = half_m * np.array([1, 1, -1, -1, 1])
-        ax.plot(xs, ys, **style)
-
-    square(path_ax, TABLE_SIDE_M / 2, color="k", lw=1.5, label="table edge (±0.15 m)")
-    square(path_ax, BALL_TRAVEL_M, color="0.5", ls="--", lw=1, label="reachable (±0.125 m)")
-    circle_rad = np.linspace(0, 2 * np.pi, 100)
-    path_ax.plot(
-        TOLERANCE_M * np.cos(circle_rad), TOLERANCE_M * np.sin(circle_rad), color="tab:green"
-    )
+    draw_table(path_ax)
     path_ax.plot(truth[:, 0], truth[:, 1], color="tab:blue", lw=1.2, label="ball (truth)")
     path_ax.plot(
         estimate[:, 0], estimate[:, 1], color="tab:orange", lw=0.8, ls="--", label="estimate"

@@ -6,6 +6,7 @@ import json
 import os
 import tempfile
 from collections.abc import Iterable, Mapping, Sequence
+from datetime import datetime
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,11 @@ VERSIONED_PACKAGES = (
     "osqp",
     "stable-baselines3",
 )
+
+
+def default_out_dir(command: str) -> Path:
+    """``observer-gym-out/<command>-YYYYmmdd-HHMMSS`` under the current directory."""
+    return Path.cwd() / "observer-gym-out" / f"{command}-{datetime.now():%Y%m%d-%H%M%S}"
 
 
 def package_versions(names: Iterable[str] = VERSIONED_PACKAGES) -> dict[str, str]:

@@ -24,10 +24,31 @@ def _new_figure(figsize: tuple[float, float]) -> Figure:
     return fig
 
 
-def _square(ax: Axes, half_side_m: float, **style) -> None:
-    xs = half_side_m * np.array([1, -1, -1, 1, 1])
-    ys = half_side_m * np.array([1, 1, -1, -1, 1])
-    ax.plot(xs, ys, **style)
+def draw_table(ax: Axes) -> None:
+    """The table's edge, the square the ball's centre can reach and the 1 cm band, in the
+    table frame (m)."""
+    for half_side_m, style in (
+        (
+            TABLE_SIDE_M / 2,
+            {"color": "k", "lw": 1.5, "label": f"table edge (±{TABLE_SIDE_M / 2} m)"},
+        ),
+        (
+            BALL_TRAVEL_M,
+            {"color": "0.5", "ls": "--", "lw": 1, "label": f"reachable (±{BALL_TRAVEL_M:g} m)"},
+        ),
+    ):
+        xs = half_side_m * np.array([1, -1, -1, 1, 1])
+        ys = half_side_m * np.array([1, 1, -1, -1, 1])
+        ax.plot(xs, ys, **style)
+    phase_rad = np.linspace(0.0, 2.0 * np.pi, 100)
+    ax.plot(
+        TOLERANCE_M * np.cos(phase_rad),
+        TOLERANCE_M * np.sin(phase_rad),
+        color="k",
+        ls=":",
+        lw=1,
+        label=f"{TOLERANCE_M * 100:g} cm from centre",
+    )
 
 
 def plot_paths(
@@ -40,19 +61,7 @@ def plot_paths(
     with the table's edge, the ball's reachable square and the 1 cm band drawn."""
     fig = _new_figure((8.0, 6.0))
     ax = fig.subplots()
-    _square(ax, TABLE_SIDE_M / 2, color="k", lw=1.5, label=f"table edge (±{TABLE_SIDE_M / 2} m)")
-    _square(
-        ax, BALL_TRAVEL_M, color="0.5", ls="--", lw=1, label=f"reachable (±{BALL_TRAVEL_M:g} m)"
-    )
-    phase_rad = np.linspace(0.0, 2.0 * np.pi, 100)
-    ax.plot(
-        TOLERANCE_M * np.cos(phase_rad),
-        TOLERANCE_M * np.sin(phase_rad),
-        color="k",
-        ls=":",
-        lw=1,
-        label=f"{TOLERANCE_M * 100:g} cm from centre",
-    )
+    draw_table(ax)
     labels = labels or [f"episode {i}" for i in range(len(ball_pos_m))]
     for i, (pos_m, label) in enumerate(zip(ball_pos_m, labels, strict=True)):
         color = f"C{i % 10}"

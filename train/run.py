@@ -13,7 +13,6 @@ import dataclasses
 import multiprocessing
 import time
 from collections.abc import Mapping, Sequence
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -66,11 +65,6 @@ def resolve_env_id(name: str) -> str:
         f"{env_id.split('/', 1)[-1]} (or {env_id})" for env_id in observer_gym.envs.ENV_IDS
     )
     raise ValueError(f"unknown env {name!r}; allowed: {allowed}")
-
-
-def default_out_dir() -> Path:
-    """``observer-gym-out/run-YYYYmmdd-HHMMSS`` under the current directory."""
-    return Path.cwd() / "observer-gym-out" / f"run-{datetime.now():%Y%m%d-%H%M%S}"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,20 +15,13 @@ import pytest
 
 from observer_gym.controllers import make_controller
 from observer_gym.estimation import VisionObserver
+from observer_gym.train.metrics import settling_time_s
 
 START_DISTANCE_M = 0.10
 BAND_M = 0.01
 SECONDS = 4.0
 SETTLING_BOUND_S = 1.2  # measured 0.7-0.8 s over these seeds
 FINAL_BOUND_M = 0.002  # the last second's largest distance; measured < 1 mm
-
-
-def _settling_time_s(distance_m: np.ndarray, dt_s: float) -> float:
-    """First time after which the distance stays inside the band; inf if never."""
-    outside = np.flatnonzero(distance_m >= BAND_M)
-    if len(outside) == len(distance_m):
-        return float("inf")
-    return 0.0 if len(outside) == 0 else (outside[-1] + 1) * dt_s
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -46,8 +39,10 @@ def test_pixel_observer_and_lqr_centre_the_ball(make_env, seed):
         assert not terminated
         distance_m.append(np.hypot(*info["state"][0:2]))
     distance_m = np.array(distance_m)
-    settling_s = _settling_time_s(distance_m, dt_s)
+    time_s = dt_s * np.arange(1, len(distance_m) + 1)
+    settling_s = settling_time_s(time_s, distance_m, tolerance_m=BAND_M)
+    assert settling_s is not None, "never settled within the band"
     last_second_m = distance_m[-int(1.0 / dt_s) :].max()
-    print(f"seed {seed}: settled in {settling_s:.2f} s, last second within {last_second_m:.4f} m")
+    print(f"seed {seed}: settled at {settling_s:.2f} s, last second within {last_second_m:.4f} m")
     assert settling_s <= SETTLING_BOUND_S
     assert last_second_m < FINAL_BOUND_M
