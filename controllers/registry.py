@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
 
-from observer_gym.controllers.base import StateFeedbackController
+from observer_gym.controllers.base import Controller
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
@@ -15,24 +16,26 @@ from observer_gym.controllers.plant import BallTablePlant
 
 __all__ = ["CONTROLLERS", "make_controller"]
 
-CONTROLLERS: dict[str, type[StateFeedbackController]] = {
-    "lqr": LQRController,
-    "mpc": MPCController,
-    "pid": PIDController,
+# name -> (controller class, the function that builds its first argument, the design
+# input, from an env; it raises ValueError for an env the controller is not made for).
+CONTROLLERS: dict[str, tuple[type[Controller], Callable[[gym.Env], Any]]] = {
+    "lqr": (LQRController, BallTablePlant.from_env),
+    "mpc": (MPCController, BallTablePlant.from_env),
+    "pid": (PIDController, BallTablePlant.from_env),
 }
 
 
-def make_controller(name: str, env: gym.Env, **options: Any) -> StateFeedbackController:
+def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
     """The controller ``name`` (one of :data:`CONTROLLERS`) designed from ``env``'s nominal
     model; ``options`` go to its constructor. Unknown names and options raise ValueError
     listing the allowed ones."""
     if name not in CONTROLLERS:
         raise ValueError(f"unknown controller {name!r}; allowed: {', '.join(CONTROLLERS)}")
-    cls = CONTROLLERS[name]
-    allowed = [p for p in inspect.signature(cls).parameters if p != "plant"]
+    cls, design_input = CONTROLLERS[name]
+    allowed = list(inspect.signature(cls).parameters)[1:]
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         raise ValueError(
             f"unknown option(s) {unknown} for controller {name!r}; allowed: {', '.join(allowed)}"
         )
-    return cls(BallTablePlant.from_env(env), **options)
+    return cls(design_input(env), **options)

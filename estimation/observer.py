@@ -12,6 +12,7 @@ by :func:`default_pipeline`; pass ``pipeline=`` to use another.
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -49,16 +50,23 @@ class ObserverPipeline(Protocol):
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate: ...
 
 
+# env class name -> "module:class" of its default pipeline, built as cls(env, **options).
+PIPELINES: dict[str, str] = {
+    "BallTableEnv": "observer_gym.estimation.ball_table_observer:BallTableObserver",
+}
+
+
 def default_pipeline(env: gym.Env, **options: Any) -> ObserverPipeline:
-    """The pipeline made for ``env``'s system."""
-    from observer_gym.envs.ball_table import BallTableEnv
-
+    """The pipeline made for ``env``'s system (see :data:`PIPELINES`)."""
     base = env.unwrapped
-    if isinstance(base, BallTableEnv):
-        from observer_gym.estimation.ball_table_observer import BallTableObserver
-
-        return BallTableObserver(base, **options)
-    raise ValueError(f"no default observer pipeline for {type(base).__name__}; pass pipeline=")
+    target = PIPELINES.get(type(base).__name__)
+    if target is None:
+        raise ValueError(
+            f"no default observer pipeline for {type(base).__name__} (known: "
+            f"{', '.join(PIPELINES)}); pass pipeline="
+        )
+    module_name, class_name = target.split(":")
+    return getattr(importlib.import_module(module_name), class_name)(base, **options)
 
 
 class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):

@@ -189,6 +189,29 @@ def _run_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- reproduce -------------------------------------------------------------------------
+def _reproduce_arguments(parser: argparse.ArgumentParser) -> None:
+    import importlib
+
+    from observer_gym.train.reproduce import STUDIES
+
+    studies = parser.add_subparsers(dest="study", metavar="STUDY", title="studies", required=True)
+    for name, module_name in STUDIES.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue  # a study listed before its module landed
+        sub = studies.add_parser(name, help=module.DESCRIPTION, description=module.DESCRIPTION)
+        module.add_arguments(sub)
+        sub.set_defaults(study_run=module.run)
+
+
+def _reproduce_run(args: argparse.Namespace) -> int:
+    return args.study_run(args)
+
+
 COMMANDS: dict[str, Command] = {
     "demo": Command(
         help="centre the ball on BallTable-v0 from camera frames: pixel observer + LQR",
@@ -215,6 +238,17 @@ COMMANDS: dict[str, Command] = {
         ),
         add_arguments=_run_arguments,
         run=_run_run,
+    ),
+    "reproduce": Command(
+        help="re-run a source paper's study and print its figures beside the paper's",
+        description=(
+            "Re-run the study of one of the source papers in spec/ (linderoth2010: the "
+            "viewline Kalman filter's convergence; tsai2009: the self-tuning Kalman filter's "
+            "Table 2) and print the measured figures beside the paper's; plots are saved "
+            "into the output folder."
+        ),
+        add_arguments=_reproduce_arguments,
+        run=_reproduce_run,
     ),
 }
 
