@@ -1,6 +1,9 @@
 """``observer-gym run``: closed-loop episodes of a controller on the oracle state or on an
 observer's estimate, with metrics, a summary, plots and ``results.json``.
 
+What is measured and drawn depends on the env: its task module in
+:mod:`observer_gym.train.tasks` supplies the observers, metrics, summary rows and plots.
+
 Each episode is self-contained: it builds its own env and controller, resets with
 ``seed + episode`` and closes the env, so any episode can be rerun alone and running the
 episodes in several processes gives exactly the results of one.
@@ -22,21 +25,15 @@ from tqdm import tqdm
 
 import observer_gym.envs
 from observer_gym.controllers import CONTROLLERS, make_controller
-from observer_gym.envs.ball_table.layout import BALL_POS
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.metrics import TOLERANCE_M, distance_from_centre_m, episode_metrics
-from observer_gym.train.metrics import summarize as summarize_episodes
 from observer_gym.train.outputs import (
     format_table,
     package_versions,
     to_jsonable,
     write_json_atomic,
 )
-from observer_gym.train.plots import plot_distances, plot_estimate, plot_paths
+from observer_gym.train.tasks import task_for
 
-# observer name -> the env's obs_mode; every mode but "state" is wrapped in VisionObserver.
-OBSERVERS: dict[str, str] = {"oracle": "state", "kf": "rgb", "kf-measurements": "measurements"}
-PATH_PLOT_EPISODES = 5  # path.png shows the first this many episodes
 # Controller attributes recorded in results.json when present (the MPC's Q, R, K are its
 # LQR's: its terminal cost and fallback).
 CONTROLLER_ATTRIBUTES = (
@@ -52,6 +49,9 @@ CONTROLLER_ATTRIBUTES = (
     "kp",
     "ki",
     "kd",
+    "profile",
+    "max_speed_mps",
+    "max_accel_mps2",
 )
 
 
@@ -81,13 +81,20 @@ class EpisodeSpec:
 
 
 def make_env(env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
-    """The env for ``observer``: the state env for "oracle", else the env in the observer's
-    obs_mode wrapped in :class:`VisionObserver`. ``env_kwargs`` go to ``gym.make``."""
-    env = gym.make(env_id, obs_mode=OBSERVERS[observer], **dict(env_kwargs or {}))
+    """The env for ``observer`` (one of the env's task's ``OBSERVERS``): the state env for
+    "oracle", else the env in the observer's obs_mode wrapped in :class:`VisionObserver`
+    with the observer's pipeline options. ``env_kwargs`` go to ``gym.make``."""
+    observers = task_for(env_id).OBSERVERS
+    if observer not in observers:
+        raise ValueError(
+            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
+        )
+    obs_mode, pipeline_options = observers[observer]
+    env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
     if observer == "oracle":
         return env
     try:
-        return VisionObserver(env)
+        return VisionObserver(env, **dict(pipeline_options))
     except BaseException:
         env.close()
         raise
@@ -108,9 +115,10 @@ def describe_controller(controller: Any) -> dict[str, Any]:
 def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """Run one episode; its record (arrays, T steps).
 
-    Returns ``time_s`` (T + 1,), ``state`` (T + 1, 8) ground truth, ``estimate`` and
-    ``estimate_std`` (T + 1, 8; None for the oracle), ``actions_rad`` (T, 2),
-    ``rewards`` (T,), ``terminated``, ``truncated``, ``solver_failures``, ``controller``
+    Returns ``time_s`` (T + 1,), ``state`` (T + 1, n) ground truth, ``estimate`` and
+    ``estimate_std`` (T + 1, n; None for the oracle), ``actions`` (T, m), ``rewards``
+    (T,), ``terminated``, ``truncated``, ``final_info`` (the scalar entries of the last
+    step's info, e.g. an episode's outcome), ``solver_failures``, ``controller``
     (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
     Stops at termination, truncation (the env's time limit) or ``spec.max_steps``.
     """
@@ -137,10 +145,13 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
             "state": np.array([s["state"] for s in samples], dtype=float),
             "estimate": None,
             "estimate_std": None,
-            "actions_rad": np.array(actions).reshape(-1, 2),
+            "actions": np.array(actions).reshape(len(actions), *env.action_space.shape),
             "rewards": np.array(rewards),
             "terminated": bool(terminated),
             "truncated": bool(truncated),
+            "final_info": {
+                k: v for k, v in samples[-1].items() if isinstance(v, (bool, int, float, str))
+            },
             "solver_failures": int(getattr(controller, "failures", 0) - failures_before),
             "controller": describe_controller(controller),
             "env_config": dataclasses.asdict(env.unwrapped.config),
@@ -172,19 +183,18 @@ def run_experiment(
     """Run ``episodes`` closed-loop episodes; write results and plots; print a table.
 
     Episode i resets with ``seed + i`` (and ``reset_options``, e.g. a fixed start) and
-    runs to the env's time limit (500 steps, 10 s), the ball leaving the table, or
-    ``steps`` steps. With ``workers`` > 1 the episodes run in that many spawned processes,
-    with results identical to ``workers=1``.
+    runs to the env's end (termination or its time limit) or ``steps`` steps. With
+    ``workers`` > 1 the episodes run in that many spawned processes, with results
+    identical to ``workers=1``.
 
-    Writes into ``out_dir`` (created): ``path.png`` (ball paths of the first episodes),
-    ``error.png`` (distance from the centre vs time), ``estimate.png`` for the observers
-    (episode 0's estimate vs truth with ±2σ) and, last, ``results.json`` (atomically):
-    ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics, see
-    :func:`observer_gym.train.metrics.episode_metrics`), ``summary``, ``files``.
+    Writes into ``out_dir`` (created) the task's plots (BallTable: ``path.png``,
+    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``
+    (atomically): ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of
+    the task's ``episode_metrics``), ``summary``, ``files``.
 
     Args:
-        env_id: "BallTable-v0" or "observer_gym/BallTable-v0".
-        observer: one of :data:`OBSERVERS`.
+        env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
+        observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-measurements).
         controller: one of ``observer_gym.controllers.CONTROLLERS``.
         episodes: number of episodes (>= 1).
         seed: seed of episode 0.
@@ -203,8 +213,11 @@ def run_experiment(
         ValueError: an unknown env, observer or controller, a count < 1 or a negative seed.
     """
     env_id = resolve_env_id(env_id)
-    if observer not in OBSERVERS:
-        raise ValueError(f"unknown observer {observer!r}; allowed: {', '.join(OBSERVERS)}")
+    task = task_for(env_id)
+    if observer not in task.OBSERVERS:
+        raise ValueError(
+            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(task.OBSERVERS)}"
+        )
     if controller not in CONTROLLERS:
         raise ValueError(f"unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}")
     for name, value in (("episodes", episodes), ("workers", workers), ("steps", steps)):
@@ -226,27 +239,20 @@ def run_experiment(
     records = _run_all(specs, workers, progress)
     wall_time_s = time.perf_counter() - tic_s
 
-    per_episode = []
-    for i, (spec, record) in enumerate(zip(specs, records, strict=True)):
-        metrics = episode_metrics(
-            record["time_s"],
-            record["state"],
-            record["actions_rad"],
-            record["rewards"],
-            estimate=record["estimate"],
-            terminated=record["terminated"],
-            solver_failures=record["solver_failures"],
-        )
-        per_episode.append({"episode": i, "seed": spec.seed, **metrics})
-    summary = summarize_episodes(per_episode)
+    per_episode = [
+        {"episode": i, "seed": spec.seed, **task.episode_metrics(record)}
+        for i, (spec, record) in enumerate(zip(specs, records, strict=True))
+    ]
+    summary = task.summarize(per_episode)
 
-    files = _plot(records, observer, out_dir)
+    files = task.plot(records, observer, out_dir)
     files.append("results.json")
     results = to_jsonable(
         {
             "config": {
                 "env_id": env_id,
-                "env_kwargs": {"obs_mode": OBSERVERS[observer], **env_kwargs},
+                "env_kwargs": {"obs_mode": task.OBSERVERS[observer][0], **env_kwargs},
+                "pipeline_options": task.OBSERVERS[observer][1],
                 "env_config": records[0]["env_config"],
                 "observer": observer,
                 "controller": controller,
@@ -256,7 +262,7 @@ def run_experiment(
                 "steps": steps,
                 "workers": workers,
                 "reset_options": reset_options,
-                "tolerance_m": TOLERANCE_M,
+                **task.CONFIG,
                 "out_dir": str(out_dir),
                 "cli_args": cli_args,
             },
@@ -273,7 +279,7 @@ def run_experiment(
         f"observer-gym run: {env_id}, observer {observer}, controller {controller}, "
         f"{episodes} episode(s), seeds {seed}..{seed + episodes - 1}, {wall_time_s:.1f} s"
     )
-    print(summary_table(summary))
+    print(summary_table(summary, task.SUMMARY_ROWS))
     print(f"output: {out_dir}")
     return results
 
@@ -298,58 +304,14 @@ def _run_all(specs: Sequence[EpisodeSpec], workers: int, progress: bool) -> list
             return [future.result() for future in futures]
 
 
-def _plot(records: Sequence[dict], observer: str, out_dir: Path) -> list[str]:
-    """Write the plots of ``records``; their file names."""
-    shown = records[:PATH_PLOT_EPISODES]
-    plot_paths(
-        [r["state"][:, BALL_POS] for r in shown],
-        out_dir / "path.png",
-        title=f"Ball path, table frame (first {len(shown)} of {len(records)} episodes)",
-    )
-    plot_distances(
-        [r["time_s"] for r in records],
-        [distance_from_centre_m(r["state"][:, BALL_POS]) for r in records],
-        out_dir / "error.png",
-    )
-    files = ["path.png", "error.png"]
-    if observer != "oracle":
-        first = records[0]
-        plot_estimate(
-            first["time_s"],
-            first["state"][:, BALL_POS],
-            first["estimate"][:, BALL_POS],
-            first["estimate_std"][:, BALL_POS],
-            out_dir / "estimate.png",
-            title=f"Observer '{observer}' estimate of the ball position, episode 0",
-        )
-        files.append("estimate.png")
-    return files
-
-
-# summary key -> (label, unit, scale from the stored SI value to the shown unit, digits)
-SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
-    "episodes": ("episodes", "", 1.0, 0),
-    "fraction_settled": ("fraction settled (1 cm)", "", 1.0, 2),
-    "settling_time_mean_s": ("settling time, mean (settled)", "s", 1.0, 2),
-    "settling_time_median_s": ("settling time, median (settled)", "s", 1.0, 2),
-    "settling_time_max_s": ("settling time, max (settled)", "s", 1.0, 2),
-    "mean_distance_m": ("distance from centre, mean", "mm", 1e3, 2),
-    "final_distance_m": ("final distance from centre, mean", "mm", 1e3, 2),
-    "time_within_s": ("time within 1 cm, mean", "s", 1.0, 2),
-    "effort_rms_rad": ("control effort (RMS tilt command), mean", "mrad", 1e3, 2),
-    "position_rmse_m": ("estimation RMSE position, mean", "mm", 1e3, 3),
-    "velocity_rmse_mps": ("estimation RMSE velocity, mean", "mm/s", 1e3, 2),
-    "return": ("return, mean", "", 1.0, 1),
-    "solver_failures": ("solver failures (total)", "", 1.0, 0),
-    "terminated": ("terminated (ball off the table)", "", 1.0, 0),
-}
-
-
-def summary_table(summary: Mapping[str, Any]) -> str:
-    """A Markdown table with one row per summary metric, in readable units."""
-    rows = []
-    for key, (label, unit, scale, digits) in SUMMARY_ROWS.items():
+def summary_table(
+    summary: Mapping[str, Any], rows: Mapping[str, tuple[str, str, float, int]]
+) -> str:
+    """A Markdown table with one row per entry of ``rows`` (a task's ``SUMMARY_ROWS``:
+    key -> label, unit, scale from the stored SI value, digits), in readable units."""
+    lines = []
+    for key, (label, unit, scale, digits) in rows.items():
         value = summary[key]
         text = "-" if value is None else f"{value * scale:.{digits}f}"
-        rows.append([label, text, unit])
-    return format_table(["metric", "value", "unit"], rows)
+        lines.append([label, text, unit])
+    return format_table(["metric", "value", "unit"], lines)

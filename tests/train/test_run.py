@@ -10,7 +10,8 @@ import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.outputs import VERSIONED_PACKAGES
-from observer_gym.train.run import SUMMARY_ROWS, resolve_env_id, run_experiment
+from observer_gym.train.run import resolve_env_id, run_experiment
+from observer_gym.train.tasks.ball_table import SUMMARY_ROWS
 
 ENV_ID = "observer_gym/BallTable-v0"
 START_10_CM = {"ball_pos_table_m": (0.1, 0.0), "ball_vel_table_mps": (0.0, 0.0)}
