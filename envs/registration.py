@@ -7,6 +7,11 @@ import gymnasium as gym
 # id -> (entry point, max_episode_steps)
 ENVS = {
     "observer_gym/BallTable-v0": ("observer_gym.envs.ball_table:BallTableEnv", 500),
+    "observer_gym/BallCatcher-v0": ("observer_gym.envs.ball_catcher:BallCatcherEnv", 200),
+    "observer_gym/TargetFollower-v0": (
+        "observer_gym.envs.target_follower:TargetFollowerEnv",
+        600,
+    ),
 }
 
 

@@ -1,1 +1,22 @@
-"""``observer_gym/BallCatcher-v0``: an arm carries a box with a hole; a ball is thrown."""
+"""``observer_gym/BallCatcher-v0``: an arm carries a box with a hole; a ball is thrown at
+it; unsynchronised cameras watch (spec/catcher.md)."""
+
+from observer_gym.envs.ball_catcher.config import (
+    CAMERA_PRESETS,
+    ROBOT_PROFILES,
+    BallCatcherConfig,
+    RobotProfile,
+)
+from observer_gym.envs.ball_catcher.env import BallCatcherEnv
+from observer_gym.envs.ball_catcher.layout import STATE_DIM, STATE_NAMES, StateIndex
+
+__all__ = [
+    "CAMERA_PRESETS",
+    "ROBOT_PROFILES",
+    "STATE_DIM",
+    "STATE_NAMES",
+    "BallCatcherConfig",
+    "BallCatcherEnv",
+    "RobotProfile",
+    "StateIndex",
+]

@@ -107,10 +107,13 @@ class KukaIiwa:
 
     def attach(self, body: int, body_pos_in_ee) -> int:
         """Weld ``body`` (its base frame) to the flange at ``body_pos_in_ee`` (flange
-        frame), with no rotation between them, and stop the two from colliding."""
+        frame), with no rotation between them, and stop the two (all links of both) from
+        colliding."""
         client = self.sim.client
+        body_links = [-1, *range(client.getNumJoints(body))]
         for link in [-1, *self.joints]:
-            client.setCollisionFilterPair(self.body, body, link, -1, 0)
+            for body_link in body_links:
+                client.setCollisionFilterPair(self.body, body, link, body_link, 0)
         constraint = client.createConstraint(
             self.body,
             EE_LINK,

@@ -1,0 +1,222 @@
+"""The BallCatcher world: a KUKA iiwa carrying the box with the hole, and the ball.
+
+The box is one rigid body built from boxes (PyBullet has no primitive plate with a hole):
+a square front plate of WALL_M thickness whose round hole's rim is a ring of
+HOLE_SEGMENTS boxes tangent to the hole's circle (their inner faces form a regular
+polygon circumscribing it: the widest gap exceeds the hole's radius by
+r (1 / cos(pi / N) - 1), 0.26 mm at N = 24), four side walls and a back wall. The box's
+frame has its origin at the hole's centre on the front face's outer plane, z along the
+outward normal; its centre of mass is put there too, so PyBullet's base pose and velocity
+are the hole's.
+
+Tunnelling: a ball of radius r crossing a wall of thickness w is caught by the discrete
+collision test as long as it moves less than 2 r + w per physics step; at the default
+1 ms step that is 61 m/s, and the ball also uses maximal coordinates with a swept-sphere
+radius (continuous collision detection). tests/envs/test_ball_catcher_physics.py throws
+at 1.5 times the fastest throw of the default distribution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet
+
+from observer_gym.envs.ball_catcher import geometry as geo
+from observer_gym.envs.ball_catcher.layout import STATE_DIM, StateIndex
+from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
+from observer_gym.envs.sim import Simulation, asset_path
+
+BOX_MASS_KG = 0.5
+MAX_SHAPES_PER_LINK = 16  # PyBullet's limit on the shapes of one link
+BOX_RGBA = (0.85, 0.85, 0.8, 1.0)
+RESTITUTION = 0.4
+# Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
+AIR_DENSITY_KGPM3 = 1.2
+DRAG_COEFFICIENT = 0.47
+
+
+def _box_parts(hole_radius_m: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(half extents, centre, rotation about z in rad) of every part, box frame."""
+    r, s, w, d = hole_radius_m, geo.BOX_OUTER_SIDE_M / 2, geo.WALL_M, geo.BOX_DEPTH_M
+    n = geo.HOLE_SEGMENTS
+    z_front = -w / 2
+    # The plate leaves a square of half-side h0 open around the hole; the ring fills it.
+    h0 = r + 0.01
+    ring_outer = h0 * np.sqrt(2.0) / np.cos(np.pi / n) + 0.002  # covers the square's corners
+    half_len = ring_outer * np.tan(np.pi / n)
+    radial_half = (ring_outer - r) / 2
+    parts = []
+    for i in range(n):
+        a = 2.0 * np.pi * i / n
+        centre = (r + radial_half) * np.array([np.cos(a), np.sin(a), 0.0])
+        centre[2] = z_front
+        parts.append((np.array([radial_half, half_len, w / 2]), centre, a))
+    # Front plate around the open square: top and bottom full width, left and right between.
+    parts.append((np.array([s, (s - h0) / 2, w / 2]), np.array([0.0, (s + h0) / 2, z_front]), 0.0))
+    parts.append((np.array([s, (s - h0) / 2, w / 2]), np.array([0.0, -(s + h0) / 2, z_front]), 0.0))
+    parts.append((np.array([(s - h0) / 2, h0, w / 2]), np.array([(s + h0) / 2, 0.0, z_front]), 0.0))
+    parts.append(
+        (np.array([(s - h0) / 2, h0, w / 2]), np.array([-(s + h0) / 2, 0.0, z_front]), 0.0)
+    )
+    # Side walls and the back wall.
+    z_mid = -(w + d) / 2
+    side_half = (d - w) / 2
+    parts.append((np.array([s, w / 2, side_half]), np.array([0.0, s - w / 2, z_mid]), 0.0))
+    parts.append((np.array([s, w / 2, side_half]), np.array([0.0, -s + w / 2, z_mid]), 0.0))
+    parts.append((np.array([w / 2, s - w, side_half]), np.array([s - w / 2, 0.0, z_mid]), 0.0))
+    parts.append((np.array([w / 2, s - w, side_half]), np.array([-s + w / 2, 0.0, z_mid]), 0.0))
+    parts.append((np.array([s, s, w / 2]), np.array([0.0, 0.0, -d + w / 2]), 0.0))
+    return parts
+
+
+def interior_contains(point_box: np.ndarray) -> bool:
+    """Whether a point (box frame) is inside the box, behind the front plate."""
+    s_in = geo.BOX_OUTER_SIDE_M / 2 - geo.WALL_M
+    x, y, z = point_box
+    return bool(-geo.BOX_DEPTH_M + geo.WALL_M < z < -geo.WALL_M and abs(x) < s_in and abs(y) < s_in)
+
+
+@dataclass
+class GroundTruth:
+    state: np.ndarray  # STATE_NAMES layout
+    T_world_box: np.ndarray  # 4x4, origin at the hole's centre
+
+
+class BallCatcherScene:
+    """Builds and drives the BallCatcher world.
+
+    Args:
+        sim: the (empty) world to build in.
+        hole_diameter_m: the hole's diameter.
+        arm_position_gain: the arm's joint motor gain.
+        arm_home_q: exact home joint angles from an earlier build (None: refine by IK).
+    """
+
+    def __init__(
+        self,
+        sim: Simulation,
+        hole_diameter_m: float,
+        arm_position_gain: float,
+        arm_home_q=None,
+    ) -> None:
+        self.sim = sim
+        client = sim.client
+        home_q = geo.ARM_HOME_Q if arm_home_q is None else arm_home_q
+        self.arm = KukaIiwa(sim, geo.ARM_BASE_WORLD, home_q, arm_position_gain)
+        self._flange_offset = np.array([geo.FLANGE_TO_HOLE_M, 0.0, 0.0])  # world, flange to hole
+        if arm_home_q is None:
+            self.arm.settle_at_pose(self.flange_target(geo.HOLE_HOME_WORLD), geo.FLANGE_QUAT_WORLD)
+        self.box = self._build_box(hole_diameter_m / 2)
+        self.arm.attach(self.box, [0.0, 0.0, geo.FLANGE_TO_HOLE_M])
+        self.ball = client.loadURDF(
+            asset_path("ball.urdf"), [0.0, 0.0, -5.0], useMaximalCoordinates=True
+        )
+        client.changeDynamics(
+            self.ball, -1, restitution=RESTITUTION, ccdSweptSphereRadius=0.9 * geo.BALL_RADIUS_M
+        )
+        self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
+        self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
+        self.air_drag = False
+
+    def _build_box(self, hole_radius_m: float) -> int:
+        """The box as one multibody: PyBullet keeps at most 16 shapes per link, so the
+        parts are spread over the base and fixed links that share its frame."""
+        client = self.sim.client
+        parts = _box_parts(hole_radius_m)
+        groups = [
+            parts[i : i + MAX_SHAPES_PER_LINK] for i in range(0, len(parts), MAX_SHAPES_PER_LINK)
+        ]
+        collisions, visuals = [], []
+        for group in groups:
+            half_extents = [list(h) for h, _, _ in group]
+            centres = [list(c) for _, c, _ in group]
+            quats = [list(pybullet.getQuaternionFromEuler([0.0, 0.0, a])) for _, _, a in group]
+            box_types = [pybullet.GEOM_BOX] * len(group)
+            collisions.append(
+                client.createCollisionShapeArray(
+                    box_types,
+                    halfExtents=half_extents,
+                    collisionFramePositions=centres,
+                    collisionFrameOrientations=quats,
+                )
+            )
+            # (rgbaColors here crashes PyBullet 3.2.7; the colour is set below.)
+            visuals.append(
+                client.createVisualShapeArray(
+                    box_types,
+                    halfExtents=half_extents,
+                    visualFramePositions=centres,
+                    visualFrameOrientations=quats,
+                )
+            )
+        links = len(groups) - 1
+        link_mass = BOX_MASS_KG / len(groups)
+        zeros, identity = [[0.0, 0.0, 0.0]] * links, [[0.0, 0.0, 0.0, 1.0]] * links
+        body = client.createMultiBody(
+            baseMass=link_mass,
+            baseCollisionShapeIndex=collisions[0],
+            baseVisualShapeIndex=visuals[0],
+            basePosition=list(geo.HOLE_HOME_WORLD),
+            baseOrientation=list(geo.FLANGE_QUAT_WORLD),
+            linkMasses=[link_mass] * links,
+            linkCollisionShapeIndices=collisions[1:],
+            linkVisualShapeIndices=visuals[1:],
+            linkPositions=zeros,
+            linkOrientations=identity,
+            linkInertialFramePositions=zeros,
+            linkInertialFrameOrientations=identity,
+            linkParentIndices=[0] * links,
+            linkJointTypes=[pybullet.JOINT_FIXED] * links,
+            linkJointAxis=[[0.0, 0.0, 1.0]] * links,
+        )
+        for link in range(-1, links):
+            client.changeVisualShape(body, link, rgbaColor=list(BOX_RGBA))
+            client.changeDynamics(body, link, restitution=RESTITUTION)
+        return body
+
+    # --- commands ---------------------------------------------------------------------
+    def flange_target(self, hole_pos_world) -> np.ndarray:
+        return np.asarray(hole_pos_world, dtype=float) - self._flange_offset
+
+    def launch_ball(self, pos_world, vel_world) -> None:
+        client = self.sim.client
+        client.resetBasePositionAndOrientation(self.ball, list(pos_world), [0, 0, 0, 1])
+        client.resetBaseVelocity(self.ball, list(vel_world), [0.0, 0.0, 0.0])
+
+    def command_hole(self, hole_pos_world) -> None:
+        """Send the arm the joint targets that put the hole at ``hole_pos_world``."""
+        self.hole_target_world = np.asarray(hole_pos_world, dtype=float).copy()
+        q = self.arm.solve_ik(self.flange_target(hole_pos_world), geo.FLANGE_QUAT_WORLD)
+        self.arm.command_joints(q)
+
+    def apply_drag(self) -> None:
+        """Quadratic air drag on the ball for the next physics step (forces are cleared
+        after every step)."""
+        client = self.sim.client
+        v = np.asarray(client.getBaseVelocity(self.ball)[0])
+        area = np.pi * geo.BALL_RADIUS_M**2
+        force = -0.5 * AIR_DENSITY_KGPM3 * DRAG_COEFFICIENT * area * np.linalg.norm(v) * v
+        pos, _ = client.getBasePositionAndOrientation(self.ball)
+        client.applyExternalForce(self.ball, -1, list(force), list(pos), pybullet.WORLD_FRAME)
+
+    # --- ground truth -----------------------------------------------------------------
+    def ball_pos_world(self) -> np.ndarray:
+        return np.asarray(self.sim.client.getBasePositionAndOrientation(self.ball)[0])
+
+    def ground_truth(self) -> GroundTruth:
+        client = self.sim.client
+        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
+        ball_vel, _ = client.getBaseVelocity(self.ball)
+        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
+        box_vel, _ = client.getBaseVelocity(self.box)
+        state = np.empty(STATE_DIM)
+        state[StateIndex.BALL_X : StateIndex.BALL_Z + 1] = ball_pos
+        state[StateIndex.BALL_VX : StateIndex.BALL_VZ + 1] = ball_vel
+        state[StateIndex.BOX_X : StateIndex.BOX_Z + 1] = box_pos
+        state[StateIndex.BOX_VX : StateIndex.BOX_VZ + 1] = box_vel
+        T = np.eye(4)
+        T[:3, :3] = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
+        T[:3, 3] = box_pos
+        return GroundTruth(state, T)
