@@ -332,43 +332,45 @@ def test_two_alternating_cameras_first_frame_degenerate_then_converged(seed):
     assert kf.accepted_count == 8 and kf.rejected_count == 0
 
 
-SINGLE_CAMERA = look_at(np.array([3.0, -2.0, 1.6]), np.array([0.0, -2.0, 1.6]))
-
-
-def test_single_static_camera_tracks_from_70_m_away_converge_to_one_trajectory():
-    """The paper: with one static camera, inits up to 70 m off with 100 m std all converge
-    to about the same trajectory after 6-9 measurements. Measured here (8 inits, one
-    noisy frame sequence): spread (max distance from the tracks' mean) 63 m, 0.67, 0.22,
-    0.11, 0.059 m after 1-5 frames, 6 mm after 9. Honest caveat: the common trajectory is
-    NOT the truth yet: depth along a side-on single view is observable only through
-    gravity's image curvature, and after 30 frames the error to the truth is still ~1.4 m
-    (3.4 m after 4 frames); what we assert is the paper's claim, convergence of the tracks.
-    """
-    rng = np.random.default_rng(0)
-    frames = [(k * FRAME_DT_S, _flight(k * FRAME_DT_S)[:3]) for k in range(1, 13)]
-    uvs = [
-        _pixel(K_SMALL, SINGLE_CAMERA, p) + rng.normal(scale=PIXEL_STD_PX, size=2)
-        for _, p in frames
+def test_single_static_camera_from_70_m_away_agrees_then_converges_to_the_truth():
+    """The paper: one static camera, inits up to 70 m off with 100 m std, all tracks
+    converge to about the same trajectory after 6-9 frames. Here (side camera 2 m from the
+    flight, 656 x 480, 8 inits 70 m away, velocity guess 0 +- 10 m/s, drag-free throw, accel
+    noise 0.05), measured on this throw: the tracks agree within 5 cm from frame 4 on, but
+    at frame 9 the nearest is still 8.5 cm from the truth, as the pixels' Cramer-Rao bound
+    says it must be (largest position std after 9 frames 13 cm: only gravity's bend of the
+    image fixes the depth); at the end of the track (frame 18) all are within 3 mm, NEES
+    <= 2.7. Not every throw gets there within its track (3 of 8 seeds end 5-13 cm off):
+    ``observer-gym reproduce linderoth2010`` reports the distribution."""
+    rng = np.random.default_rng(3)
+    throw = st.random_throw(rng)
+    frames = [f for f in st.single_camera_frames(throw, 40, rng) if f.uv_px is not None]
+    assert len(frames) == 18
+    crlb9 = st.pixel_crlb_cov(frames[:9], PIXEL_STD_PX)
+    assert np.sqrt(np.linalg.eigvalsh(crlb9[:3, :3])[-1]) > 0.10  # measured 0.13 m
+    filters = [
+        ViewlineKalmanFilter(
+            x0, st.SINGLE_CAMERA_P0, PIXEL_STD_PX, gate_p=5.0, accel_noise_std=0.05
+        )
+        for x0 in st.far_initial_states(throw, 8, seed=3)
     ]
-    P0 = np.diag([100.0**2] * 3 + [10.0**2] * 3)
-    filters = []
-    for s in range(8):
-        d = np.random.default_rng(100 + s).normal(size=3)
-        x0 = np.concatenate([P0_THROW_M + 70.0 * d / np.linalg.norm(d), [0.0, 0.0, 0.0]])
-        filters.append(ViewlineKalmanFilter(x0, P0, pixel_std_px=PIXEL_STD_PX))
-    converged_at = None
-    for k, ((t, _), uv) in enumerate(zip(frames, uvs, strict=True), start=1):
+    spreads = []
+    for k, f in enumerate(frames, start=1):
         for kf in filters:
-            kf.add_frame(t, K_SMALL, SINGLE_CAMERA, uv)
+            kf.add_frame(f.capture_time_s, f.K, f.T_world_cam, f.uv_px)
         X = np.array([kf.x[:3] for kf in filters])
-        spread_m = np.linalg.norm(X - X.mean(axis=0), axis=1).max()
+        spreads.append(np.linalg.norm(X - X.mean(axis=0), axis=1).max())
+        errors = np.linalg.norm(X - f.true_state[:3], axis=1)
         if k == 1:
-            assert spread_m > 10.0  # the inits really were far apart
-        if converged_at is None and spread_m < 0.1:
-            converged_at = k
-    assert converged_at is not None and converged_at <= 9  # measured: 5
-    assert spread_m < 0.02  # measured: ~6 mm after 12 frames
-    assert all(kf.rejected_count == 0 for kf in filters)
+            assert spreads[-1] > 10.0  # the inits really were far apart
+        if k == 9:
+            assert errors.min() > 0.05  # not converged to the truth: the bound forbids it
+    assert max(spreads[8:]) < 0.05  # agree within 9 frames, and stay so
+    for kf in filters:
+        e = kf.x[:3] - frames[-1].true_state[:3]
+        assert np.linalg.norm(e) < 0.05
+        assert e @ np.linalg.solve(kf.P[:3, :3], e) < 21.1  # chi-square(3) 99.99 %
+        assert kf.rejected_count == 0
 
 
 def test_outliers_are_rejected_and_counted():
