@@ -5,21 +5,25 @@ observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an 
 """
 
 from observer_gym.controllers.base import Controller, StateFeedbackController
+from observer_gym.controllers.follower_plant import FollowerPlant
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
 from observer_gym.controllers.plant import BallTablePlant
 from observer_gym.controllers.registry import CONTROLLERS, make_controller
+from observer_gym.controllers.vtc import VisualTrackingController
 from observer_gym.controllers.weights import ball_table_weights, check_weights
 
 __all__ = [
     "CONTROLLERS",
     "BallTablePlant",
     "Controller",
+    "FollowerPlant",
     "LQRController",
     "MPCController",
     "PIDController",
     "StateFeedbackController",
+    "VisualTrackingController",
     "ball_table_weights",
     "check_weights",
     "make_controller",

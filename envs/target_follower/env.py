@@ -1,0 +1,353 @@
+"""``observer_gym/TargetFollower-v0``."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from observer_gym.envs.actions import checked_action
+from observer_gym.envs.camera import Camera, PinholeIntrinsics
+from observer_gym.envs.sim import Simulation
+from observer_gym.envs.target_follower import geometry as geo
+from observer_gym.envs.target_follower.config import TargetFollowerConfig
+from observer_gym.envs.target_follower.drive import DriveLimits
+from observer_gym.envs.target_follower.layout import (
+    DETECTED,
+    IMAGE,
+    STATE_HIGH,
+    STATE_LOW,
+    TARGET_PX,
+)
+from observer_gym.envs.target_follower.measurements import (
+    fully_hidden,
+    in_image,
+    perfect_measurement,
+)
+from observer_gym.envs.target_follower.motion import OccluderWalk, TargetMotion
+from observer_gym.envs.target_follower.scene import TargetFollowerScene
+
+FAR_PLANE_M = 8.0  # the renderer's far plane: the target stays within a few metres
+RESET_OPTIONS = ("target_pos_world_m", "tilt_rad", "occlusions_s")
+
+
+class TargetFollowerEnv(gym.Env):
+    """A wheeled robot with a tilt camera keeps a moving target centred at a set size.
+
+    ## Description
+    The visual tracking system of spec/follower.md (Tsai et al. 2009). A differential-drive
+    robot (wheel base D = 0.40 m) carries a camera on a tilt platform whose axis is 1.20 m
+    above the floor; the camera sits delta_y = 0.10 m above the axis (320x240 px,
+    f_x, f_y = 393.4, 391.8 px, 10 frames/s: T = 100 ms). An orange sphere of width
+    W = 0.12 m at head height is the target; it moves by the spec's profile (44), a smooth
+    random walk, or not at all. Optionally a person-sized box walks between robot and
+    target and hides it fully for ``occluder_hold_s``. The robot and the target move
+    kinematically (the spec's unicycle model, integrated exactly); PyBullet holds the world
+    and renders it with TinyRenderer (no floor, to keep rendering cheap:
+    ``python benchmarks/bench_follower.py`` measures it).
+
+    ## Action Space
+    ``Box([-v_max, -omega_max, -omega_t_max], [v_max, omega_max, omega_t_max], float32)``:
+    u = (v, omega, omega_t): forward speed (m/s), yaw rate (rad/s, positive turns left)
+    and tilt rate (rad/s, positive looks up); defaults 0.6 m/s, 1.0 rad/s, 1.0 rad/s (all
+    within [-1, 1], as Gymnasium's checker recommends).
+    The drive turns (v, omega) into wheel speeds v_l,r = v -+ omega D / 2, scales both
+    together to ``wheel_speed_max_mps`` and (if set) ``wheel_accel_max_mps2``, and
+    optionally quantises them to 8-bit integers in cm/s, rounded down
+    (``wheel_quantization``), as the spec's robot does; the tilt stops at
+    [``tilt_min_rad``, ``tilt_max_rad``]. The velocity applied after all this is in the
+    state and in ``info["applied_action"]``. Finite out-of-range actions are clipped; NaN,
+    inf or a wrong shape raise ``ValueError``.
+
+    ## Observation Space
+    - ``obs_mode="rgb"`` (default): the latest camera frame, ``Box(0, 255, (240, 320, 3),
+      uint8)``. When a frame is dropped, the previous frame is repeated.
+    - ``obs_mode="state"``: ``Box((14,), float32)``, the ground truth with the layout
+      ``observer_gym.envs.target_follower.STATE_NAMES``: the image state
+      X_i = (x_i, y_i, d_x) (px; x_i right and y_i up from the principal point, d_x =
+      f_x W / z_c), its target-induced rate X_i^t' = J_t V_t (px/s, spec (3)(4)), the
+      robot's pose (x, y, yaw), the tilt phi, the applied (v, omega, omega_t) and
+      ``tracking_valid`` (1: the target is in front of the camera).
+    - ``obs_mode="measurements"``: a Dict with what a perfect detector reports for the
+      latest frame (no rendering): ``target_px`` (x_i, y_i, d_x) with the spec's noise
+      model Z = round(X + sigma_n (2 w - 1)), sigma_n = ``measurement_noise_px``, and
+      ``detected`` (0 when the target is outside the image or fully hidden).
+
+    ``env.state_space`` is the Box of the state layout whatever the obs_mode (an
+    observer's estimate lives there). ``info`` always holds ``state`` (ground truth,
+    unclipped), ``time_s``, ``camera`` (the current ``K``, ``T_world_cam``,
+    ``image_size_px``), ``frames`` (the frames delivered this step, empty if dropped, each
+    with ``camera_id``, ``capture_time_s``, ``K``, ``T_world_cam``, ``image_size_px``),
+    ``calibration`` (f_x, f_y, c_x, c_y, W, delta_y, D, T), ``applied_action``
+    (v, omega, omega_t applied over the last step), ``target_pos_world``,
+    ``target_vel_world``, ``target_in_image`` and ``occluded`` (the occluder hides it).
+
+    ## Rewards
+    ``1 - mean_j min(|e_j| / s_j, 1)`` per step with e = X_i - (0, 0, d*) and
+    s = (width / 2, height / 2, d*): 1 with the target centred at the set size, 0 when
+    it is off the image.
+
+    ## Starting State
+    Robot at the origin facing +x, at rest, tilt 0 (spec Table 1). The target's centre is
+    ahead of the camera at a distance uniform in [``start_distance_min_m``,
+    ``start_distance_max_m``], a bearing uniform within +-``start_bearing_max_rad`` and a
+    height uniform in [``start_height_min_m``, ``start_height_max_m``].
+    ``reset(options={"target_pos_world_m": (x, y, z), "tilt_rad": phi,
+    "occlusions_s": (t0, ...)})`` sets the target's start, the tilt, and times at which the
+    occluder starts walking in (it hides the target 1 s later, for ``occluder_hold_s``).
+
+    ## Episode End
+    Terminated when the target has been outside the image for ``lost_timeout_s`` or comes
+    closer than ``min_distance_m`` to the camera. Truncated by the registered time limit of
+    600 steps (60 s at the default 10 Hz).
+
+    ## Arguments
+    ``gym.make("observer_gym/TargetFollower-v0", **options)``; the options are the fields
+    of :class:`TargetFollowerConfig` (``TargetFollowerConfig.describe()`` lists them).
+    A bad value or an unknown option raises ``ValueError``.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        self.config = TargetFollowerConfig.from_kwargs(**options)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode={render_mode!r} is not supported; use None or 'rgb_array'"
+            )
+        cfg = self.config
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}
+        w, h = cfg.image_width_px, cfg.image_height_px
+        self.intrinsics = PinholeIntrinsics(w, h, cfg.fx_px, cfg.fy_px, w / 2.0, h / 2.0)
+        self._image_size = (w, h)
+        high = np.array(
+            [cfg.max_speed_mps, cfg.max_yaw_rate_radps, cfg.max_tilt_rate_radps], np.float32
+        )
+        self.action_space = spaces.Box(-high, high, dtype=np.float32)
+        # The space of the ground-truth state (and of an observer's estimate of it).
+        self.state_space = spaces.Box(
+            np.array(STATE_LOW, np.float32), np.array(STATE_HIGH, np.float32), dtype=np.float32
+        )
+        self.observation_space = self._make_observation_space()
+        self.limits = DriveLimits(
+            cfg.wheel_base_m,
+            cfg.wheel_speed_max_mps,
+            cfg.wheel_accel_max_mps2,
+            cfg.wheel_quantization,
+        )
+        self.sim = Simulation(cfg.dt_s / cfg.substeps)
+        self.scene = self._build_scene()  # builds once now, so a broken setup fails here
+        self.camera = Camera(self.sim, self.intrinsics, near_m=0.05, far_m=FAR_PLANE_M)
+        self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz)
+        self._time_s = 0.0
+        self._lost_s = 0.0
+        self._last_obs = None
+        self._frame_index = 0
+        self._truth = None
+
+    def _make_observation_space(self) -> spaces.Space:
+        cfg = self.config
+        w, h = self._image_size
+        if cfg.obs_mode == "rgb":
+            return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
+        if cfg.obs_mode == "state":
+            return self.state_space
+        bound = float(max(w, h)) + 2.0 * cfg.measurement_noise_px + 1.0
+        d_max = 4.0 * max(w, h)
+        return spaces.Dict(
+            {
+                TARGET_PX: spaces.Box(
+                    np.array([-bound, -bound, 0.0], np.float32),
+                    np.array([bound, bound, d_max], np.float32),
+                ),
+                DETECTED: spaces.MultiBinary(1),
+            }
+        )
+
+    @property
+    def calibration(self) -> dict[str, float]:
+        """What a calibrated rig knows: intrinsics, W, delta_y, D and T."""
+        cfg, intr = self.config, self.intrinsics
+        return {
+            "fx_px": intr.fx_px,
+            "fy_px": intr.fy_px,
+            "cx_px": intr.cx_px,
+            "cy_px": intr.cy_px,
+            "target_width_m": cfg.target_width_m,
+            "delta_y_m": cfg.delta_y_m,
+            "wheel_base_m": cfg.wheel_base_m,
+            "dt_s": cfg.dt_s,
+        }
+
+    # --- Gymnasium API ----------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        cfg = self.config
+        options = dict(options or {})
+        unknown = sorted(set(options) - set(RESET_OPTIONS))
+        if unknown:
+            raise ValueError(
+                f"unknown reset options {unknown}; allowed: {', '.join(RESET_OPTIONS)}"
+            )
+        rng = self.np_random
+        tilt = float(options.get("tilt_rad", 0.0))
+        if not cfg.tilt_min_rad <= tilt <= cfg.tilt_max_rad:
+            raise ValueError(
+                f"reset option tilt_rad={tilt!r} is outside [{cfg.tilt_min_rad}, "
+                f"{cfg.tilt_max_rad}]"
+            )
+        distance = rng.uniform(cfg.start_distance_min_m, cfg.start_distance_max_m)
+        bearing = rng.uniform(-cfg.start_bearing_max_rad, cfg.start_bearing_max_rad)
+        height = rng.uniform(cfg.start_height_min_m, cfg.start_height_max_m)
+        target = options.get("target_pos_world_m")
+        if target is None:
+            eye = geo.camera_pose(np.zeros(2), 0.0, tilt, cfg.delta_y_m)[:3, 3]
+            target = [
+                eye[0] + distance * math.cos(bearing),
+                eye[1] + distance * math.sin(bearing),
+                height,
+            ]
+        target = np.asarray(target, dtype=float)
+        if target.shape != (3,) or not np.all(np.isfinite(target)):
+            raise ValueError(
+                f"reset option target_pos_world_m must be 3 finite numbers, got {target!r}"
+            )
+        occlusions = tuple(float(t) for t in options.get("occlusions_s", ()))
+
+        self.sim.clear()
+        self.scene = self._build_scene()
+        motion = TargetMotion(
+            cfg.target_motion,
+            target,
+            rng,
+            walk_speed_mps=cfg.walk_speed_mps,
+            push_rate_hz=cfg.push_rate_hz,
+            push_speed_mps=cfg.push_speed_mps,
+        )
+        self.scene.start(tilt, motion)
+        self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz, occlusions)
+        self._time_s = 0.0
+        self._lost_s = 0.0
+        self._frame_index = 0
+        self._last_obs = None
+        return self._observe(dropped=False)
+
+    def step(self, action):
+        command = checked_action(action, self.action_space)
+        cfg = self.config
+        rng = self.np_random
+        self.scene.advance(command, cfg.dt_s, cfg.substeps)
+        self._time_s += cfg.dt_s
+        dropped = rng.uniform() < cfg.frame_drop_prob
+        obs, info = self._observe(dropped=dropped)
+
+        error = info["state"][IMAGE] - np.array([0.0, 0.0, cfg.desired_width_px])
+        w, h = self._image_size
+        scale = np.array([w / 2.0, h / 2.0, cfg.desired_width_px])
+        in_view = info["target_in_image"]
+        reward = 1.0 - float(np.mean(np.minimum(np.abs(error) / scale, 1.0))) if in_view else 0.0
+        self._lost_s = 0.0 if in_view else self._lost_s + cfg.dt_s
+        too_close = self._truth.depth_m < cfg.min_distance_m
+        terminated = bool(self._lost_s >= cfg.lost_timeout_s - 1e-9 or too_close)
+        return obs, reward, terminated, False, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self.config.obs_mode == "rgb" and self._last_obs is not None:
+            return self._last_obs
+        return self.camera.render(self.scene.camera_pose())
+
+    def close(self) -> None:
+        if hasattr(self, "sim"):
+            self.sim.close()
+
+    # --- internals --------------------------------------------------------------------
+    def _build_scene(self) -> TargetFollowerScene:
+        cfg = self.config
+        return TargetFollowerScene(
+            self.sim,
+            self.intrinsics.K,
+            cfg.target_width_m,
+            cfg.delta_y_m,
+            (cfg.tilt_min_rad, cfg.tilt_max_rad),
+            self.limits,
+            with_occluder=True,
+        )
+
+    def _observe(self, dropped: bool):
+        """The observation and info after the world reached ``self._time_s``."""
+        cfg = self.config
+        scene = self.scene
+        T_world_cam = scene.camera_pose()
+        walk = self.occluder_walk
+        walk.update(self._time_s, cfg.dt_s, self.np_random)
+        scene.place_occluder(walk.pose(self._time_s, T_world_cam[:3, 3], scene.motion.pos))
+        truth = self._truth = scene.ground_truth()
+        K = self.camera.K
+        X = truth.state[IMAGE]
+        target_in_image = bool(
+            truth.depth_m > geo.MIN_DEPTH_M and in_image(K, self._image_size, X[0], X[1])
+        )
+        occluded = fully_hidden(
+            T_world_cam, truth.target_pos_world, 0.5 * cfg.target_width_m, scene.occluder_pose
+        )
+        camera = {
+            "K": K.copy(),
+            "T_world_cam": T_world_cam.copy(),
+            "image_size_px": self._image_size,
+        }
+        frames = []
+        if not dropped or self._frame_index == 0:
+            frames.append({"camera_id": 0, "capture_time_s": self._time_s, **camera})
+            self._last_obs = self._capture(T_world_cam)
+            self._frame_index += 1
+        info = {
+            "state": truth.state.copy(),
+            "time_s": self._time_s,
+            "camera": camera,
+            "frames": frames,
+            "calibration": self.calibration,
+            "applied_action": scene.applied.copy(),
+            "target_pos_world": truth.target_pos_world.copy(),
+            "target_vel_world": truth.target_vel_world.copy(),
+            "target_in_image": target_in_image,
+            "occluded": bool(occluded),
+        }
+        if cfg.obs_mode == "state":
+            space = self.state_space
+            return np.clip(truth.state, space.low, space.high).astype(np.float32), info
+        return self._last_obs, info
+
+    def _capture(self, T_world_cam: np.ndarray):
+        """A new frame in the observation's format."""
+        cfg = self.config
+        if cfg.obs_mode == "state":
+            return None
+        if cfg.obs_mode == "rgb":
+            image = self.camera.render(T_world_cam)
+            if cfg.image_noise_std > 0.0:
+                noise = self.np_random.normal(0.0, cfg.image_noise_std, image.shape)
+                image = np.clip(image + noise, 0, 255).astype(np.uint8)
+            return image
+        out = perfect_measurement(
+            self.camera.K,
+            T_world_cam,
+            self._image_size,
+            self._truth.target_pos_world,
+            cfg.target_width_m,
+            occluder=self.scene.occluder_pose,
+            noise_px=cfg.measurement_noise_px,
+            rounding=cfg.measurement_rounding,
+            rng=self.np_random,
+        )
+        space = self.observation_space[TARGET_PX]
+        out[TARGET_PX] = np.clip(out[TARGET_PX], space.low, space.high).astype(np.float32)
+        return out

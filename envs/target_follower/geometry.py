@@ -1,0 +1,110 @@
+"""TargetFollower geometry: the robot's kinematic chain, the camera pose, and the image state.
+
+World frame (PyBullet): x forward at the start, y left, z up. The robot's base frame sits
+on the floor at (x, y) with yaw psi (counter-clockwise, so a positive yaw rate turns
+left). The tilt axis is the base's y axis at ``TILT_AXIS_BASE_M``; the tilt angle phi is
+positive when the camera looks up. The camera's optical centre lies ``delta_y_m`` (the
+spec's delta y) above the tilt axis along the tilted camera's up axis, which is the spec's
+appendix geometry X_c = R(phi, theta)(X_t - X_m) - (0, delta_y, 0) with theta = psi.
+
+Image state (spec "Image-space state"), in pixels:
+- x_i = u - c_x (right positive), y_i = c_y - v (up positive), with (u, v) the OpenCV
+  pixel of the target's centre: the spec's x_i = -f_x x_c / z_c, y_i = f_y y_c / z_c in
+  its camera axes (x left, y up, z forward);
+- d_x = f_x W / z_c, the target's width in pixels at the depth z_c of its centre.
+
+The target-induced image velocity X_i^t' = J_t V_t (spec (3)(4)) is the time derivative
+of the image state when only the target moves, evaluated exactly from the camera pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from observer_gym.envs.transforms import pose_matrix
+
+# Tilt axis in the base frame (m): 1.2 m above the midpoint of the wheel axle, on the
+# robot's turning axis, as the spec's geometry has it (X_m is both the unicycle's position
+# and the tilt axis's); an axis ahead of the axle would add a lateral term to B_i's omega
+# column.
+TILT_AXIS_BASE_M = np.array([0.0, 0.0, 1.20])
+MIN_DEPTH_M = 0.05  # a target closer than this to the camera plane has no image state
+
+
+def camera_pose(
+    robot_xy_m: np.ndarray, yaw_rad: float, tilt_rad: float, delta_y_m: float
+) -> np.ndarray:
+    """``T_world_cam`` (OpenCV camera axes) of the robot's camera."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    ct, st = math.cos(tilt_rad), math.sin(tilt_rad)
+    forward_base = np.array([ct, 0.0, st])  # optical axis, tilted up by phi
+    up_base = np.array([-st, 0.0, ct])
+    right_base = np.array([0.0, -1.0, 0.0])
+    R_world_base = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    # OpenCV: x right, y down, z forward.
+    R_base_cam = np.column_stack([right_base, -up_base, forward_base])
+    centre_base = TILT_AXIS_BASE_M + delta_y_m * up_base
+    centre_world = R_world_base @ centre_base + np.array([robot_xy_m[0], robot_xy_m[1], 0.0])
+    return pose_matrix(R_world_base @ R_base_cam, centre_world)
+
+
+def target_in_camera(T_world_cam: np.ndarray, target_pos_world: np.ndarray) -> np.ndarray:
+    """The target's centre in the (OpenCV) camera frame."""
+    return T_world_cam[:3, :3].T @ (np.asarray(target_pos_world, dtype=float) - T_world_cam[:3, 3])
+
+
+def image_state(
+    K: np.ndarray, T_world_cam: np.ndarray, target_pos_world: np.ndarray, width_m: float
+) -> np.ndarray:
+    """(x_i, y_i, d_x) in pixels; depth clamped at MIN_DEPTH_M (the target is then
+    behind or beside the camera and the numbers only mark it as far out of view)."""
+    p = target_in_camera(T_world_cam, target_pos_world)
+    z = max(p[2], MIN_DEPTH_M)
+    fx, fy = K[0, 0], K[1, 1]
+    return np.array([fx * p[0] / z, -fy * p[1] / z, fx * width_m / z])
+
+
+def target_image_velocity(
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    target_pos_world: np.ndarray,
+    target_vel_world: np.ndarray,
+    width_m: float,
+) -> np.ndarray:
+    """X_i^t' = J_t V_t (spec (3)(4)): the image state's rate from the target's motion
+    alone, in px/s, the exact derivative of :func:`image_state` with the camera held."""
+    p = target_in_camera(T_world_cam, target_pos_world)
+    pdot = T_world_cam[:3, :3].T @ np.asarray(target_vel_world, dtype=float)
+    z = max(p[2], MIN_DEPTH_M)
+    fx, fy = K[0, 0], K[1, 1]
+    return np.array(
+        [
+            fx * (pdot[0] * z - p[0] * pdot[2]) / (z * z),
+            -fy * (pdot[1] * z - p[1] * pdot[2]) / (z * z),
+            -fx * width_m * pdot[2] / (z * z),
+        ]
+    )
+
+
+def pixel_from_image_state(K: np.ndarray, xi_px: float, yi_px: float) -> tuple[float, float]:
+    """(u, v) OpenCV pixel of the image-state point (x_i, y_i)."""
+    return float(xi_px + K[0, 2]), float(K[1, 2] - yi_px)
+
+
+def robot_pose_from_camera(
+    T_world_cam: np.ndarray, delta_y_m: float
+) -> tuple[np.ndarray, float, float]:
+    """(robot_xy_m, yaw_rad, tilt_rad) of the robot whose camera has pose ``T_world_cam``:
+    the inverse of :func:`camera_pose`."""
+    forward = T_world_cam[:3, 2]
+    tilt = math.asin(max(-1.0, min(1.0, float(forward[2]))))
+    yaw = math.atan2(float(forward[1]), float(forward[0]))
+    ct, st = math.cos(tilt), math.sin(tilt)
+    centre_base = TILT_AXIS_BASE_M + delta_y_m * np.array([-st, 0.0, ct])
+    c, s = math.cos(yaw), math.sin(yaw)
+    offset_xy = np.array(
+        [c * centre_base[0] - s * centre_base[1], s * centre_base[0] + c * centre_base[1]]
+    )
+    return T_world_cam[:2, 3] - offset_xy, yaw, tilt

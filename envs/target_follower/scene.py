@@ -1,0 +1,173 @@
+"""The TargetFollower world: the robot, the target and the occluder, all moved kinematically.
+
+Nothing here is driven by contact dynamics: the spec's robot model is kinematic (a
+unicycle with a tilt platform, spec "Kinematics") and so is the target's motion, so the
+scene integrates both exactly and places the bodies; PyBullet holds the world and renders
+it. There is no floor: the camera looks at head height, and a floor filling the background
+would cost most of the rendering time (benchmarks/bench_follower.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from observer_gym.envs.sim import Simulation, asset_path
+from observer_gym.envs.target_follower import geometry as geo
+from observer_gym.envs.target_follower.drive import (
+    DriveLimits,
+    applied_wheel_speeds,
+    body_velocity,
+    integrate_unicycle,
+)
+from observer_gym.envs.target_follower.layout import (
+    APPLIED,
+    IMAGE,
+    IMAGE_RATE,
+    STATE_DIM,
+    StateIndex,
+)
+from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
+
+TARGET_URDF_WIDTH_M = 0.12  # follower_target.urdf's sphere diameter; scaled to W
+
+
+def _yaw_quaternion(yaw_rad: float) -> list[float]:
+    return [0.0, 0.0, math.sin(0.5 * yaw_rad), math.cos(0.5 * yaw_rad)]
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass
+class GroundTruth:
+    """Everything the simulator knows after a step."""
+
+    state: np.ndarray  # STATE_NAMES layout
+    T_world_cam: np.ndarray  # 4x4
+    target_pos_world: np.ndarray  # (3,)
+    target_vel_world: np.ndarray  # (3,)
+    depth_m: float  # the target centre's depth z_c in the camera frame
+
+
+class TargetFollowerScene:
+    """Builds the world in ``sim`` and moves its bodies.
+
+    Args:
+        sim: the (empty) world to build in.
+        K: the camera matrix (for the ground-truth image state).
+        target_width_m: W.
+        delta_y_m: the camera's offset above the tilt axis.
+        tilt_range_rad: (lowest, highest) tilt; the tilt stops at either end.
+        limits: the drive's wheel limits.
+        with_occluder: load the occluder body.
+    """
+
+    def __init__(
+        self,
+        sim: Simulation,
+        K: np.ndarray,
+        target_width_m: float,
+        delta_y_m: float,
+        tilt_range_rad: tuple[float, float],
+        limits: DriveLimits,
+        with_occluder: bool,
+    ) -> None:
+        self.sim = sim
+        self.K = K
+        self.target_width_m = target_width_m
+        self.delta_y_m = delta_y_m
+        self.tilt_range_rad = tilt_range_rad
+        self.limits = limits
+        client = sim.client
+        self.robot = client.loadURDF(asset_path("follower_robot.urdf"), useFixedBase=True)
+        self.target = client.loadURDF(
+            asset_path("follower_target.urdf"),
+            [0.0, 0.0, -10.0],
+            globalScaling=target_width_m / TARGET_URDF_WIDTH_M,
+        )
+        self.occluder = None
+        if with_occluder:
+            self.occluder = client.loadURDF(
+                asset_path("follower_occluder.urdf"), list(OCCLUDER_PARKED_WORLD)
+            )
+        self.occluder_pose: tuple[np.ndarray, float] | None = None
+        # Kinematic state.
+        self.robot_xy_m = np.zeros(2)
+        self.yaw_rad = 0.0
+        self.tilt_rad = 0.0
+        self.wheels_mps = np.zeros(2)
+        self.applied = np.zeros(3)  # (v, omega, omega_t) over the last step
+        self.motion: TargetMotion | None = None
+
+    # --- commands ---------------------------------------------------------------------
+    def start(self, tilt_rad: float, motion: TargetMotion) -> None:
+        """Robot at the origin facing +x with the given tilt, at rest; the target's motion."""
+        self.robot_xy_m = np.zeros(2)
+        self.yaw_rad = 0.0
+        self.tilt_rad = float(tilt_rad)
+        self.wheels_mps = np.zeros(2)
+        self.applied = np.zeros(3)
+        self.motion = motion
+        self._place()
+
+    def advance(self, command: np.ndarray, dt_s: float, substeps: int) -> None:
+        """Drive for ``dt_s`` with the command (v, omega, omega_t) and move the target."""
+        self.wheels_mps = applied_wheel_speeds(
+            float(command[0]), float(command[1]), self.wheels_mps, dt_s, self.limits
+        )
+        v, omega = body_velocity(self.wheels_mps, self.limits.wheel_base_m)
+        low, high = self.tilt_range_rad
+        tilt_end = min(max(self.tilt_rad + float(command[2]) * dt_s, low), high)
+        omega_t = (tilt_end - self.tilt_rad) / dt_s  # the tilt stops at its end stops
+        x, y, yaw = integrate_unicycle(*self.robot_xy_m, self.yaw_rad, v, omega, dt_s)
+        self.robot_xy_m = np.array([x, y])
+        self.yaw_rad = wrap_angle(yaw)
+        self.tilt_rad = tilt_end
+        self.applied = np.array([v, omega, omega_t])
+        self.motion.advance(dt_s, substeps)
+        self._place()
+
+    def place_occluder(self, pose: tuple[np.ndarray, float] | None) -> None:
+        """``pose`` (centre_world, yaw_rad), or None to park it out of sight."""
+        if self.occluder is None:
+            return
+        self.occluder_pose = pose
+        centre, yaw = (OCCLUDER_PARKED_WORLD, 0.0) if pose is None else pose
+        self.sim.client.resetBasePositionAndOrientation(
+            self.occluder, list(centre), _yaw_quaternion(yaw)
+        )
+
+    def _place(self) -> None:
+        client = self.sim.client
+        x, y = self.robot_xy_m
+        client.resetBasePositionAndOrientation(
+            self.robot, [x, y, 0.0], _yaw_quaternion(self.yaw_rad)
+        )
+        client.resetJointState(self.robot, 0, self.tilt_rad)
+        client.resetBasePositionAndOrientation(
+            self.target, list(self.motion.pos), [0.0, 0.0, 0.0, 1.0]
+        )
+
+    # --- ground truth -----------------------------------------------------------------
+    def camera_pose(self) -> np.ndarray:
+        return geo.camera_pose(self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m)
+
+    def ground_truth(self) -> GroundTruth:
+        T = self.camera_pose()
+        pos, vel = self.motion.pos.copy(), self.motion.velocity
+        W = self.target_width_m
+        depth = float(geo.target_in_camera(T, pos)[2])
+        state = np.empty(STATE_DIM)
+        state[IMAGE] = geo.image_state(self.K, T, pos, W)
+        state[IMAGE_RATE] = geo.target_image_velocity(self.K, T, pos, vel, W)
+        state[StateIndex.ROBOT_X : StateIndex.ROBOT_Y + 1] = self.robot_xy_m
+        state[StateIndex.ROBOT_YAW] = self.yaw_rad
+        state[StateIndex.TILT] = self.tilt_rad
+        state[APPLIED] = self.applied
+        state[StateIndex.TRACKING_VALID] = float(depth > geo.MIN_DEPTH_M)
+        return GroundTruth(state, T, pos, vel, depth)
