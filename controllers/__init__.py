@@ -1,4 +1,6 @@
-"""Controllers with stable-baselines3's ``predict`` signature: LQR, MPC (OSQP), PID.
+"""Controllers with stable-baselines3's ``predict`` signature: LQR, MPC (OSQP), PID
+(BallTable), the intercept planner (BallCatcher), the visual tracking controller
+(TargetFollower).
 
 ``make_controller(name, env, **options)`` designs one for an env from the nominal model in
 observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an SB3 agent.
@@ -6,19 +8,22 @@ observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an 
 
 from observer_gym.controllers.base import Controller, StateFeedbackController
 from observer_gym.controllers.follower_plant import FollowerPlant
+from observer_gym.controllers.intercept import InterceptController
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
-from observer_gym.controllers.plant import BallTablePlant
+from observer_gym.controllers.plant import BallCatcherPlant, BallTablePlant
 from observer_gym.controllers.registry import CONTROLLERS, make_controller
 from observer_gym.controllers.vtc import VisualTrackingController
 from observer_gym.controllers.weights import ball_table_weights, check_weights
 
 __all__ = [
     "CONTROLLERS",
+    "BallCatcherPlant",
     "BallTablePlant",
     "Controller",
     "FollowerPlant",
+    "InterceptController",
     "LQRController",
     "MPCController",
     "PIDController",

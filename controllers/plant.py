@@ -7,10 +7,14 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from observer_gym.envs.ball_catcher import STATE_DIM as CATCHER_STATE_DIM
+from observer_gym.envs.ball_catcher import BallCatcherEnv
+from observer_gym.envs.ball_catcher import geometry as catcher_geometry
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.estimation.ball_table_model import BallTableControlModel
+from observer_gym.estimation.models import BallisticModel
 
-__all__ = ["BallTablePlant"]
+__all__ = ["BallCatcherPlant", "BallTablePlant"]
 
 
 @dataclass(frozen=True)
@@ -43,4 +47,43 @@ class BallTablePlant:
     @property
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         bound = np.full(2, self.max_tilt_rad)
+        return -bound, bound
+
+
+@dataclass(frozen=True)
+class BallCatcherPlant:
+    """BallCatcher-v0 as the intercept controller sees it: the control period, the robot
+    profile's limits, the box's workspace and home, and gravity. Observations have the
+    env's 12-entry state layout (ball position and velocity, box position and velocity)."""
+
+    dt_s: float
+    max_speed_mps: float
+    max_accel_mps2: float
+    workspace_low_world: np.ndarray
+    workspace_high_world: np.ndarray
+    home_world: np.ndarray
+    gravity_mps2: float
+    obs_dim: int = CATCHER_STATE_DIM
+
+    @classmethod
+    def from_env(cls, env: gym.Env) -> BallCatcherPlant:
+        base = env.unwrapped
+        if not isinstance(base, BallCatcherEnv):
+            raise ValueError(
+                f"the intercept controller needs a BallCatcher-v0 env, got {type(base).__name__}"
+            )
+        cfg = base.config
+        return cls(
+            cfg.control_dt_s,
+            cfg.profile.max_speed_mps,
+            cfg.profile.max_accel_mps2,
+            catcher_geometry.WORKSPACE_LOW_WORLD.copy(),
+            catcher_geometry.WORKSPACE_HIGH_WORLD.copy(),
+            catcher_geometry.HOLE_HOME_WORLD.copy(),
+            BallisticModel().gravity_mps2,
+        )
+
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        bound = np.full(3, self.max_speed_mps)
         return -bound, bound

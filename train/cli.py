@@ -7,6 +7,7 @@ one, write its ``add_arguments`` and ``run`` functions and list it in ``COMMANDS
 from __future__ import annotations
 
 import argparse
+import ast
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -98,8 +99,8 @@ def _demo_run(args: argparse.Namespace) -> int:
 # --- run -------------------------------------------------------------------------------
 # The choices are listed here so that parsing needs no heavy import; run_experiment checks
 # them against observer_gym.train.run.OBSERVERS and observer_gym.controllers.CONTROLLERS.
-RUN_OBSERVERS = ("oracle", "kf", "kf-measurements")
-RUN_CONTROLLERS = ("lqr", "mpc", "pid")
+RUN_OBSERVERS = ("oracle", "kf", "kf-measurements", "stkf", "stkf-measurements")
+RUN_CONTROLLERS = ("lqr", "mpc", "pid", "intercept", "vtc")
 
 
 def env_name(text: str) -> str:
@@ -110,6 +111,18 @@ def env_name(text: str) -> str:
         return resolve_env_id(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def env_option(text: str) -> tuple[str, object]:
+    """argparse type: ``KEY=VALUE``, the value read as a Python literal (number, True,
+    'text') or else kept as text: ``camera_preset=single``, ``latency_s=0.02``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return key, value
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -133,7 +146,10 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         "--controller",
         choices=RUN_CONTROLLERS,
         required=True,
-        help="lqr (python-control's dlqr), mpc (OSQP, constrained) or pid (per axis)",
+        help=(
+            "BallTable: lqr (python-control's dlqr), mpc (OSQP, constrained) or pid (per "
+            "axis); BallCatcher: intercept (moves the hole to the predicted crossing)"
+        ),
     )
     parser.add_argument(
         "--episodes", type=positive_int, default=10, help="episodes to run (default: %(default)s)"
@@ -156,7 +172,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=None,
         metavar="K",
-        help="cap each episode at K steps (default: the env's time limit, 500 steps = 10 s)",
+        help="cap each episode at K steps (default: the env's time limit)",
     )
     parser.add_argument(
         "--workers",
@@ -164,6 +180,17 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         default=1,
         metavar="W",
         help="run the episodes in W processes; results are identical (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--env-option",
+        type=env_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=(
+            "a gym.make option of the env, repeatable (e.g. camera_preset=single, "
+            "robot_profile=fast); the observer sets obs_mode"
+        ),
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
 
@@ -184,6 +211,7 @@ def _run_run(args: argparse.Namespace) -> int:
         steps=args.steps,
         workers=args.workers,
         progress=not args.no_progress,
+        env_kwargs=dict(args.env_option),
         cli_args=cli_args,
     )
     return 0
@@ -228,13 +256,14 @@ COMMANDS: dict[str, Command] = {
     "run": Command(
         help="run a controller in closed loop on the true state or an observer's estimate",
         description=(
-            "Run closed-loop episodes of BallTable-v0: the controller (lqr, mpc or pid) acts "
-            "on the true state (--observer oracle) or on the Kalman-filter estimate from the "
-            "camera (kf) or from perfect-detector measurements (kf-measurements). Episode i "
-            "resets with seed + i and runs to the time limit (10 s) or the ball leaving the "
-            "table. Writes results.json (config, versions, per-episode metrics, summary), "
-            "path.png, error.png and, for the observers, estimate.png into the output "
-            "folder, and prints a table of the summary."
+            "Run closed-loop episodes of an env (--env, default BallTable-v0): the controller "
+            "acts on the true state (--observer oracle) or on the Kalman-filter estimate from "
+            "the cameras (kf) or from perfect-detector measurements (kf-measurements). "
+            "Episode i resets with seed + i and runs until the env ends it. Writes "
+            "results.json (config, versions, per-episode metrics, summary) and the env's "
+            "plots (BallTable: path.png, error.png; BallCatcher: plane.png; with an observer "
+            "also estimate.png) into the output folder, and prints a table of the summary "
+            "(BallCatcher: catch rate with its 95 %% interval)."
         ),
         add_arguments=_run_arguments,
         run=_run_run,

@@ -127,7 +127,11 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
         controller = make_controller(spec.controller, env)
         controller.reset()
         failures_before = getattr(controller, "failures", 0)
+        # A controller that uses more than the observation (the intercept planner reads
+        # the estimate's covariance) gets every info through observe_info.
+        observe_info = getattr(controller, "observe_info", lambda info: None)
         obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
+        observe_info(info)
         samples = [info]
         actions, rewards = [], []
         terminated = truncated = False
@@ -136,6 +140,7 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
         ):
             action, _ = controller.predict(obs)
             obs, reward, terminated, truncated, info = env.step(action)
+            observe_info(info)
             actions.append(np.asarray(action, dtype=float))
             rewards.append(float(reward))
             samples.append(info)

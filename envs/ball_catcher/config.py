@@ -54,7 +54,7 @@ class BallCatcherConfig(EnvConfig):
     image_height_px: int = config_field(
         240, "camera image height (the paper's: 480)", low=32, high=960
     )
-    hfov_deg: float = config_field(75.0, "horizontal field of view", low=20.0, high=120.0)
+    hfov_deg: float = config_field(60.0, "horizontal field of view", low=20.0, high=120.0)
     frame_rate_hz: float = config_field(50.0, "every camera's frame rate", low=5.0, high=500.0)
     latency_s: float = config_field(
         0.0, "time from a frame's capture to its delivery", low=0.0, high=0.2
@@ -89,7 +89,7 @@ class BallCatcherConfig(EnvConfig):
     # arriving steeper than about 45 deg cannot pass a 6 cm hole cleanly) and every
     # crossing reachable by the "paper" profile (0.08 m at 0.5 m/s takes 0.2 s).
     launch_x_m: float = config_field(
-        3.0, "launch point's mean x (distance from the robot's base)", low=1.5, high=8.0
+        3.2, "launch point's mean x (distance from the robot's base)", low=1.5, high=8.0
     )
     launch_height_m: float = config_field(0.55, "launch point's mean height", low=0.0, high=3.0)
     launch_spread_m: float = config_field(

@@ -30,9 +30,9 @@ class BallCatcherEnv(gym.Env):
     ## Description
     The ball-catching robot of spec/catcher.md. A KUKA LBR iiwa arm carries a box whose
     front face, turned toward the thrower (+x), has a round hole (6 cm by default); a
-    ball of diameter 5 cm is thrown at it from about 3 m and takes 0.40-0.48 s to arrive.
+    ball of diameter 5 cm is thrown at it from about 2.5 m and takes 0.40-0.48 s to arrive.
     A catch is the ball passing through the hole into the box. Cameras beside the flight
-    path (two by default, 320x240, 75 deg horizontal field of view, 50 frames/s each) are
+    path (two by default, 320x240, 60 deg horizontal field of view, 50 frames/s each) are
     not synchronised: each has its own phase, latency, jitter and frame losses, set by a
     preset. Physics runs at 1 kHz (no tunnelling below 61 m/s, see scene.py); the env
     steps at 100 Hz.
@@ -43,9 +43,10 @@ class BallCatcherEnv(gym.Env):
     ("paper": |v| <= 0.5 m/s, |dv/dt| <= 13 m/s^2 as in the spec; "fast": 1.5 m/s,
     30 m/s^2): the command is scaled down to |v| <= v_max and the velocity moves toward
     it by at most a_max dt per step. The integrated target is kept in the workspace
-    (``geometry.WORKSPACE_LOW_WORLD`` / ``HIGH``: x 0.55-0.65, y +-0.3, z 0.5-0.9 m; the
-    velocity along an axis stops at its face) and reached by inverse kinematics and the
-    joint position motors. NaN, inf or a wrong shape raise ``ValueError``.
+    (``geometry.WORKSPACE_LOW_WORLD`` / ``HIGH``: x 0.65-0.75, y +-0.3, z 0.35-0.65 m),
+    braking before a face as the profile allows, and reached by exact inverse kinematics
+    and the joint position motors (about 2 ms behind the target). NaN, inf or a wrong
+    shape raise ``ValueError``.
 
     ## Observation Space
     - ``obs_mode="rgb"`` (default): a Dict with ``camera_<c>``, camera c's latest
@@ -78,8 +79,8 @@ class BallCatcherEnv(gym.Env):
     where the ball, flying on without drag, will cross the box's front plane.
 
     ## Starting State
-    The box at its home (0.6, 0, 0.7) m at rest; the ball just launched by a throw from
-    ``throws.sample_throw``: from within +-0.1 m of (3.0, 0, 0.55) m, crossing the box's
+    The box at its home (0.7, 0, 0.5) m at rest; the ball just launched by a throw from
+    ``throws.sample_throw``: from within +-0.1 m of (3.2, 0, 0.55) m, crossing the box's
     home plane within 0.08 m of the hole's home after 0.40-0.48 s (configurable; the
     defaults are reachable by the "paper" profile and arrive 10-30 deg below horizontal,
     flat enough to pass the hole).
@@ -87,7 +88,7 @@ class BallCatcherEnv(gym.Env):
 
     ## Episode End
     Terminated on a catch (the ball's centre inside the box, behind the front plate) or a
-    miss (the ball's centre below 0.3 m, or 0.2 m behind the box's back plane outside
+    miss (the ball's centre below 0.15 m, or 0.2 m behind the box's back plane outside
     it). Truncated by the registered time limit of 200 steps (2 s).
 
     ## Arguments
@@ -251,8 +252,14 @@ class BallCatcherEnv(gym.Env):
         if norm > max_change:
             change *= max_change / norm
         velocity = self._box_vel_cmd + change
-        target = self.scene.hole_target_world + velocity * dt
+        # Brake for the workspace's faces as the profile allows: along each axis, no faster
+        # than the speed that still stops at the face ahead, sqrt(2 a d).
         low, high = geo.WORKSPACE_LOW_WORLD, geo.WORKSPACE_HIGH_WORLD
+        current = self.scene.hole_target_world
+        ahead_m = np.where(velocity > 0.0, high - current, current - low)
+        stoppable = np.sqrt(2.0 * profile.max_accel_mps2 * np.maximum(ahead_m, 0.0))
+        velocity = np.clip(velocity, -stoppable, stoppable)
+        target = current + velocity * dt
         outside = (target < low) | (target > high)
         velocity[outside] = 0.0
         self._box_vel_cmd = velocity

@@ -26,12 +26,13 @@ import pybullet
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import STATE_DIM, StateIndex
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
-from observer_gym.envs.sim import Simulation, asset_path
+from observer_gym.envs.sim import GRAVITY_MPS2, Simulation, asset_path
 
 BOX_MASS_KG = 0.5
 MAX_SHAPES_PER_LINK = 16  # PyBullet's limit on the shapes of one link
 BOX_RGBA = (0.85, 0.85, 0.8, 1.0)
 RESTITUTION = 0.4
+IK_JOINT_DAMPING = 1e-3  # exact IK in 20 iterations (see KukaIiwa)
 # Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
 AIR_DENSITY_KGPM3 = 1.2
 DRAG_COEFFICIENT = 0.47
@@ -104,7 +105,9 @@ class BallCatcherScene:
         self.sim = sim
         client = sim.client
         home_q = geo.ARM_HOME_Q if arm_home_q is None else arm_home_q
-        self.arm = KukaIiwa(sim, geo.ARM_BASE_WORLD, home_q, arm_position_gain)
+        self.arm = KukaIiwa(
+            sim, geo.ARM_BASE_WORLD, home_q, arm_position_gain, ik_joint_damping=IK_JOINT_DAMPING
+        )
         self._flange_offset = np.array([geo.FLANGE_TO_HOLE_M, 0.0, 0.0])  # world, flange to hole
         if arm_home_q is None:
             self.arm.settle_at_pose(self.flange_target(geo.HOLE_HOME_WORLD), geo.FLANGE_QUAT_WORLD)
@@ -113,8 +116,15 @@ class BallCatcherScene:
         self.ball = client.loadURDF(
             asset_path("ball.urdf"), [0.0, 0.0, -5.0], useMaximalCoordinates=True
         )
+        # PyBullet damps every body's velocity by default (linear damping 0.04 1/s, a
+        # 2 cm error over a 0.45 s throw): off, so the flight is ballistic (19)-(20).
         client.changeDynamics(
-            self.ball, -1, restitution=RESTITUTION, ccdSweptSphereRadius=0.9 * geo.BALL_RADIUS_M
+            self.ball,
+            -1,
+            restitution=RESTITUTION,
+            ccdSweptSphereRadius=0.9 * geo.BALL_RADIUS_M,
+            linearDamping=0.0,
+            angularDamping=0.0,
         )
         self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
         self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
@@ -181,9 +191,17 @@ class BallCatcherScene:
         return np.asarray(hole_pos_world, dtype=float) - self._flange_offset
 
     def launch_ball(self, pos_world, vel_world) -> None:
+        """Put the ball at ``pos_world`` flying at ``vel_world``.
+
+        PyBullet integrates semi-implicitly (v += a dt, then x += v dt), which puts the
+        ball g dt t / 2 below the parabola at time t (0.2 mm at 0.45 s and 1 kHz); starting
+        with v_z + g dt / 2 makes every physics step land exactly on it.
+        """
         client = self.sim.client
+        vel = np.array(vel_world, dtype=float)
+        vel[2] += 0.5 * GRAVITY_MPS2 * self.sim.physics_dt_s
         client.resetBasePositionAndOrientation(self.ball, list(pos_world), [0, 0, 0, 1])
-        client.resetBaseVelocity(self.ball, list(vel_world), [0.0, 0.0, 0.0])
+        client.resetBaseVelocity(self.ball, list(vel), [0.0, 0.0, 0.0])
 
     def command_hole(self, hole_pos_world) -> None:
         """Send the arm the joint targets that put the hole at ``hole_pos_world``."""

@@ -17,6 +17,8 @@ from typing import Any, Protocol
 # registered env id -> module implementing Task
 TASKS: dict[str, str] = {
     "observer_gym/BallTable-v0": "observer_gym.train.tasks.ball_table",
+    "observer_gym/BallCatcher-v0": "observer_gym.train.tasks.ball_catcher",
+    "observer_gym/TargetFollower-v0": "observer_gym.train.tasks.target_follower",
 }
 
 
