@@ -14,7 +14,8 @@ Per step:
    (``filter="kf"``), predicting with B_i at the previous estimate and tilt (30).
 The output has the env's state layout; ``tracking_valid`` is 1 while the estimate is
 reliable (initialised, every diagonal element of P below the threshold), else 0, and the
-image entries then hold the last reliable estimate with zero rates.
+image entries then hold the last reliable estimate with zero rates; ``target_visible`` is
+1 when this step's frame gave a detection.
 """
 
 from __future__ import annotations
@@ -128,4 +129,5 @@ class FollowerObserver:
         mean[StateIndex.TILT] = tilt
         mean[APPLIED] = applied
         mean[StateIndex.TRACKING_VALID] = float(valid)
+        mean[StateIndex.TARGET_VISIBLE] = float(z is not None)
         return Estimate(mean, cov, used, z, time_s)

@@ -22,11 +22,7 @@ from observer_gym.envs.target_follower.layout import (
     STATE_LOW,
     TARGET_PX,
 )
-from observer_gym.envs.target_follower.measurements import (
-    fully_hidden,
-    in_image,
-    perfect_measurement,
-)
+from observer_gym.envs.target_follower.measurements import perfect_measurement
 from observer_gym.envs.target_follower.motion import OccluderWalk, TargetMotion
 from observer_gym.envs.target_follower.scene import TargetFollowerScene
 
@@ -65,12 +61,13 @@ class TargetFollowerEnv(gym.Env):
     ## Observation Space
     - ``obs_mode="rgb"`` (default): the latest camera frame, ``Box(0, 255, (240, 320, 3),
       uint8)``. When a frame is dropped, the previous frame is repeated.
-    - ``obs_mode="state"``: ``Box((14,), float32)``, the ground truth with the layout
+    - ``obs_mode="state"``: ``Box((15,), float32)``, the ground truth with the layout
       ``observer_gym.envs.target_follower.STATE_NAMES``: the image state
       X_i = (x_i, y_i, d_x) (px; x_i right and y_i up from the principal point, d_x =
       f_x W / z_c), its target-induced rate X_i^t' = J_t V_t (px/s, spec (3)(4)), the
-      robot's pose (x, y, yaw), the tilt phi, the applied (v, omega, omega_t) and
-      ``tracking_valid`` (1: the target is in front of the camera).
+      robot's pose (x, y, yaw), the tilt phi, the applied (v, omega, omega_t),
+      ``tracking_valid`` (1: the target is in front of the camera) and ``target_visible``
+      (1: on the image and not fully hidden).
     - ``obs_mode="measurements"``: a Dict with what a perfect detector reports for the
       latest frame (no rendering): ``target_px`` (x_i, y_i, d_x) with the spec's noise
       model Z = round(X + sigma_n (2 w - 1)), sigma_n = ``measurement_noise_px``, and
@@ -275,6 +272,7 @@ class TargetFollowerEnv(gym.Env):
         return TargetFollowerScene(
             self.sim,
             self.intrinsics.K,
+            self._image_size,
             cfg.target_width_m,
             cfg.delta_y_m,
             (cfg.tilt_min_rad, cfg.tilt_max_rad),
@@ -292,13 +290,6 @@ class TargetFollowerEnv(gym.Env):
         scene.place_occluder(walk.pose(self._time_s, T_world_cam[:3, 3], scene.motion.pos))
         truth = self._truth = scene.ground_truth()
         K = self.camera.K
-        X = truth.state[IMAGE]
-        target_in_image = bool(
-            truth.depth_m > geo.MIN_DEPTH_M and in_image(K, self._image_size, X[0], X[1])
-        )
-        occluded = fully_hidden(
-            T_world_cam, truth.target_pos_world, 0.5 * cfg.target_width_m, scene.occluder_pose
-        )
         camera = {
             "K": K.copy(),
             "T_world_cam": T_world_cam.copy(),
@@ -318,8 +309,8 @@ class TargetFollowerEnv(gym.Env):
             "applied_action": scene.applied.copy(),
             "target_pos_world": truth.target_pos_world.copy(),
             "target_vel_world": truth.target_vel_world.copy(),
-            "target_in_image": target_in_image,
-            "occluded": bool(occluded),
+            "target_in_image": truth.in_image,
+            "occluded": truth.occluded,
         }
         if cfg.obs_mode == "state":
             space = self.state_space

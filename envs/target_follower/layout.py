@@ -11,7 +11,10 @@ with the entries STATE_NAMES, indexed by :class:`StateIndex`:
 - the velocity (v, omega, omega_t) applied over the last step (after the drive's scaling
   and quantisation), the u of the spec's estimator (30);
 - ``tracking_valid``: 1 when the image state is defined (ground truth: the target is in
-  front of the camera; an observer: its estimate is reliable), else 0.
+  front of the camera; an observer: its estimate is reliable), else 0;
+- ``target_visible``: 1 when the camera sees the target (ground truth: its centre is on
+  the image and it is not fully hidden; an observer: it was detected in this step's
+  frame), else 0.
 
 ``obs_mode="measurements"`` is a Dict: TARGET_PX, the detected (x_i, y_i, d_x) under the
 spec's noise model, and DETECTED.
@@ -36,6 +39,7 @@ STATE_NAMES = (
     "applied_yaw_rate_radps",
     "applied_tilt_rate_radps",
     "tracking_valid",
+    "target_visible",
 )
 
 
@@ -54,6 +58,7 @@ class StateIndex(IntEnum):
     YAW_RATE = 11
     TILT_RATE = 12
     TRACKING_VALID = 13
+    TARGET_VISIBLE = 14
 
 
 STATE_DIM = len(STATE_NAMES)
@@ -80,8 +85,9 @@ STATE_HIGH = (
     10.0,
     10.0,
     1.0,
+    1.0,
 )
-STATE_LOW = (*(-h for h in STATE_HIGH[:-1]), 0.0)
+STATE_LOW = (*(-h for h in STATE_HIGH[:-2]), 0.0, 0.0)
 
 # Measurement keys.
 TARGET_PX = "target_px"  # (3,): x_i, y_i, d_x in pixels (zeros when not detected)

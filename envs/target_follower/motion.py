@@ -5,9 +5,11 @@ Target motions (``TargetFollowerConfig.target_motion``):
   V_t = v_t (cos theta_t, sin theta_t, 0) with v_t = 0.15 cos(pi t / 20) m/s and
   theta_t = theta_t(0) + (5 pi / 72) t, the continuous form of (44) (its samples at
   t = nT are the spec's; the spec's (v_x, v_z) are our (v_y, v_x)).
-- ``"random_walk"``: a smooth random walk: the horizontal velocity is an
-  Ornstein-Uhlenbeck process (correlation time 2 s, stationary std ``walk_speed_mps`` per
-  axis); the height follows a slower, spring-held one (std 5 cm/s) around its start.
+- ``"random_walk"``: a smooth random walk: an Ornstein-Uhlenbeck process (correlation
+  time 2 s, stationary std ``walk_speed_mps`` per horizontal axis) drives the velocity
+  through a first-order lag of 0.5 s, so the velocity is smooth (a walker's acceleration
+  is bounded) with a stationary std of 0.89 ``walk_speed_mps``; the height follows a
+  slower, spring-held one (std 5 cm/s) around its start.
 - ``"static"``: the target stands still.
 Pushes (``push_rate_hz``) add a horizontal velocity kick of up to ``push_speed_mps``
 that decays with a 1 s time constant, on top of any motion.
@@ -26,6 +28,7 @@ import numpy as np
 PROFILE_SPEED_MPS = 0.15  # (44): v_t = 15 cm/s cos(n pi T / 20)
 PROFILE_TURN_RATE_RADPS = 5.0 * math.pi / 72.0  # (44): theta_t += T 5 pi / 72
 WALK_TIME_CONSTANT_S = 2.0
+WALK_LAG_S = 0.5  # the velocity follows the Ornstein-Uhlenbeck drive through this lag
 HEIGHT_SPEED_STD_MPS = 0.05
 HEIGHT_SPRING_PER_S = 0.5
 PUSH_DECAY_S = 1.0
@@ -59,8 +62,10 @@ class TargetMotion:
         self._push_speed = push_speed_mps
         self._heading0 = heading_rad
         self._walk_vel = np.zeros(3)
+        self._walk_drive = np.zeros(3)
         if kind == "random_walk":
-            self._walk_vel[:2] = rng.normal(0.0, walk_speed_mps, 2)
+            self._walk_drive[:2] = rng.normal(0.0, walk_speed_mps, 2)
+            self._walk_vel[:2] = self._walk_drive[:2]
         self._kick = np.zeros(3)
         self.time_s = 0.0
 
@@ -101,14 +106,14 @@ class TargetMotion:
             self._kick[:2] += push_speed * np.array([math.cos(push_dir), math.sin(push_dir)])
 
     def _step_walk(self, h: float, noise: np.ndarray) -> None:
-        """Euler-Maruyama step of the Ornstein-Uhlenbeck velocities."""
+        """Euler-Maruyama step of the Ornstein-Uhlenbeck drive; the velocity lags it."""
         tau = WALK_TIME_CONSTANT_S
-        v = self._walk_vel
-        v[:2] += -v[:2] * h / tau + self._walk_speed * math.sqrt(2.0 * h / tau) * noise[:2]
+        gain = math.sqrt(2.0 * h / tau)
+        w = self._walk_drive
+        w[:2] += -w[:2] * h / tau + self._walk_speed * gain * noise[:2]
         spring = -HEIGHT_SPRING_PER_S * (self.pos[2] - self._home_height_m)
-        v[2] += (spring - v[2]) * h / tau + HEIGHT_SPEED_STD_MPS * math.sqrt(2.0 * h / tau) * noise[
-            2
-        ]
+        w[2] += (spring - w[2]) * h / tau + HEIGHT_SPEED_STD_MPS * gain * noise[2]
+        self._walk_vel += (w - self._walk_vel) * (h / WALK_LAG_S)
 
 
 def _smoothstep(s: float) -> float:

@@ -29,6 +29,7 @@ from observer_gym.envs.target_follower.layout import (
     STATE_DIM,
     StateIndex,
 )
+from observer_gym.envs.target_follower.measurements import fully_hidden, in_image
 from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
 
 TARGET_URDF_WIDTH_M = 0.12  # follower_target.urdf's sphere diameter; scaled to W
@@ -52,6 +53,8 @@ class GroundTruth:
     target_pos_world: np.ndarray  # (3,)
     target_vel_world: np.ndarray  # (3,)
     depth_m: float  # the target centre's depth z_c in the camera frame
+    in_image: bool  # its centre is in front of the camera and on the image
+    occluded: bool  # the occluder hides all of it
 
 
 class TargetFollowerScene:
@@ -60,6 +63,7 @@ class TargetFollowerScene:
     Args:
         sim: the (empty) world to build in.
         K: the camera matrix (for the ground-truth image state).
+        image_size_px: (width, height) of the camera image.
         target_width_m: W.
         delta_y_m: the camera's offset above the tilt axis.
         tilt_range_rad: (lowest, highest) tilt; the tilt stops at either end.
@@ -71,6 +75,7 @@ class TargetFollowerScene:
         self,
         sim: Simulation,
         K: np.ndarray,
+        image_size_px: tuple[int, int],
         target_width_m: float,
         delta_y_m: float,
         tilt_range_rad: tuple[float, float],
@@ -79,6 +84,7 @@ class TargetFollowerScene:
     ) -> None:
         self.sim = sim
         self.K = K
+        self.image_size_px = image_size_px
         self.target_width_m = target_width_m
         self.delta_y_m = delta_y_m
         self.tilt_range_rad = tilt_range_rad
@@ -169,5 +175,9 @@ class TargetFollowerScene:
         state[StateIndex.ROBOT_YAW] = self.yaw_rad
         state[StateIndex.TILT] = self.tilt_rad
         state[APPLIED] = self.applied
-        state[StateIndex.TRACKING_VALID] = float(depth > geo.MIN_DEPTH_M)
-        return GroundTruth(state, T, pos, vel, depth)
+        in_front = depth > geo.MIN_DEPTH_M
+        on_image = in_front and in_image(self.K, self.image_size_px, *state[IMAGE][:2])
+        occluded = fully_hidden(T, pos, 0.5 * W, self.occluder_pose)
+        state[StateIndex.TRACKING_VALID] = float(in_front)
+        state[StateIndex.TARGET_VISIBLE] = float(on_image and not occluded)
+        return GroundTruth(state, T, pos, vel, depth, bool(on_image), bool(occluded))

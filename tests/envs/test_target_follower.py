@@ -152,6 +152,7 @@ def test_occluder_hides_the_target_for_its_hold_time(make_env):
     for _ in range(70):
         obs, _, _, _, info = env.step(STILL)
         seen.append((round(info["time_s"], 6), int(obs[DETECTED][0]), info["occluded"]))
+        assert info["state"][StateIndex.TARGET_VISIBLE] == obs[DETECTED][0]
     hidden = {t for t, detected, _ in seen if not detected}
     # It walks in for 1 s from t = 1 s, hides the target from 2 s to 5 s, walks out.
     assert {round(2.0 + 0.1 * k, 6) for k in range(31)} <= hidden
