@@ -5,7 +5,10 @@ Per frame:
 1. The detector (estimation/detectors/ball_table.py) turns the frame (or, in the
    measurements obs_mode, the perfect detector's pixels) into the table's pose and the
    ball's position on the table. The camera pose comes from the frame's calibration in
-   ``info["frames"]`` (the report had to guess it).
+   ``info["frames"]`` (the report had to guess it). The table's region of interest is
+   tracked from the previous frame (TableTracker: the same features as the full search,
+   which runs on the first frame, after a flagged one, and when the table left the
+   tracked region).
 2. A filter on the two tilt angles, driven by the commanded tilt through the arm's
    first-order lag (TiltLagModel, time constant from the env's joint gain), gives the
    tilt; the tilt rate follows from the same model. While the table is unseen (an
@@ -30,7 +33,7 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.geometry import up_in_table
 from observer_gym.estimation.detectors.ball_table import (
     BallTableDetector,
-    extract_features,
+    TableTracker,
     features_from_measurement,
 )
 from observer_gym.estimation.filters import ChiSquareGate, KalmanFilter
@@ -80,9 +83,12 @@ class BallTableObserver:
             cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
         )
         self._tilt_R = np.diag(np.square(self.params.tilt_meas_std_rad))
+        # The image stage, with the table's region of interest tracked between frames.
+        self.table_tracker = TableTracker()
         self.reset()
 
     def reset(self) -> None:
+        self.table_tracker.reset()
         self._ball_kf: KalmanFilter | None = None
         self._tilt_kf: KalmanFilter | None = None
         self._time_s = 0.0
@@ -95,7 +101,7 @@ class BallTableObserver:
     def detect(self, obs: Any, frame: dict):
         """The detection of one frame."""
         if self.from_pixels:
-            features = extract_features(obs, frame["K"], frame["T_world_cam"])
+            features = self.table_tracker.extract_features(obs, frame["K"], frame["T_world_cam"])
         else:
             features = features_from_measurement(obs)
         return self.detector.detect(features, frame["K"], frame["T_world_cam"])

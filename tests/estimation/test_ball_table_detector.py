@@ -25,6 +25,7 @@ from observer_gym.estimation.detectors.ball_table import (
     BORDER_OUTLINE,
     RED_TOP,
     BallTableDetector,
+    TableTracker,
     extract_features,
     features_from_measurement,
 )
@@ -300,6 +301,104 @@ def test_ball_geometry_on_an_exact_sphere_image(seed):
     np.testing.assert_allclose([position[0], position[1], radius], ball_table, atol=1e-9)
     sin_alpha = math.sin(0.5 * math.acos(v_a @ v_b))
     np.testing.assert_allclose(distance, radius / sin_alpha, rtol=1e-12)
+
+
+def _assert_same_features(tracked, searched) -> None:
+    """The tracked region's features are the full search's (the same pixels in both)."""
+    assert (tracked.corner_model, tracked.table_failure, tracked.ball_failure) == (
+        searched.corner_model,
+        searched.table_failure,
+        searched.ball_failure,
+    )
+    for name in ("corners_px", "outline_corners_px", "ball_px"):
+        a, b = getattr(tracked, name), getattr(searched, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-9, err_msg=name)
+
+
+def _track(tracker: TableTracker, obs, info):
+    """(tracked features, full-search features, whether the tracker searched) of a frame."""
+    camera = info["camera"]
+    K, T_world_cam = camera["K"], camera["T_world_cam"]
+    searched_before = tracker.searched_frames
+    tracked = tracker.extract_features(obs, K, T_world_cam)
+    searched = tracker.searched_frames > searched_before
+    return tracked, extract_features(obs, K, T_world_cam), searched
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"camera_motion": "head", "head_motion_deg": 15.0},  # the table leaves the view
+        {"occluder_rate_hz": 2.0, "occluder_pass_s": 1.0},
+        {"camera_motion": "fixed"},
+    ],
+    ids=["head_15deg", "occluder", "fixed"],
+)
+def test_tracked_region_gives_the_full_search_features(options):
+    """Frame by frame, the tracker's features are the full search's; a frame whose table
+    is flagged comes from the full search, and so does the frame after it."""
+    tracker = TableTracker()
+    flagged_before, flagged = True, 0
+    for obs, info in _episode(seed=0, steps=100, obs_mode="rgb", **options):
+        tracked, searched_features, searched = _track(tracker, obs, info)
+        _assert_same_features(tracked, searched_features)
+        if tracked.corners_px is None:
+            flagged += 1
+            assert searched and tracker.boxes is None
+        if flagged_before:
+            assert searched
+        flagged_before = tracked.corners_px is None
+    if "head_motion_deg" in options:
+        assert flagged >= 5  # the table really left the view
+        assert tracker.tracked_frames >= 30  # and was tracked in between
+    else:
+        assert tracker.searched_frames <= 1 + 2 * flagged  # the tracked path is the usual one
+
+
+def _shifted(obs: np.ndarray, du: int, dv: int) -> np.ndarray:
+    """The frame moved by (du, dv) pixels, the uncovered part filled with the background."""
+    moved = np.full_like(obs, 255)
+    h, w = obs.shape[:2]
+    moved[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)] = obs[
+        max(-dv, 0) : h - max(dv, 0), max(-du, 0) : w - max(du, 0)
+    ]
+    return moved
+
+
+def test_tracked_region_falls_back_when_the_table_jumps_or_leaves():
+    """The table jumping out of the tracked region, out of the image's edge, or out of view
+    altogether: each time the tracker searches the whole frame, gives the full search's
+    features (the jump found, the others flagged) and tracks again once the table is back."""
+    frames = _episode(seed=1, steps=4, obs_mode="rgb")
+    tracker = TableTracker()
+    obs, info = frames[0]
+    tracked, _, searched = _track(tracker, obs, info)
+    assert searched and tracked.corners_px is not None  # the first frame is searched
+    tracked, _, searched = _track(tracker, *frames[1])
+    assert not searched and tracked.corners_px is not None
+
+    jumped = _shifted(frames[2][0], 12, -7)  # further than the tracked region allows
+    tracked, searched_features, searched = _track(tracker, jumped, frames[2][1])
+    _assert_same_features(tracked, searched_features)
+    assert searched and tracked.corner_model == RED_TOP  # found, by the full search
+    before = extract_features(frames[2][0], **_calibration(frames[2][1]))
+    np.testing.assert_allclose(tracked.corners_px, before.corners_px + np.array([12, -7]))
+
+    for away in (_shifted(frames[3][0], 120, 0), np.full_like(frames[3][0], 255)):
+        tracked, searched_features, searched = _track(tracker, away, frames[3][1])
+        _assert_same_features(tracked, searched_features)
+        assert searched and tracked.corners_px is None  # flagged (clipped; not in view)
+        assert tracker.boxes is None
+    tracked, _, searched = _track(tracker, *frames[4])
+    assert searched and tracked.corners_px is not None  # back: searched, then tracked
+    tracked, _, searched = _track(tracker, *frames[4])
+    assert not searched and tracked.corners_px is not None
+
+
+def _calibration(info) -> dict:
+    return {"K": info["camera"]["K"], "T_world_cam": info["camera"]["T_world_cam"]}
 
 
 def test_bad_options_raise():
