@@ -215,10 +215,15 @@ def test_cli_run_from_pixels_writes_results(tmp_path, capsys):
 
 def test_cli_rejects_an_unknown_env(capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["run", "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "lqr"])
+        main(["run", "--env", "BallJuggler-v0", "--observer", "oracle", "--controller", "lqr"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "unknown env 'BallCatcher-v0'" in err and "BallTable-v0" in err
+    assert "unknown env 'BallJuggler-v0'" in err and "BallCatcher-v0" in err
+
+
+def test_a_controller_made_for_another_env_raises(tmp_path):
+    with pytest.raises(ValueError, match="BallTable-v0 env"):
+        run_experiment("BallCatcher-v0", "oracle", "lqr", 1, 0, tmp_path, progress=False)
 
 
 @pytest.mark.parametrize(
