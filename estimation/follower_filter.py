@@ -9,7 +9,11 @@ The spec's procedure, one call of :meth:`VisualStateEstimator.step` per sample:
 1. Q_0, R_0 chosen (Table 1: diag(5, 5, 5, 20, 20, 20) and diag(5, 5, 5)).
 2. At the first detection: X_0 = (Z_0, 0, 0, 0), P_0 = I_6.
 3. A detection Z_n enters the length-k shift register; R_n by (41) once it is full,
-   else R_0 (the conventional KF keeps R_0 always).
+   else R_0 (the conventional KF keeps R_0 always). The register holds consecutive
+   samples only (its line fit assumes them): a missed detection empties it. Without
+   that, the first detection after an occlusion, far from the line through the samples
+   before it, read as noise: R grew by (41) to ~10^5 px^2 and the filter ignored the
+   target's new place.
 4. Predict with the robot's applied velocity u_{n-1} through B_i (30).
 5. Update if the target was detected, else keep the prediction.
 6. Reliability: if a diagonal element of P exceeds the threshold (4800 in the spec),
@@ -99,8 +103,14 @@ class VisualStateEstimator:
             if p.self_tuning:
                 self.tuner.push(z)
             return True
-        if z is not None and p.self_tuning:  # (3): shift register and R_n (41)
-            self.tuner.push(z)
+        if p.self_tuning:  # (3): shift register and R_n (41)
+            if z is None:
+                # The line fit's fixed regressor A = [[1, 1], ..., [k, 1]] assumes k
+                # consecutive samples: a missed one breaks the sequence, so the register
+                # restarts, and R_n = R_0 until it is full again.
+                self.tuner.reset()
+            else:
+                self.tuner.push(z)
             self.R = self.tuner.R()
         F, G = image_state_transition(dt_s, B_i)
         self.kf.predict(F, self.Q, G, np.asarray(u, dtype=float))  # (4): (30), (33)

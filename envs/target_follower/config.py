@@ -60,8 +60,8 @@ class TargetFollowerConfig(EnvConfig):
         "random_walk", "how the target moves", choices=("random_walk", "profile", "static")
     )
     walk_speed_mps: float = config_field(
-        0.15,
-        "random_walk: stationary std of each horizontal velocity component",
+        0.1,
+        "random_walk: scale of the horizontal speed (mean speed ~0.11 m/s, as (44)'s 0.095)",
         low=0.0,
         high=1.0,
     )

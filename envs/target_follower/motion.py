@@ -48,7 +48,7 @@ class TargetMotion:
         kind: str,
         pos_world: np.ndarray,
         rng: np.random.Generator,
-        walk_speed_mps: float = 0.15,
+        walk_speed_mps: float = 0.1,
         push_rate_hz: float = 0.0,
         push_speed_mps: float = 0.2,
         heading_rad: float = 0.0,

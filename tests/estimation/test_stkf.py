@@ -132,3 +132,18 @@ def test_stkf_beats_kf_under_noise_and_matches_it_without():
     kf0, stkf0 = _synthetic_mse(False, 0.0, 0), _synthetic_mse(True, 0.0, 0)
     np.testing.assert_allclose(stkf0, kf0, rtol=0.05, atol=1e-3)
     assert np.all(kf0[:3] < 0.1)
+
+
+def test_a_missed_detection_restarts_the_register():
+    # The line fit assumes k consecutive samples: after a gap R_n is R_0 again, so the
+    # target found 80 px away after an occlusion is believed, not read as noise.
+    rng = np.random.default_rng(2)
+    est = VisualStateEstimator()
+    for _ in range(20):
+        est.step(np.array([0.0, 0.0, 35.0]) + rng.uniform(-10, 10, 3), *NO_INPUT, T_S)
+    assert np.all(np.diag(est.R) > 100.0)
+    for _ in range(10):
+        est.step(None, *NO_INPUT, T_S)
+    np.testing.assert_array_equal(est.R, R0)
+    est.step(np.array([80.0, 0.0, 35.0]), *NO_INPUT, T_S)
+    assert est.x[0] == pytest.approx(80.0, abs=2.0)

@@ -7,9 +7,9 @@ Metrics per episode, from the ground truth of the record (state layout of
   in front of the camera;
 - fraction of time the target's centre is on the image, and the fraction it is seen
   (on the image and not hidden);
-- occlusions: runs of steps with the target on the image but hidden; the recovery time of
-  each is the time from its end until |(x_i, y_i)| is back within ``RECOVERED_PX`` (None
-  if it never is);
+- occlusions: runs of steps with the target on the image but hidden (those still running
+  when the episode ends are not counted); the recovery time of each is the time from its
+  end until |(x_i, y_i)| is back within ``RECOVERED_PX`` (None if it never is);
 - for an observer: RMSE of the estimated X_i and X_i^t' while its estimate is valid, and
   the fraction of steps it is valid.
 """
@@ -42,8 +42,8 @@ DPI = 110
 # summary key -> (label, unit, scale from the stored value to the shown unit, digits)
 SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
     "episodes": ("episodes", "", 1.0, 0),
-    "centre_error_px": ("image error |(x_i, y_i)|, mean", "px", 1.0, 2),
-    "width_error_px": ("width error |d_x - d*|, mean", "px", 1.0, 2),
+    "centre_error_px": ("image error ‖(x_i, y_i)‖, mean", "px", 1.0, 2),
+    "width_error_px": ("width error abs(d_x - d*), mean", "px", 1.0, 2),
     "fraction_in_image": ("fraction of time the target is on the image", "", 1.0, 3),
     "fraction_visible": ("fraction of time the target is seen", "", 1.0, 3),
     "occlusions": ("occlusions (total)", "", 1.0, 0),
@@ -97,6 +97,8 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
     )
     recoveries = []
     for _, last in occlusion_intervals(state, half_w, half_h):
+        if last == len(state) - 1:
+            continue  # hidden until the episode ended: no recovery to measure
         back = np.flatnonzero(centre[last + 1 :] <= RECOVERED_PX)
         recoveries.append(
             None if len(back) == 0 else float(time_s[last + 1 + back[0]] - time_s[last])
