@@ -30,10 +30,16 @@ DISTURBED = {
         "jitter_s": 0.002,
         "frame_drop_prob": 0.1,
     },
+    "observer_gym/TargetFollower-v0": {
+        "push_rate_hz": 2.0,
+        "frame_drop_prob": 0.1,
+        "occluder_rate_hz": 0.2,
+    },
 }
 MEASUREMENT_NOISE = {
     "observer_gym/BallTable-v0": {"measurement_noise_px": 0.5},
     "observer_gym/BallCatcher-v0": {"measurement_noise_px": 0.5},
+    "observer_gym/TargetFollower-v0": {"measurement_noise_px": 0.5},
 }
 
 
