@@ -15,8 +15,6 @@ from typing import Any
 import cv2
 import gymnasium as gym
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from tqdm import tqdm
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
@@ -26,7 +24,7 @@ from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
 from observer_gym.train.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
 from observer_gym.train.outputs import default_out_dir, package_versions, write_json_atomic
-from observer_gym.train.plots import draw_table
+from observer_gym.train.plots import draw_table, new_figure
 
 ENV_ID = "observer_gym/BallTable-v0"
 CONTROLLER = "lqr"
@@ -215,8 +213,7 @@ def _plot_trajectory(record: dict[str, Any], path: Path) -> None:
     std = np.array(record["estimate_std"])
     distance_m = np.linalg.norm(truth[:, BALL_POS], axis=1)
 
-    fig = Figure(figsize=(15, 4.6), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = new_figure((15, 4.6))
     path_ax, dist_ax, err_ax = fig.subplots(1, 3, width_ratios=(1, 1.3, 1.3))
 
     draw_table(path_ax)

@@ -1,4 +1,4 @@
-"""Plots of closed-loop BallTable runs, from recorded arrays (matplotlib's Agg canvas; no
+"""Plots of closed-loop runs, from recorded arrays (matplotlib's Agg canvas; no
 pyplot, so no global figure state)."""
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ DPI = 110
 MIN_LOG_DISTANCE_M = 1e-5  # distances are drawn on a log axis; exact zeros are lifted here
 
 
-def _new_figure(figsize: tuple[float, float]) -> Figure:
+def new_figure(figsize: tuple[float, float]) -> Figure:
+    """A constrained-layout figure on its own Agg canvas (no pyplot state)."""
     fig = Figure(figsize=figsize, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
@@ -59,7 +60,7 @@ def plot_paths(
 ) -> None:
     """The ball's path (each a (T, 2) array) on the table, start 'o' and end 'x' marked,
     with the table's edge, the ball's reachable square and the 1 cm band drawn."""
-    fig = _new_figure((8.0, 6.0))
+    fig = new_figure((8.0, 6.0))
     ax = fig.subplots()
     draw_table(ax)
     labels = labels or [f"episode {i}" for i in range(len(ball_pos_m))]
@@ -87,7 +88,7 @@ def plot_distances(
     title: str = "Ball distance from the table's centre",
 ) -> None:
     """Distance from the centre over time for every episode (log axis), 1 cm line drawn."""
-    fig = _new_figure((8.0, 4.5))
+    fig = new_figure((8.0, 4.5))
     ax = fig.subplots()
     many = len(distance_m) > 10
     for i, (t_s, d_m) in enumerate(zip(time_s, distance_m, strict=True)):
@@ -119,7 +120,7 @@ def plot_estimate(
     error (estimate - truth, mm) with the same band around zero. Arrays are (T, 2)."""
     t_s = np.asarray(time_s)
     truth, mean, std = (np.asarray(a) for a in (truth_pos_m, estimate_pos_m, estimate_std_m))
-    fig = _new_figure((11.0, 6.5))
+    fig = new_figure((11.0, 6.5))
     axes = fig.subplots(2, 2, sharex=True)
     for axis, name in enumerate(("x", "y")):
         top, bottom = axes[0, axis], axes[1, axis]

@@ -12,13 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from scipy.stats import binomtest
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.train.metrics import rmse
+from observer_gym.train.plots import DPI, new_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
     "oracle": ("state", {}),
@@ -31,7 +30,6 @@ CONFIDENCE = 0.95
 # the box's plane (after that it bounces in the box or off it: no ballistic model applies).
 SETTLE_S = 0.1
 CONFIG = {"catch_rate_interval": f"Wilson score, {CONFIDENCE:.0%}", "estimate_from_s": SETTLE_S}
-DPI = 110
 
 # summary key -> (label, unit, scale from the stored SI value to the shown unit, digits)
 SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
@@ -137,17 +135,11 @@ def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _new_figure(figsize: tuple[float, float]) -> Figure:
-    fig = Figure(figsize=figsize, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
 def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> list[str]:
     """``plane.png``: where each ball crossed the box's plane relative to the hole
     (caught / missed), with the hole and the ball's size; ``estimate.png`` for an
     observer: episode 0's ball-position error and its 2-sigma band over time."""
-    fig = _new_figure((5.2, 5.0))
+    fig = new_figure((5.2, 5.0))
     ax = fig.add_subplot()
     phase = np.linspace(0.0, 2.0 * np.pi, 200)
     hole_r_mm = 1e3 * records[0]["env_config"]["hole_diameter_m"] / 2
@@ -183,7 +175,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
         t = np.asarray(first["time_s"])
         error_mm = 1e3 * (first["estimate"][:, BALL_POS] - first["state"][:, BALL_POS])
         std_mm = 1e3 * first["estimate_std"][:, BALL_POS]
-        fig = _new_figure((7.0, 5.5))
+        fig = new_figure((7.0, 5.5))
         axes = fig.subplots(3, 1, sharex=True)
         for i, (ax, name) in enumerate(zip(axes, "xyz", strict=True)):
             ax.fill_between(t, -2 * std_mm[:, i], 2 * std_mm[:, i], color="0.85", label="±2σ")

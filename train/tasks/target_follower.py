@@ -21,11 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateIndex
 from observer_gym.train.metrics import rmse
+from observer_gym.train.plots import DPI, new_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
     "oracle": ("state", {}),
@@ -37,7 +36,6 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
 RECOVERED_PX = 10.0  # back "in the centre" after an occlusion: |(x_i, y_i)| below this
 CONFIG = {"recovered_px": RECOVERED_PX}
 PLOT_EPISODES = 5
-DPI = 110
 
 # summary key -> (label, unit, scale from the stored value to the shown unit, digits)
 SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
@@ -163,19 +161,13 @@ def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _new_figure(figsize: tuple[float, float]) -> Figure:
-    fig = Figure(figsize=figsize, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
 def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> list[str]:
     """``image.png`` (the target's image path, first episodes, with the image's border),
     ``error.png`` (|(x_i, y_i)| and d_x - d* vs time, every episode, occlusions shaded in
     episode 0) and, for an observer, ``estimate.png`` (episode 0's estimate of X_i vs
     truth with +-2 sigma)."""
     half_w, half_h = _image_limits(records[0])
-    fig = _new_figure((6.0, 4.8))
+    fig = new_figure((6.0, 4.8))
     ax = fig.add_subplot()
     ax.plot(
         [-half_w, half_w, half_w, -half_w, -half_w],
@@ -197,7 +189,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ax.legend(fontsize=7, loc="upper right")
     fig.savefig(out_dir / "image.png", dpi=DPI)
 
-    fig = _new_figure((8.0, 5.0))
+    fig = new_figure((8.0, 5.0))
     axes = fig.subplots(2, 1, sharex=True)
     for r in records:
         s, t = np.asarray(r["state"]), np.asarray(r["time_s"])
@@ -221,7 +213,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
         r = records[0]
         s, e, sd = (np.asarray(r[k]) for k in ("state", "estimate", "estimate_std"))
         t = np.asarray(r["time_s"])
-        fig = _new_figure((8.0, 6.0))
+        fig = new_figure((8.0, 6.0))
         axes = fig.subplots(3, 1, sharex=True)
         for ax, index, name in zip(axes, (0, 1, 2), ("x_i", "y_i", "d_x"), strict=True):
             ax.fill_between(
