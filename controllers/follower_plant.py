@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from observer_gym.controllers.plant import unwrapped_env
+from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.estimation.follower_model import FollowerCameraParams
 
 __all__ = ["FollowerPlant"]
@@ -27,12 +29,8 @@ class FollowerPlant:
     @classmethod
     def from_env(cls, env: gym.Env) -> FollowerPlant:
         """From a TargetFollower env (any wrapper around it); ValueError for another env."""
-        base = env.unwrapped
-        calibration = getattr(base, "calibration", None)
-        if type(base).__name__ != "TargetFollowerEnv" or calibration is None:
-            raise ValueError(
-                f"FollowerPlant needs a TargetFollower-v0 env, got {type(base).__name__}"
-            )
+        base = unwrapped_env(env, TargetFollowerEnv, "TargetFollower-v0", "FollowerPlant")
+        calibration = base.calibration
         return cls(
             camera=FollowerCameraParams.from_calibration(calibration),
             desired_px=(0.0, 0.0, float(base.config.desired_width_px)),

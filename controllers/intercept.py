@@ -26,6 +26,7 @@ import numpy as np
 from observer_gym.controllers.base import StateFeedbackController
 from observer_gym.controllers.plant import BallCatcherPlant
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
+from observer_gym.envs.ball_catcher.throws import plane_crossing
 
 __all__ = ["InterceptController", "crossing_and_jacobian"]
 
@@ -36,15 +37,12 @@ def crossing_and_jacobian(
     """(t*, crossing point (3,), J (2, 6) = d(c_y, c_z)/d(p, v)) of a drag-free ball with
     state (p, v) crossing the plane x = ``plane_x_m`` moving toward -x; None if it does
     not approach the plane."""
-    p, v = ball_state[:3], ball_state[3:6]
-    if not v[0] < 0.0:
+    v = ball_state[3:6]
+    crossing = plane_crossing(ball_state[:3], v, plane_x_m, gravity_mps2)
+    if crossing is None:
         return None
-    t = (plane_x_m - p[0]) / v[0]
-    if t < 0.0:
-        return None
+    t, point = crossing
     vz_at_crossing = v[2] - gravity_mps2 * t
-    point = p + v * t
-    point[2] -= 0.5 * gravity_mps2 * t * t
     dt_dpx, dt_dvx = -1.0 / v[0], -t / v[0]
     J = np.zeros((2, 6))
     J[0, 0], J[0, 1], J[0, 3], J[0, 4] = v[1] * dt_dpx, 1.0, v[1] * dt_dvx, t  # c_y
@@ -54,7 +52,7 @@ def crossing_and_jacobian(
         vz_at_crossing * dt_dvx,
         t,
     )
-    return float(t), point, J
+    return t, point, J
 
 
 class InterceptController(StateFeedbackController):

@@ -14,7 +14,15 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.estimation.ball_table_model import BallTableControlModel
 from observer_gym.estimation.models import BallisticModel
 
-__all__ = ["BallCatcherPlant", "BallTablePlant"]
+__all__ = ["BallCatcherPlant", "BallTablePlant", "unwrapped_env"]
+
+
+def unwrapped_env(env: gym.Env, env_class: type, env_id: str, needed_by: str) -> gym.Env:
+    """The base env under ``env``'s wrappers; ValueError unless it is an ``env_class``."""
+    base = env.unwrapped
+    if not isinstance(base, env_class):
+        raise ValueError(f"{needed_by} needs a {env_id} env, got {type(base).__name__}")
+    return base
 
 
 @dataclass(frozen=True)
@@ -31,12 +39,7 @@ class BallTablePlant:
 
     @classmethod
     def from_env(cls, env: gym.Env) -> BallTablePlant:
-        base = env.unwrapped
-        if not isinstance(base, BallTableEnv):
-            raise ValueError(
-                f"the BallTable controllers need a BallTable-v0 env, got {type(base).__name__}"
-            )
-        cfg = base.config
+        cfg = unwrapped_env(env, BallTableEnv, "BallTable-v0", "the BallTable controllers").config
         return cls(BallTableControlModel.from_config(cfg), cfg.dt_s, cfg.max_tilt_rad)
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
@@ -67,11 +70,7 @@ class BallCatcherPlant:
 
     @classmethod
     def from_env(cls, env: gym.Env) -> BallCatcherPlant:
-        base = env.unwrapped
-        if not isinstance(base, BallCatcherEnv):
-            raise ValueError(
-                f"the intercept controller needs a BallCatcher-v0 env, got {type(base).__name__}"
-            )
+        base = unwrapped_env(env, BallCatcherEnv, "BallCatcher-v0", "the intercept controller")
         cfg = base.config
         return cls(
             cfg.control_dt_s,

@@ -44,6 +44,14 @@ def _check_value(name: str, value: Any, default: Any, meta: dict) -> None:
             raise ValueError(f"{name}={value!r} is out of range; {allowed}")
 
 
+def check_render_mode(render_mode: str | None, metadata: dict) -> None:
+    """Raise ``ValueError`` unless ``render_mode`` is None or one of the env's
+    ``metadata["render_modes"]``."""
+    if render_mode is not None and render_mode not in metadata["render_modes"]:
+        allowed = " or ".join(repr(m) for m in metadata["render_modes"])
+        raise ValueError(f"render_mode={render_mode!r} is not supported; use None or {allowed}")
+
+
 class EnvConfig:
     """Mixin for frozen dataclasses declared with :func:`config_field`."""
 

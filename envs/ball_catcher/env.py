@@ -16,11 +16,13 @@ from observer_gym.envs.ball_catcher.rig import FrameClock, preset_timings
 from observer_gym.envs.ball_catcher.scene import BallCatcherScene, interior_contains
 from observer_gym.envs.ball_catcher.throws import Throw, plane_crossing, sample_throw
 from observer_gym.envs.camera import Camera, PinholeIntrinsics, look_at, project_points
+from observer_gym.envs.config import check_render_mode
 from observer_gym.envs.sim import Simulation
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
 NO_FRAME_AGE_S = 10.0  # frame age reported for a camera that has delivered nothing yet
 PASSED_MARGIN_M = 0.2  # the ball this far behind the box's back plane has passed it
+NEAR_M, FAR_M = 0.1, 8.0  # the cameras' clipping planes; nearer points are not seen
 VIEWER_POSE = look_at(np.array([1.9, -3.2, 1.9]), np.array([1.9, 0.0, 0.9]))
 
 
@@ -104,10 +106,7 @@ class BallCatcherEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         self.config = BallCatcherConfig.from_kwargs(**options)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode={render_mode!r} is not supported; use None or 'rgb_array'"
-            )
+        check_render_mode(render_mode, self.metadata)
         cfg = self.config
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": round(1.0 / cfg.control_dt_s)}
@@ -127,7 +126,7 @@ class BallCatcherEnv(gym.Env):
         self.sim = Simulation(cfg.physics_dt_s)
         self._arm_home_q = None
         self.scene = self._build_scene()
-        self.camera = Camera(self.sim, self.intrinsics, near_m=0.1, far_m=8.0)
+        self.camera = Camera(self.sim, self.intrinsics, near_m=NEAR_M, far_m=FAR_M)
         self._tick = 0
         self._box_vel_cmd = np.zeros(3)
         self._outcome = FLYING
@@ -296,13 +295,9 @@ class BallCatcherEnv(gym.Env):
         if sigma > 0.0:
             uv = uv + self.np_random.normal(0.0, sigma, 2)
         w, h = self._image_size
-        if depth[0] <= self.camera_near_m or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
+        if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
             return None
         return uv
-
-    @property
-    def camera_near_m(self) -> float:
-        return 0.1
 
     def _judge(self) -> str:
         state = self._truth.state

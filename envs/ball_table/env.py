@@ -22,6 +22,7 @@ from observer_gym.envs.ball_table.layout import (
 from observer_gym.envs.ball_table.measurements import perfect_measurement
 from observer_gym.envs.ball_table.scene import BallTableScene
 from observer_gym.envs.camera import Camera, PinholeIntrinsics
+from observer_gym.envs.config import check_render_mode
 from observer_gym.envs.sim import Simulation
 
 
@@ -94,10 +95,7 @@ class BallTableEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         self.config = BallTableConfig.from_kwargs(**options)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode={render_mode!r} is not supported; use None or 'rgb_array'"
-            )
+        check_render_mode(render_mode, self.metadata)
         cfg = self.config
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}

@@ -11,6 +11,7 @@ from gymnasium import spaces
 
 from observer_gym.envs.actions import checked_action
 from observer_gym.envs.camera import Camera, PinholeIntrinsics
+from observer_gym.envs.config import check_render_mode
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.target_follower import geometry as geo
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
@@ -114,10 +115,7 @@ class TargetFollowerEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         self.config = TargetFollowerConfig.from_kwargs(**options)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode={render_mode!r} is not supported; use None or 'rgb_array'"
-            )
+        check_render_mode(render_mode, self.metadata)
         cfg = self.config
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}

@@ -146,15 +146,12 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ax.plot(hole_r_mm * np.cos(phase), hole_r_mm * np.sin(phase), "k-", lw=1.5, label="hole")
     clear_mm = hole_r_mm - 1e3 * geo.BALL_RADIUS_M
     ax.plot(clear_mm * np.cos(phase), clear_mm * np.sin(phase), "k:", lw=1, label="clean pass")
+    crossings = [(bool(r["final_info"].get("caught")), plane_offset_m(r)) for r in records]
     for caught, style in (
         (True, {"c": "tab:green", "marker": "o"}),
         (False, {"c": "tab:red", "marker": "x"}),
     ):
-        points = [
-            1e3 * plane_offset_m(r)
-            for r in records
-            if bool(r["final_info"].get("caught")) == caught and plane_offset_m(r) is not None
-        ]
+        points = [1e3 * offset for c, offset in crossings if c == caught and offset is not None]
         if points:
             points = np.array(points)
             ax.scatter(
