@@ -150,3 +150,22 @@ def plot_estimate(
         bottom.legend(loc="upper right", fontsize=7)
     fig.suptitle(title)
     fig.savefig(path, dpi=DPI)
+
+
+def plot_learning_curve(csv_path: Path, path: Path, config: dict) -> None:
+    """The evaluation curve of a training run (``eval.csv``): mean return of the
+    deterministic policy with +-1 std over its evaluation episodes, against env steps."""
+    rows = np.genfromtxt(csv_path, delimiter=",", names=True, ndmin=1)
+    fig = new_figure((7.0, 4.0))
+    ax = fig.subplots()
+    steps, mean, std = rows["timesteps"], rows["return_mean"], rows["return_std"]
+    ax.plot(steps, mean, marker="o", ms=3, color="tab:blue", label="mean return")
+    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2, label="+-1 std")
+    ax.set(
+        xlabel="env steps",
+        ylabel=f"return ({int(rows['episodes'][-1])} evaluation episodes)",
+        title=f"{config['algo'].upper()} on {config['env_id']}, obs {config['obs']}",
+    )
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.savefig(path, dpi=DPI)

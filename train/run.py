@@ -26,6 +26,7 @@ from tqdm import tqdm
 import observer_gym.envs
 from observer_gym.controllers import CONTROLLERS, make_controller
 from observer_gym.estimation import VisionObserver
+from observer_gym.train.agent import Agent, parse_agent_spec
 from observer_gym.train.outputs import (
     format_table,
     package_versions,
@@ -52,6 +53,10 @@ CONTROLLER_ATTRIBUTES = (
     "profile",
     "max_speed_mps",
     "max_accel_mps2",
+    "algo",
+    "run_dir",
+    "obs",
+    "timesteps",
 )
 
 
@@ -82,8 +87,9 @@ class EpisodeSpec:
 
 def make_env(env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
     """The env for ``observer`` (one of the env's task's ``OBSERVERS``): the state env for
-    "oracle", else the env in the observer's obs_mode wrapped in :class:`VisionObserver`
-    with the observer's pipeline options. ``env_kwargs`` go to ``gym.make``."""
+    "oracle", the camera frames for an observer without a pipeline ("pixels"), else the
+    env in the observer's obs_mode wrapped in :class:`VisionObserver` with the observer's
+    pipeline options. ``env_kwargs`` go to ``gym.make``."""
     observers = task_for(env_id).OBSERVERS
     if observer not in observers:
         raise ValueError(
@@ -91,13 +97,54 @@ def make_env(env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None = 
         )
     obs_mode, pipeline_options = observers[observer]
     env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
-    if observer == "oracle":
+    if observer == "oracle" or pipeline_options is None:
         return env
     try:
         return VisionObserver(env, **dict(pipeline_options))
     except BaseException:
         env.close()
         raise
+
+
+def check_controller(controller: str, env_id: str, observer: str) -> None:
+    """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
+    ``env_id``: a name of :data:`CONTROLLERS` or a trained agent ``ALGO:DIR`` (see
+    :func:`observer_gym.train.agent.parse_agent_spec`). Controllers and agents trained on
+    the state or an estimate read the state layout (any observer but "pixels"); an agent
+    trained on rgb reads only "pixels"."""
+    obs_mode, pipeline = task_for(env_id).OBSERVERS[observer]
+    reads_pixels = pipeline is None and obs_mode != "state"
+    agent_spec = parse_agent_spec(controller)
+    if agent_spec is None:
+        if controller not in CONTROLLERS:
+            raise ValueError(
+                f"unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}, or a "
+                "trained agent as ALGO:DIR (ppo:runs/ppo-balltable)"
+            )
+        if reads_pixels:
+            raise ValueError(
+                f"controller {controller!r} acts on the state layout; observer {observer!r} "
+                "gives camera frames, which only an agent trained with --obs rgb reads"
+            )
+        return
+    agent = Agent.describe(agent_spec[1], algo=agent_spec[0])
+    if agent["env_id"] != env_id:
+        raise ValueError(f"agent {controller!r} was trained on {agent['env_id']}, not {env_id}")
+    if (agent["obs"] == "rgb") != reads_pixels:
+        wants = "observer 'pixels'" if agent["obs"] == "rgb" else "an observer but 'pixels'"
+        raise ValueError(
+            f"agent {controller!r} was trained with --obs {agent['obs']}: it needs {wants}, "
+            f"got {observer!r}"
+        )
+
+
+def build_controller(controller: str, env: gym.Env) -> Any:
+    """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
+    else ``make_controller(controller, env)``."""
+    agent_spec = parse_agent_spec(controller)
+    if agent_spec is None:
+        return make_controller(controller, env)
+    return Agent.load(agent_spec[1], algo=agent_spec[0])
 
 
 def describe_controller(controller: Any) -> dict[str, Any]:
@@ -124,7 +171,10 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """
     env = make_env(spec.env_id, spec.observer, spec.env_kwargs)
     try:
-        controller = make_controller(spec.controller, env)
+        controller = build_controller(spec.controller, env)
+        # An agent sees the env through the wrappers it was trained with (image resizing
+        # and frame stacking for rgb); info, with the ground truth, passes through them.
+        env = getattr(controller, "wrap_env", lambda env: env)(env)
         controller.reset()
         failures_before = getattr(controller, "failures", 0)
         # A controller that uses more than the observation (the intercept planner reads
@@ -161,7 +211,7 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
             "controller": describe_controller(controller),
             "env_config": dataclasses.asdict(env.unwrapped.config),
         }
-        if spec.observer != "oracle":
+        if "estimate" in samples[0]:
             estimates = [s["estimate"] for s in samples]
             record["estimate"] = np.array([e["mean"] for e in estimates], dtype=float)
             variances = np.array([np.diag(e["covariance"]) for e in estimates], dtype=float)
@@ -199,8 +249,10 @@ def run_experiment(
 
     Args:
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
-        observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-measurements).
-        controller: one of ``observer_gym.controllers.CONTROLLERS``.
+        observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-measurements,
+            pixels).
+        controller: one of ``observer_gym.controllers.CONTROLLERS`` or a trained agent
+            ``ALGO:DIR`` (``ppo:runs/ppo-balltable``).
         episodes: number of episodes (>= 1).
         seed: seed of episode 0.
         out_dir: the output folder.
@@ -223,8 +275,7 @@ def run_experiment(
         raise ValueError(
             f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(task.OBSERVERS)}"
         )
-    if controller not in CONTROLLERS:
-        raise ValueError(f"unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}")
+    check_controller(controller, env_id, observer)
     for name, value in (("episodes", episodes), ("workers", workers), ("steps", steps)):
         if value is not None and (int(value) != value or value < 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -241,7 +292,7 @@ def run_experiment(
         for i in range(episodes)
     ]
     tic_s = time.perf_counter()
-    records = _run_all(specs, workers, progress)
+    records = run_episodes(specs, workers, progress)
     wall_time_s = time.perf_counter() - tic_s
 
     per_episode = [
@@ -289,9 +340,12 @@ def run_experiment(
     return results
 
 
-def _run_all(specs: Sequence[EpisodeSpec], workers: int, progress: bool) -> list[dict]:
-    """The records of ``specs``, in order; in ``workers`` spawned processes if > 1."""
-    bar = tqdm(total=len(specs), unit="episode", desc="run", disable=not progress)
+def run_episodes(
+    specs: Sequence[EpisodeSpec], workers: int = 1, progress: bool = True, desc: str = "run"
+) -> list[dict]:
+    """The records of ``specs`` (:func:`run_episode`), in order; in ``workers`` spawned
+    processes if > 1, with the same results."""
+    bar = tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress)
     with bar:
         if workers == 1:
             records = []

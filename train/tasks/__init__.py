@@ -26,7 +26,11 @@ class Task(Protocol):
     """What a task module defines.
 
     - ``OBSERVERS``: observer name -> (the env's ``obs_mode``, options of the env's default
-      VisionObserver pipeline); "oracle" maps to ("state", {}) and is not wrapped.
+      VisionObserver pipeline, or None for no observer); "oracle" maps to ("state", {})
+      and is not wrapped; "pixels" maps to ("rgb", None): the camera frames themselves,
+      which only an agent trained with ``--obs rgb`` reads.
+    - ``ESTIMATE_OBSERVERS``: the observer an agent trained with ``--obs estimate`` reads,
+      by where the estimate comes from ("measurements" or "rgb").
     - ``CONFIG``: task constants recorded in results.json (e.g. tolerances).
     - ``SUMMARY_ROWS``: summary key -> (label, unit, scale from SI to the unit, digits).
     - ``episode_metrics(record)``: one episode's metrics from the record of
@@ -36,7 +40,8 @@ class Task(Protocol):
     - ``plot(records, observer, out_dir)``: writes the plots; returns their file names.
     """
 
-    OBSERVERS: Mapping[str, tuple[str, Mapping[str, Any]]]
+    OBSERVERS: Mapping[str, tuple[str, Mapping[str, Any] | None]]
+    ESTIMATE_OBSERVERS: Mapping[str, str]
     CONFIG: Mapping[str, Any]
     SUMMARY_ROWS: Mapping[str, tuple[str, str, float, int]]
 

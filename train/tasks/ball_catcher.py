@@ -19,11 +19,14 @@ from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.train.metrics import rmse
 from observer_gym.train.plots import DPI, new_figure
 
-OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
+OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
     "kf": ("rgb", {}),
     "kf-measurements": ("measurements", {}),
+    "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
+# what an agent trained with --obs estimate reads, by --estimate-from
+ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}
 CONFIDENCE = 0.95
 # Estimation errors are measured from this long after the launch (the first 5-10 frames
 # only bring the estimate from its prior, metres off, to the track) until the ball reaches
@@ -167,7 +170,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ax.legend(loc="upper right", fontsize=8)
     fig.savefig(out_dir / "plane.png", dpi=DPI)
     files = ["plane.png"]
-    if observer != "oracle":
+    if records[0]["estimate"] is not None:
         first = records[0]
         t = np.asarray(first["time_s"])
         error_mm = 1e3 * (first["estimate"][:, BALL_POS] - first["state"][:, BALL_POS])

@@ -10,11 +10,14 @@ from observer_gym.envs.ball_table.layout import BALL_POS
 from observer_gym.train import metrics
 from observer_gym.train.plots import plot_distances, plot_estimate, plot_paths
 
-OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
+OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
     "kf": ("rgb", {}),
     "kf-measurements": ("measurements", {}),
+    "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
+# what an agent trained with --obs estimate reads, by --estimate-from
+ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}
 CONFIG = {"tolerance_m": metrics.TOLERANCE_M}
 PATH_PLOT_EPISODES = 5  # path.png shows the first this many episodes
 
@@ -69,7 +72,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
         out_dir / "error.png",
     )
     files = ["path.png", "error.png"]
-    if observer != "oracle":
+    if records[0]["estimate"] is not None:
         first = records[0]
         plot_estimate(
             first["time_s"],

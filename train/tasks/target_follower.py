@@ -26,13 +26,16 @@ from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateInd
 from observer_gym.train.metrics import rmse
 from observer_gym.train.plots import DPI, new_figure
 
-OBSERVERS: dict[str, tuple[str, dict[str, Any]]] = {
+OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
     "kf": ("rgb", {"filter": "kf"}),
     "stkf": ("rgb", {"filter": "stkf"}),
     "kf-measurements": ("measurements", {"filter": "kf"}),
     "stkf-measurements": ("measurements", {"filter": "stkf"}),
+    "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
+# what an agent trained with --obs estimate reads, by --estimate-from
+ESTIMATE_OBSERVERS = {"measurements": "stkf-measurements", "rgb": "stkf"}
 RECOVERED_PX = 10.0  # back "in the centre" after an occlusion: |(x_i, y_i)| below this
 CONFIG = {"recovered_px": RECOVERED_PX}
 PLOT_EPISODES = 5
@@ -209,7 +212,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     axes[0].set_title(f"Image error, {len(records)} episodes (grey: episode 0's occlusions)")
     fig.savefig(out_dir / "error.png", dpi=DPI)
     files = ["image.png", "error.png"]
-    if observer != "oracle":
+    if records[0]["estimate"] is not None:
         r = records[0]
         s, e, sd = (np.asarray(r[k]) for k in ("state", "estimate", "estimate_std"))
         t = np.asarray(r["time_s"])

@@ -1,0 +1,93 @@
+"""Checkpoints of a training run that survive an interruption at any instant.
+
+A checkpoint is ``checkpoints/model_<N>.zip`` (the SB3 model, N its timestep count), with
+``vecnormalize_<N>.pkl`` if the run normalises and ``replay_buffer_<N>.pkl`` for the
+off-policy algorithms. Each file is written to a temporary name and renamed into place;
+``checkpoints/latest.json`` names the newest complete set and is replaced last, so a run
+killed while saving (Ctrl-C, SIGTERM, SIGKILL, power) leaves the previous set named and
+intact. Only the newest ``keep`` sets stay on disk.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+from observer_gym.train.outputs import write_json_atomic
+
+LATEST = "latest.json"
+
+
+def replace_atomically(path: Path, write: Any) -> None:
+    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX)."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def save_checkpoint(
+    model: BaseAlgorithm, directory: Path, save_replay_buffer: bool, keep: int = 2
+) -> dict[str, Any]:
+    """Save ``model`` (and its VecNormalize statistics and replay buffer) as the newest
+    checkpoint in ``directory``; returns the entry written to ``latest.json``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    steps = int(model.num_timesteps)
+    entry: dict[str, Any] = {"timesteps": steps, "model": f"model_{steps}.zip"}
+    replace_atomically(directory / entry["model"], model.save)
+    vec_normalize = model.get_vec_normalize_env()
+    if vec_normalize is not None:
+        entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
+        replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
+    if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
+        entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
+        replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
+    write_json_atomic(directory / LATEST, entry)
+    _prune(directory, keep)
+    return entry
+
+
+def _prune(directory: Path, keep: int) -> None:
+    steps = sorted(
+        {int(p.stem.split("_")[-1]) for p in directory.glob("model_*.zip")}, reverse=True
+    )
+    for old in steps[keep:]:
+        for pattern in (f"model_{old}.zip", f"vecnormalize_{old}.pkl", f"replay_buffer_{old}.pkl"):
+            (directory / pattern).unlink(missing_ok=True)
+
+
+def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
+    """The newest complete checkpoint in ``directory`` (its files as paths and its
+    ``timesteps``), or None if none was saved."""
+    path = Path(directory) / LATEST
+    if not path.exists():
+        return None
+    entry = json.loads(path.read_text())
+    return {k: (v if k == "timesteps" else Path(directory) / v) for k, v in entry.items()}
+
+
+class CheckpointCallback(BaseCallback):
+    """Saves a checkpoint (:func:`save_checkpoint`) every ``every_steps`` env steps."""
+
+    def __init__(self, directory: Path, every_steps: int, save_replay_buffer: bool) -> None:
+        super().__init__()
+        self.directory, self.every_steps = Path(directory), int(every_steps)
+        self.save_replay_buffer = save_replay_buffer
+        self._next = None
+
+    def _on_training_start(self) -> None:
+        self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            save_checkpoint(self.model, self.directory, self.save_replay_buffer)
+            self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
+        return True

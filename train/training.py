@@ -1,0 +1,402 @@
+"""``observer-gym train``: a stable-baselines3 agent on an env's state, an observer's
+estimate or the camera frames; and ``--resume`` of an interrupted run.
+
+A run's folder holds:
+
+- ``config.json``: everything resolved (env, obs, observer, hyperparameters, seed, action
+  bounds, package versions, the command line), written before training starts;
+- ``checkpoints/``: periodic checkpoints written atomically (:mod:`.checkpoints`);
+- ``eval.csv``: the evaluation curve (deterministic policy, the same ``eval_episodes``
+  episodes every time), ``curve.png`` its plot;
+- ``logs/<segment>/progress.csv`` (SB3's training log, and TensorBoard events with
+  ``--tensorboard``), ``monitor/`` (every training episode's return and length);
+- when finished, ``model.zip`` and ``vecnormalize.pkl``; ``state.json`` says the status
+  (running, interrupted, finished), the timestep count and the throughput.
+
+Seeds: the training envs of a run with seed s reset first with 1,000,000 + 1,000 s + rank
+(after a resume, plus the timestep count), and evaluation uses 2,000,000 + 1,000 s, so
+the episodes that ``observer-gym run`` and ``evaluate`` score (seeds 0, 1, ...) are never
+trained on. On CPU, two runs with the same seed and settings give identical models.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import signal
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from observer_gym.train.agent import CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE, read_config
+from observer_gym.train.agent_env import make_agent_env, observer_for
+from observer_gym.train.outputs import package_versions, to_jsonable, write_json_atomic
+
+TRAIN_SEED_OFFSET = 1_000_000
+EVAL_SEED_OFFSET = 2_000_000
+SEED_STRIDE = 1_000
+EVAL_COLUMNS = (
+    "timesteps",
+    "wall_time_s",
+    "return_mean",
+    "return_std",
+    "length_mean",
+    "episodes",
+)
+
+
+def train_agent(
+    env_id: str,
+    algo: str,
+    obs: str,
+    out_dir: str | Path,
+    timesteps: int | None = None,
+    seed: int = 0,
+    estimate_from: str = "measurements",
+    n_envs: int | None = None,
+    vec_env: str | None = None,
+    hyperparams: Mapping[str, Any] | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    tensorboard: bool = False,
+    progress: bool = True,
+    cli_args: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Train ``algo`` on ``env_id`` reading ``obs``; returns the final ``state.json``.
+
+    Args:
+        env_id: a registered id, with or without ``observer_gym/``.
+        algo: ppo, sac or td3.
+        obs: state, estimate or rgb (see :mod:`observer_gym.train.agent_env`).
+        out_dir: the run's folder; it must not hold a run already (use ``resume``).
+        timesteps: env steps to train for (None: the YAML's ``n_timesteps``).
+        seed: the run's seed (>= 0).
+        estimate_from: for ``obs="estimate"``, measurements or rgb.
+        n_envs, vec_env: override the YAML's.
+        hyperparams: dotted-key overrides of the YAML's values.
+        env_kwargs: ``gym.make`` options (not obs_mode: ``obs`` decides it).
+        tensorboard: also write TensorBoard logs (needs the tensorboard package).
+        progress: show SB3's progress bar.
+        cli_args: the command line, recorded in config.json.
+
+    Raises:
+        ValueError: any bad argument or hyperparameter, before anything is written.
+    """
+    from observer_gym.train.hyperparams import load_hyperparams
+    from observer_gym.train.run import resolve_env_id
+
+    env_id = resolve_env_id(env_id)
+    observer = observer_for(env_id, obs, estimate_from)
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    env_kwargs = dict(env_kwargs or {})
+    if "obs_mode" in env_kwargs:
+        raise ValueError("env_kwargs must not set obs_mode: --obs decides it")
+    overrides = dict(hyperparams or {})
+    if timesteps is not None:
+        overrides["n_timesteps"] = timesteps
+    if n_envs is not None:
+        overrides["n_envs"] = n_envs
+    if vec_env is not None:
+        overrides["vec_env"] = vec_env
+    params = load_hyperparams(env_id, algo, obs, overrides)
+    if tensorboard:
+        _check_tensorboard()
+    out_dir = Path(out_dir)
+    if (out_dir / CONFIG_FILE).exists():
+        raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")
+
+    probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"])
+    try:  # the action bounds a loaded agent maps back to, and a check that the env builds
+        action_space = probe.unwrapped.action_space
+    finally:
+        probe.close()
+    config = to_jsonable(
+        {
+            "env_id": env_id,
+            "algo": algo,
+            "obs": obs,
+            "estimate_from": estimate_from if obs == "estimate" else None,
+            "observer": observer,
+            "env_kwargs": env_kwargs,
+            "seed": int(seed),
+            "hyperparams": params,
+            "tensorboard": bool(tensorboard),
+            "action_low": action_space.low,
+            "action_high": action_space.high,
+            "versions": package_versions(),
+            "cli_args": cli_args,
+        }
+    )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out_dir / CONFIG_FILE, config)
+    return _learn(out_dir, config, progress=progress)
+
+
+def resume_training(
+    run_dir: str | Path, timesteps: int | None = None, progress: bool = True
+) -> dict[str, Any]:
+    """Continue the run in ``run_dir`` from its latest checkpoint up to its configured
+    timesteps (or ``timesteps``, a new total); the timestep count carries on from the
+    checkpoint's. Returns the final ``state.json``."""
+    from observer_gym.train.checkpoints import latest_checkpoint
+
+    run_dir = Path(run_dir)
+    config = read_config(run_dir)
+    if latest_checkpoint(run_dir / "checkpoints") is None:
+        raise ValueError(f"{run_dir} has no checkpoint to resume from")
+    if timesteps is not None:
+        if int(timesteps) != timesteps or timesteps < 1:
+            raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
+        config["hyperparams"]["n_timesteps"] = int(timesteps)
+        write_json_atomic(run_dir / CONFIG_FILE, config)
+    return _learn(run_dir, config, progress=progress, resume=True)
+
+
+def _check_tensorboard() -> None:
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        raise ValueError(
+            "--tensorboard needs the tensorboard package: pip install 'observer-gym[tensorboard]'"
+        ) from None
+
+
+def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Path | None):
+    """The training (or evaluation, ``monitor_dir`` None and one env) vector env."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    env_fn = functools.partial(
+        make_agent_env,
+        config["env_id"],
+        config["obs"],
+        config["estimate_from"] or "measurements",
+        config["env_kwargs"],
+        config["hyperparams"]["image"],
+    )
+    subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
+    return make_vec_env(
+        env_fn,
+        n_envs=n_envs,
+        seed=seed,
+        monitor_dir=None if monitor_dir is None else str(monitor_dir),
+        vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
+        vec_env_kwargs={"start_method": "spawn"} if subproc else None,
+    )
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``kill``) stops training like Ctrl-C, so both end the same way."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _learn(
+    run_dir: Path, config: dict[str, Any], progress: bool, resume: bool = False
+) -> dict[str, Any]:
+    import torch
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import set_random_seed
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from observer_gym.train.checkpoints import (
+        CheckpointCallback,
+        latest_checkpoint,
+        replace_atomically,
+        save_checkpoint,
+    )
+    from observer_gym.train.hyperparams import algorithm_class, build_algo_kwargs, split
+    from observer_gym.train.plots import plot_learning_curve
+
+    training, algo_kwargs = split(config["hyperparams"])
+    cls = algorithm_class(config["algo"])
+    seed = config["seed"]
+    torch.set_num_threads(training["torch_threads"])
+    checkpoint = latest_checkpoint(run_dir / "checkpoints") if resume else None
+    start_steps = int(checkpoint["timesteps"]) if checkpoint else 0
+    set_random_seed(seed + start_steps)
+    total = training["n_timesteps"]
+    save_replay_buffer = config["obs"] != "rgb"  # image buffers are GBs; not kept
+
+    train_seed = TRAIN_SEED_OFFSET + SEED_STRIDE * seed + start_steps
+    venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor")
+    eval_env = _vec_env(config, 1, EVAL_SEED_OFFSET + SEED_STRIDE * seed, None)
+    try:
+        normalize = training["normalize"]
+        if normalize:
+            options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
+            if checkpoint:
+                venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                venv.training = True
+            else:
+                venv = VecNormalize(venv, **options)
+            eval_env = VecNormalize(
+                eval_env, training=False, norm_obs=options.get("norm_obs", True), norm_reward=False
+            )
+        if checkpoint:
+            model = cls.load(checkpoint["model"], env=venv, device="cpu")
+            if "replay_buffer" in checkpoint:
+                model.load_replay_buffer(checkpoint["replay_buffer"])
+        else:
+            policy = training["policy"] or _default_policy(venv.observation_space)
+            kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
+            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+        segment = f"resume-{start_steps}" if resume else "start"
+        formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])
+        model.set_logger(configure(str(run_dir / "logs" / segment), formats))
+
+        evaluation = EvalCurveCallback(
+            eval_env,
+            run_dir / "eval.csv",
+            every_steps=training["eval_freq"],
+            episodes=training["eval_episodes"],
+            eval_seed=EVAL_SEED_OFFSET + SEED_STRIDE * seed,
+        )
+        callbacks = [
+            CheckpointCallback(
+                run_dir / "checkpoints", training["checkpoint_freq"], save_replay_buffer
+            ),
+            evaluation,
+        ]
+        state = {"status": "running", "timesteps": start_steps, "target_timesteps": total}
+        write_json_atomic(run_dir / "state.json", state)
+        tic_s = time.perf_counter()
+        status = "finished"
+        try:
+            with _sigterm_as_interrupt():
+                model.learn(
+                    total_timesteps=max(total - start_steps, 0),
+                    callback=callbacks,
+                    reset_num_timesteps=not resume,
+                    progress_bar=progress,
+                )
+        except KeyboardInterrupt:
+            status = "interrupted"
+        wall_time_s = time.perf_counter() - tic_s
+        steps = int(model.num_timesteps) - start_steps
+        train_time_s = max(wall_time_s - evaluation.time_s, 1e-9)
+        if status == "finished":
+            save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
+            if normalize:
+                replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+            replace_atomically(run_dir / FINAL_MODEL, model.save)
+        latest = latest_checkpoint(run_dir / "checkpoints")
+        state = {
+            "status": status,
+            "timesteps": int(model.num_timesteps),
+            "target_timesteps": total,
+            "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
+            "segment_steps": steps,
+            "segment_wall_time_s": wall_time_s,
+            "segment_eval_time_s": evaluation.time_s,
+            "train_steps_per_s": steps / train_time_s,
+        }
+        write_json_atomic(run_dir / "state.json", state)
+        if (run_dir / "eval.csv").exists():
+            plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
+        _report(run_dir, state)
+        return state
+    finally:
+        venv.close()
+        eval_env.close()
+
+
+def _default_policy(space: Any) -> str:
+    from gymnasium import spaces
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if isinstance(space, spaces.Dict):
+        return "MultiInputPolicy"
+    return "CnnPolicy" if is_image_space(space) else "MlpPolicy"
+
+
+def _report(run_dir: Path, state: Mapping[str, Any]) -> None:
+    print(
+        f"observer-gym train: {state['status']} at {state['timesteps']} of "
+        f"{state['target_timesteps']} steps, {state['train_steps_per_s']:.0f} env steps/s "
+        f"while training; output: {run_dir}"
+    )
+    if state["status"] == "interrupted":
+        print(
+            f"last checkpoint: {state['last_checkpoint_timesteps']} steps; continue with "
+            f"'observer-gym train --resume {run_dir}'"
+        )
+
+
+class EvalCurveCallback(BaseCallback):
+    """Every ``every_steps`` env steps, scores the deterministic policy on the same
+    ``episodes`` evaluation episodes (seeded with ``eval_seed``) and appends a row of
+    :data:`EVAL_COLUMNS` to ``csv_path``; ``time_s`` is the time spent evaluating."""
+
+    def __init__(
+        self, eval_env: Any, csv_path: Path, every_steps: int, episodes: int, eval_seed: int
+    ) -> None:
+        super().__init__()
+        self.eval_env, self.csv_path = eval_env, Path(csv_path)
+        self.every_steps, self.episodes, self.eval_seed = every_steps, episodes, eval_seed
+        self.time_s = 0.0
+        self._next = None
+        self._start_s = time.time()
+
+    def _on_training_start(self) -> None:
+        self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self.evaluate()
+            self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.num_timesteps % self.every_steps:
+            self.evaluate()  # the final policy's score, unless just measured
+
+    def evaluate(self) -> None:
+        from stable_baselines3.common.evaluation import evaluate_policy
+        from stable_baselines3.common.vec_env import sync_envs_normalization
+
+        tic_s = time.perf_counter()
+        if self.model.get_vec_normalize_env() is not None:
+            sync_envs_normalization(self.training_env, self.eval_env)
+        self.eval_env.seed(self.eval_seed)
+        returns, lengths = evaluate_policy(
+            self.model,
+            self.eval_env,
+            n_eval_episodes=self.episodes,
+            deterministic=True,
+            return_episode_rewards=True,
+            warn=False,
+        )
+        row = [
+            self.num_timesteps,
+            round(time.time() - self._start_s, 3),
+            float(np.mean(returns)),
+            float(np.std(returns)),
+            float(np.mean(lengths)),
+            self.episodes,
+        ]
+        new = not self.csv_path.exists()
+        with open(self.csv_path, "a", newline="") as f:
+            writer = csv.writer(f)
+            if new:
+                writer.writerow(EVAL_COLUMNS)
+            writer.writerow(row)
+        self.logger.record("eval/return_mean", row[2])
+        self.time_s += time.perf_counter() - tic_s
