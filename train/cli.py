@@ -99,8 +99,20 @@ def _demo_run(args: argparse.Namespace) -> int:
 # --- run -------------------------------------------------------------------------------
 # The choices are listed here so that parsing needs no heavy import; run_experiment checks
 # them against observer_gym.train.run.OBSERVERS and observer_gym.controllers.CONTROLLERS.
-RUN_OBSERVERS = ("oracle", "kf", "kf-measurements", "stkf", "stkf-measurements")
+RUN_OBSERVERS = ("oracle", "kf", "kf-measurements", "stkf", "stkf-measurements", "pixels")
 RUN_CONTROLLERS = ("lqr", "mpc", "pid", "intercept", "vtc")
+AGENT_ALGOS = ("ppo", "sac", "td3")
+
+
+def controller_name(text: str) -> str:
+    """argparse type: a baseline controller's name or a trained agent ``ALGO:DIR``."""
+    algo, sep, run_dir = text.partition(":")
+    if text in RUN_CONTROLLERS or (sep and algo in AGENT_ALGOS and run_dir):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r} is neither a controller ({', '.join(RUN_CONTROLLERS)}) nor a trained agent "
+        f"ALGO:DIR with ALGO one of {', '.join(AGENT_ALGOS)}"
+    )
 
 
 def env_name(text: str) -> str:
@@ -144,11 +156,13 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--controller",
-        choices=RUN_CONTROLLERS,
+        type=controller_name,
         required=True,
+        metavar="CONTROLLER",
         help=(
             "BallTable: lqr (python-control's dlqr), mpc (OSQP, constrained) or pid (per "
-            "axis); BallCatcher: intercept (moves the hole to the predicted crossing)"
+            "axis); BallCatcher: intercept (moves the hole to the predicted crossing); "
+            "TargetFollower: vtc; any env: a trained agent as ALGO:DIR (ppo:runs/x)"
         ),
     )
     parser.add_argument(
@@ -217,6 +231,205 @@ def _run_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- train -----------------------------------------------------------------------------
+# Listed here so that parsing needs no heavy import; train_agent checks them again.
+TRAIN_ALGOS = ("ppo", "sac", "td3")
+TRAIN_OBS = ("state", "estimate", "rgb")
+
+
+def hyperparam_option(text: str) -> tuple[str, object]:
+    """argparse type: ``KEY=VALUE`` with a dotted key for nested values
+    (``learning_rate=1e-4``, ``normalize.norm_reward=False``); the value is read as a
+    Python literal, else kept as text."""
+    key, sep, value = text.partition("=")
+    if not sep or not all(part.isidentifier() for part in key.split(".")):
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (KEY may be dotted), got {text!r}")
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return key, value
+
+
+def _train_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
+    )
+    parser.add_argument("--algo", choices=TRAIN_ALGOS, help="stable-baselines3 algorithm")
+    parser.add_argument(
+        "--obs",
+        choices=TRAIN_OBS,
+        help=(
+            "what the agent reads: state (the true state), estimate (the VisionObserver's "
+            "estimate, same layout) or rgb (the camera frames: resized, grayscale, stacked)"
+        ),
+    )
+    parser.add_argument(
+        "--estimate-from",
+        choices=("measurements", "rgb"),
+        default="measurements",
+        help="for --obs estimate: the observer's input (default: %(default)s, no rendering)",
+    )
+    parser.add_argument(
+        "--timesteps",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="env steps to train for in total (default: the YAML's n_timesteps)",
+    )
+    parser.add_argument(
+        "--seed", type=nonnegative_int, default=0, help="the run's seed (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--n-envs", type=positive_int, default=None, metavar="N", help="parallel training envs"
+    )
+    parser.add_argument(
+        "--vec-env",
+        choices=("subproc", "dummy"),
+        default=None,
+        help="SubprocVecEnv (spawned processes) or DummyVecEnv (default: the YAML's)",
+    )
+    parser.add_argument(
+        "--hyperparam",
+        type=hyperparam_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=(
+            "override a YAML hyperparameter, repeatable (learning_rate=1e-4, "
+            "policy_kwargs.net_arch=[128,128], normalize=False)"
+        ),
+    )
+    parser.add_argument(
+        "--env-option",
+        type=env_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a gym.make option of the env, repeatable; --obs sets obs_mode",
+    )
+    parser.add_argument(
+        "--tensorboard", action="store_true", help="also write TensorBoard logs (logs/)"
+    )
+    parser.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="continue the run in DIR from its last checkpoint (takes only --timesteps)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: ./observer-gym-out/train-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+# options a resumed run takes from its config.json instead
+_TRAIN_RUN_OPTIONS = ("algo", "obs", "n_envs", "vec_env", "hyperparam", "env_option", "out")
+
+
+def _train_run(args: argparse.Namespace) -> int:
+    from observer_gym.train.outputs import default_out_dir
+    from observer_gym.train.training import resume_training, train_agent  # deferred: torch
+
+    if args.resume is not None:
+        given = [f"--{k.replace('_', '-')}" for k in _TRAIN_RUN_OPTIONS if getattr(args, k)]
+        if given:
+            raise SystemExit(
+                f"observer-gym train: error: --resume continues a run with its own settings; "
+                f"drop {', '.join(given)}"
+            )
+        state = resume_training(args.resume, args.timesteps, progress=not args.no_progress)
+    else:
+        missing = [f"--{k}" for k in ("algo", "obs") if getattr(args, k) is None]
+        if missing:
+            raise SystemExit(
+                f"observer-gym train: error: {' and '.join(missing)} required (or --resume DIR)"
+            )
+        cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+        cli_args.pop("run", None)
+        state = train_agent(
+            env_id=args.env,
+            algo=args.algo,
+            obs=args.obs,
+            out_dir=args.out if args.out is not None else default_out_dir("train"),
+            timesteps=args.timesteps,
+            seed=args.seed,
+            estimate_from=args.estimate_from,
+            n_envs=args.n_envs,
+            vec_env=args.vec_env,
+            hyperparams=dict(args.hyperparam),
+            env_kwargs=dict(args.env_option),
+            tensorboard=args.tensorboard,
+            progress=not args.no_progress,
+            cli_args=cli_args,
+        )
+    return 130 if state["status"] == "interrupted" else 0
+
+
+# --- evaluate --------------------------------------------------------------------------
+def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--model",
+        type=Path,
+        required=True,
+        metavar="DIR",
+        help="the folder of an 'observer-gym train' run",
+    )
+    parser.add_argument(
+        "--episodes", type=positive_int, default=10, help="episodes to run (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=nonnegative_int,
+        default=0,
+        help="episode i resets with seed + i, as in 'observer-gym run' (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--observer",
+        choices=RUN_OBSERVERS,
+        default=None,
+        help="what the agent reads (default: what it was trained on)",
+    )
+    parser.add_argument(
+        "--steps", type=positive_int, default=None, metavar="K", help="cap each episode at K steps"
+    )
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, metavar="W", help="processes to run in"
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: ./observer-gym-out/evaluate-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def _evaluate_run(args: argparse.Namespace) -> int:
+    from observer_gym.train.evaluate import evaluate_agent  # deferred: torch, PyBullet
+    from observer_gym.train.outputs import default_out_dir
+
+    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    cli_args.pop("run", None)
+    evaluate_agent(
+        args.model,
+        episodes=args.episodes,
+        out_dir=args.out if args.out is not None else default_out_dir("evaluate"),
+        seed=args.seed,
+        observer=args.observer,
+        steps=args.steps,
+        workers=args.workers,
+        progress=not args.no_progress,
+        cli_args=cli_args,
+    )
+    return 0
+
+
 # --- reproduce -------------------------------------------------------------------------
 def _reproduce_arguments(parser: argparse.ArgumentParser) -> None:
     import importlib
@@ -267,6 +480,32 @@ COMMANDS: dict[str, Command] = {
         ),
         add_arguments=_run_arguments,
         run=_run_run,
+    ),
+    "train": Command(
+        help="train a stable-baselines3 agent (PPO, SAC, TD3) on the state, an estimate or pixels",
+        description=(
+            "Train a stable-baselines3 agent on an env (--env, default BallTable-v0) reading "
+            "the true state (--obs state), the VisionObserver's estimate (estimate; from "
+            "measurements or camera frames by --estimate-from) or the camera frames (rgb). "
+            "Hyperparameters come from the YAML file of the algorithm shipped with the package "
+            "(observer_gym/train/hyperparams/ALGO.yml), overridable with --hyperparam. Writes "
+            "config.json, periodic checkpoints, eval.csv and curve.png (the evaluation "
+            "curve), logs/ and, when finished, model.zip and vecnormalize.pkl. Ctrl-C or kill "
+            "leaves the last checkpoint intact; --resume DIR continues from it."
+        ),
+        add_arguments=_train_arguments,
+        run=_train_run,
+    ),
+    "evaluate": Command(
+        help="score a trained agent with the metrics and results.json of 'run'",
+        description=(
+            "Run closed-loop episodes of an agent trained by 'observer-gym train' (--model "
+            "DIR) on its env, reading what it was trained on or another --observer, and "
+            "write results.json and the env's plots exactly as 'observer-gym run' does for a "
+            "baseline controller (episode i resets with seed + i)."
+        ),
+        add_arguments=_evaluate_arguments,
+        run=_evaluate_run,
     ),
     "reproduce": Command(
         help="re-run a source paper's study and print its figures beside the paper's",

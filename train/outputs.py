@@ -23,6 +23,7 @@ VERSIONED_PACKAGES = (
     "control",
     "osqp",
     "stable-baselines3",
+    "torch",
 )
 
 
