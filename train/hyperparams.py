@@ -7,8 +7,9 @@ An env's entry holds two kinds of keys:
   ``--timesteps``), ``n_envs``, ``vec_env`` (subproc or dummy), ``normalize`` (false or
   VecNormalize's options), ``image`` (:class:`~observer_gym.train.agent_env.ImageOptions`
   for ``--obs rgb``), ``checkpoint_freq`` and ``eval_freq`` (env steps), ``eval_episodes``,
-  ``torch_threads`` and ``policy`` (default: MlpPolicy for a vector, CnnPolicy for an
-  image, MultiInputPolicy for a Dict);
+  ``torch_threads``, ``policy`` (default: MlpPolicy for a vector, CnnPolicy for an
+  image, MultiInputPolicy for a Dict) and ``env_kwargs`` (``gym.make`` options, e.g. a
+  smaller camera image for ``--obs rgb``; ``--env-option`` overrides them);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
   against its signature. Two values are written as text and built on use:
   ``policy_kwargs.activation_fn`` (relu, tanh, elu) and ``action_noise``
@@ -45,6 +46,7 @@ TRAINING_DEFAULTS: dict[str, Any] = {
     "eval_episodes": 5,
     "torch_threads": 1,
     "policy": None,
+    "env_kwargs": {},
 }
 VEC_ENVS = ("subproc", "dummy")
 ACTIVATIONS = ("relu", "tanh", "elu")
@@ -120,6 +122,8 @@ def _validate(params: Mapping[str, Any], cls: type) -> None:
             raise ValueError(f"hyperparameter {key} must be an integer >= 1, got {value!r}")
     if params["vec_env"] not in VEC_ENVS:
         raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {params['vec_env']!r}")
+    if not isinstance(params["env_kwargs"], Mapping):
+        raise ValueError(f"env_kwargs must be a mapping, got {params['env_kwargs']!r}")
     if not (params["normalize"] is False or isinstance(params["normalize"], Mapping)):
         raise ValueError(
             f"normalize must be false or VecNormalize's options, got {params['normalize']!r}"

@@ -78,7 +78,8 @@ def train_agent(
         estimate_from: for ``obs="estimate"``, measurements or rgb.
         n_envs, vec_env: override the YAML's.
         hyperparams: dotted-key overrides of the YAML's values.
-        env_kwargs: ``gym.make`` options (not obs_mode: ``obs`` decides it).
+        env_kwargs: ``gym.make`` options (not obs_mode: ``obs`` decides it), over the
+            YAML's ``env_kwargs``.
         tensorboard: also write TensorBoard logs (needs the tensorboard package).
         progress: show SB3's progress bar.
         cli_args: the command line, recorded in config.json.
@@ -93,9 +94,6 @@ def train_agent(
     observer = observer_for(env_id, obs, estimate_from)
     if int(seed) != seed or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-    env_kwargs = dict(env_kwargs or {})
-    if "obs_mode" in env_kwargs:
-        raise ValueError("env_kwargs must not set obs_mode: --obs decides it")
     overrides = dict(hyperparams or {})
     if timesteps is not None:
         overrides["n_timesteps"] = timesteps
@@ -104,6 +102,9 @@ def train_agent(
     if vec_env is not None:
         overrides["vec_env"] = vec_env
     params = load_hyperparams(env_id, algo, obs, overrides)
+    env_kwargs = {**params["env_kwargs"], **dict(env_kwargs or {})}
+    if "obs_mode" in env_kwargs:
+        raise ValueError("env_kwargs must not set obs_mode: --obs decides it")
     if tensorboard:
         _check_tensorboard()
     out_dir = Path(out_dir)
@@ -314,8 +315,11 @@ def _learn(
         _report(run_dir, state)
         return state
     finally:
-        venv.close()
-        eval_env.close()
+        for env in (venv, eval_env):
+            try:
+                env.close()
+            except (BrokenPipeError, ConnectionResetError, EOFError):
+                pass  # Ctrl-C reached the SubprocVecEnv workers too; they are gone
 
 
 def _default_policy(space: Any) -> str:

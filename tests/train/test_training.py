@@ -168,17 +168,28 @@ def test_resume_continues_the_timestep_count(tmp_path):
     assert json.loads((out / "config.json").read_text())["hyperparams"]["n_timesteps"] == 2000
 
 
-def test_killed_run_keeps_its_last_checkpoint_and_resumes(tmp_path):
-    """SIGTERM in the middle of training: exit code 130, the last checkpoint loads, and
+@pytest.mark.parametrize(
+    ("how", "n_envs"),
+    [("kill", 1), ("ctrl-c", 2)],  # SIGTERM to the trainer; SIGINT to it and its workers
+)
+def test_killed_run_keeps_its_last_checkpoint_and_resumes(tmp_path, how, n_envs):
+    """Stopped in the middle of training: exit code 130, the last checkpoint loads, and
     --resume carries on from its count."""
     out = tmp_path / "run"
     command = [
         sys.executable, "-m", "observer_gym.train.cli", "train", "--env", "BallTable-v0",
-        "--algo", "ppo", "--obs", "state", "--timesteps", "200000", "--n-envs", "1",
+        "--algo", "ppo", "--obs", "state", "--timesteps", "200000", "--n-envs", str(n_envs),
         "--hyperparam", "n_steps=256", "--hyperparam", "checkpoint_freq=500",
         "--hyperparam", "eval_freq=100000", "--out", str(out), "--no-progress",
     ]  # fmt: skip
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,  # its own process group, as a terminal's foreground job
+        # a shell's background job ignores SIGINT; a terminal's foreground job does not
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     try:
         deadline = time.monotonic() + 120
         while latest_checkpoint(out / "checkpoints") is None:
@@ -186,7 +197,10 @@ def test_killed_run_keeps_its_last_checkpoint_and_resumes(tmp_path):
             assert time.monotonic() < deadline, "no checkpoint within 120 s"
             time.sleep(0.2)
         time.sleep(1.0)
-        os.kill(process.pid, signal.SIGTERM)
+        if how == "kill":
+            os.kill(process.pid, signal.SIGTERM)
+        else:  # what Ctrl-C does: SIGINT to every process of the foreground group
+            os.killpg(process.pid, signal.SIGINT)
         output, _ = process.communicate(timeout=60)
     finally:
         process.kill()
@@ -202,7 +216,7 @@ def test_killed_run_keeps_its_last_checkpoint_and_resumes(tmp_path):
     assert main(["train", "--resume", str(out), "--timesteps", str(target), "--no-progress"]) == 0
     resumed = json.loads((out / "state.json").read_text())
     assert resumed["status"] == "finished"
-    assert target <= resumed["timesteps"] < target + 256
+    assert target <= resumed["timesteps"] < target + 256 * n_envs
 
 
 def test_bad_arguments_raise_before_anything_is_written(tmp_path):
