@@ -58,6 +58,15 @@ SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
     "box_travel_m": ("box travel, mean", "mm", 1e3, 1),
     "return": ("return, mean", "", 1.0, 2),
 }
+# observer-gym compare's table: episode metric -> (label, unit, scale from the stored SI
+# value to the unit, digits, "lower" or "higher" is better); the first is the primary one
+# ("caught" is a boolean per episode: a rate with its Wilson interval)
+COMPARE_METRICS: dict[str, tuple[str, str, float, int, str]] = {
+    "caught": ("catch rate", "%", 100.0, 1, "higher"),
+    "miss_distance_m": ("miss at the box's plane", "mm", 1e3, 1, "lower"),
+    "position_rmse_m": ("estimate RMSE, ball position", "mm", 1e3, 2, "lower"),
+    "box_travel_m": ("box travel", "mm", 1e3, 1, "lower"),
+}
 
 
 def plane_offset_m(record: Mapping[str, Any]) -> np.ndarray | None:

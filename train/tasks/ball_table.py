@@ -38,6 +38,17 @@ SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
     "solver_failures": ("solver failures (total)", "", 1.0, 0),
     "terminated": ("terminated (ball off the table)", "", 1.0, 0),
 }
+# observer-gym compare's table: episode metric -> (label, unit, scale from the stored SI
+# value to the unit, digits, "lower" or "higher" is better); the first is the primary one
+COMPARE_METRICS: dict[str, tuple[str, str, float, int, str]] = {
+    "mean_distance_m": ("distance from centre", "mm", 1e3, 2, "lower"),
+    "final_distance_m": ("final distance", "mm", 1e3, 2, "lower"),
+    "settling_time_s": ("settling time to 1 cm", "s", 1.0, 2, "lower"),
+    "time_within_s": ("time within 1 cm", "s", 1.0, 2, "higher"),
+    "effort_rms_rad": ("effort (RMS tilt)", "mrad", 1e3, 2, "lower"),
+    "position_rmse_m": ("estimate RMSE, position", "mm", 1e3, 3, "lower"),
+    "return": ("return", "", 1.0, 1, "higher"),
+}
 
 
 def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:

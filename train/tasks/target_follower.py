@@ -57,6 +57,17 @@ SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
     "return": ("return, mean", "", 1.0, 1),
     "terminated": ("terminated (target lost)", "", 1.0, 0),
 }
+# observer-gym compare's table: episode metric (or compare_extras value) -> (label, unit,
+# scale from the stored value to the unit, digits, "lower" or "higher" is better); the
+# first is the primary one ("terminated" is a boolean per episode: a rate)
+COMPARE_METRICS: dict[str, tuple[str, str, float, int, str]] = {
+    "centre_error_px": ("image error ‖(x_i, y_i)‖", "px", 1.0, 2, "lower"),
+    "width_error_px": ("width error abs(d_x - d*)", "px", 1.0, 2, "lower"),
+    "fraction_in_image": ("time on the image", "%", 100.0, 1, "higher"),
+    "recovery_time_mean_s": ("recovery after an occlusion", "s", 1.0, 2, "lower"),
+    "terminated": ("target lost", "%", 100.0, 1, "lower"),
+    "image_rmse_px": ("estimate RMSE of X_i", "px", 1.0, 3, "lower"),
+}
 
 
 def _image_limits(record: Mapping[str, Any]) -> tuple[float, float]:
@@ -132,6 +143,14 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
                 estimate[valid][:, IMAGE_RATE], state[valid][:, IMAGE_RATE]
             )
     return metrics
+
+
+def compare_extras(episode: Mapping[str, Any]) -> dict[str, Any]:
+    """Per-episode values of COMPARE_METRICS that :func:`episode_metrics` keeps as a list:
+    ``recovery_time_mean_s``, the mean recovery time (s) of the episode's recovered
+    occlusions (None if none was recovered)."""
+    recovered = [t for t in episode["recovery_times_s"] if t is not None]
+    return {"recovery_time_mean_s": float(np.mean(recovered)) if recovered else None}
 
 
 def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -1,0 +1,192 @@
+"""The ``observer-gym compare`` command's arguments and action (the library function is
+:func:`observer_gym.train.compare.run_comparison`).
+
+Parsing imports nothing heavy: PyBullet, the controllers and Ray load inside :func:`run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+# The module, not its names: cli.py may import this module while it is still loading.
+from observer_gym.train import cli
+
+DEFAULT_EPISODES = 10
+DEFAULT_SEED = 0
+
+
+def name_list(text: str) -> list[str]:
+    """argparse type: comma-separated names (``oracle,kf``); no empty name."""
+    names = [name.strip() for name in text.split(",")]
+    if any(not name for name in names):
+        raise argparse.ArgumentTypeError(f"expected comma-separated names, got {text!r}")
+    return names
+
+
+def seed_list(text: str) -> list[int]:
+    """argparse type: comma-separated seeds >= 0 and ranges ``A-B`` (both ends included):
+    ``0-4,10,12-13`` -> [0, 1, 2, 3, 4, 10, 12, 13]."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        first, sep, last = part.strip().partition("-")
+        try:
+            low = int(first)
+            high = int(last) if sep else low
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{part.strip()!r} in {text!r} is not a seed or a range A-B of seeds >= 0"
+            ) from None
+        if low < 0 or high < low:
+            raise argparse.ArgumentTypeError(
+                f"{part.strip()!r} in {text!r}: seeds must be >= 0 and a range A-B needs A <= B"
+            )
+        seeds += range(low, high + 1)
+    return seeds
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``observer-gym compare``."""
+    parser.add_argument(
+        "--env",
+        type=cli.env_name,
+        default="BallTable-v0",
+        help="environment (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--observers",
+        type=name_list,
+        required=True,
+        metavar="LIST",
+        help=(
+            "comma-separated observers: oracle (the true state), kf (Kalman filter on the "
+            "camera pixels), kf-measurements (the same on perfect-detector measurements); "
+            "TargetFollower also stkf, stkf-measurements (self-tuning filter)"
+        ),
+    )
+    parser.add_argument(
+        "--controllers",
+        type=name_list,
+        required=True,
+        metavar="LIST",
+        help=(
+            "comma-separated controllers: BallTable lqr, mpc, pid; BallCatcher intercept; "
+            "TargetFollower vtc; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable)"
+        ),
+    )
+    parser.add_argument(
+        "--episodes",
+        type=cli.positive_int,
+        default=None,
+        metavar="N",
+        help=f"episodes per pair (default: {DEFAULT_EPISODES})",
+    )
+    parser.add_argument(
+        "--seed",
+        type=cli.nonnegative_int,
+        default=None,
+        metavar="S",
+        help=f"episode i of every pair resets with S + i (default: {DEFAULT_SEED})",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=seed_list,
+        default=None,
+        metavar="LIST",
+        help="explicit seeds, one episode each: 0-9, 3,7,20-24 (instead of --episodes/--seed)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=cli.positive_int,
+        default=1,
+        metavar="W",
+        help="local backend: run episodes in W processes; results are identical (default: 1)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help=(
+            "local: this machine's processes; ray: Ray tasks, same results "
+            "(pip install 'observer-gym[distributed]') (default: %(default)s)"
+        ),
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help=(
+            "with --backend ray: the Ray cluster to use ('auto' for the one 'ray start' set "
+            "up here, or HOST:PORT) (default: start a local Ray instance)"
+        ),
+    )
+    parser.add_argument(
+        "--steps",
+        type=cli.positive_int,
+        default=None,
+        metavar="K",
+        help="cap each episode at K steps (default: the env's time limit)",
+    )
+    parser.add_argument(
+        "--env-option",
+        type=cli.env_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder (default: ./observer-gym-out/compare-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def _error(message: str) -> int:
+    print(f"observer-gym compare: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the comparison of ``args``; 0 on success, 2 (with a message on stderr) for an
+    input the library rejects before running anything."""
+    if args.seeds is not None and (args.episodes is not None or args.seed is not None):
+        return _error("--seeds lists the seeds: give it alone, without --episodes or --seed")
+    if args.seeds is not None:
+        seeds = args.seeds
+    else:
+        first = DEFAULT_SEED if args.seed is None else args.seed
+        seeds = list(range(first, first + (args.episodes or DEFAULT_EPISODES)))
+
+    # deferred: PyBullet, the controllers, SciPy
+    from observer_gym.train.compare import check_comparison, run_comparison
+    from observer_gym.train.outputs import default_out_dir
+
+    options = {
+        "env_id": args.env,
+        "observers": args.observers,
+        "controllers": args.controllers,
+        "seeds": seeds,
+        "workers": args.workers,
+        "backend": args.backend,
+        "address": args.address,
+        "steps": args.steps,
+        "env_kwargs": dict(args.env_option),
+    }
+    try:
+        check_comparison(**options)
+    except ValueError as exc:
+        return _error(str(exc))
+    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    cli_args.pop("run", None)
+    run_comparison(
+        **options,
+        out_dir=args.out if args.out is not None else default_out_dir("compare"),
+        progress=not args.no_progress,
+        cli_args=cli_args,
+    )
+    return 0
