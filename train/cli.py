@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+from observer_gym.train import compare_cli
+
 
 @dataclass(frozen=True)
 class Command:
@@ -476,10 +478,26 @@ COMMANDS: dict[str, Command] = {
             "results.json (config, versions, per-episode metrics, summary) and the env's "
             "plots (BallTable: path.png, error.png; BallCatcher: plane.png; with an observer "
             "also estimate.png) into the output folder, and prints a table of the summary "
-            "(BallCatcher: catch rate with its 95 %% interval)."
+            "(BallCatcher: catch rate with its 95 % interval)."
         ),
         add_arguments=_run_arguments,
         run=_run_run,
+    ),
+    "compare": Command(
+        help="run every observer x controller pair on the same seeds and tabulate the metrics",
+        description=(
+            "Run every pair of --observers and --controllers on one env (--env, default "
+            "BallTable-v0) on the same seeds (episode i of every pair resets with the same "
+            "seed), locally in worker processes (--workers) or as Ray tasks (--backend ray). "
+            "Controllers include trained agents as ALGO:DIR. Writes table.md and table.csv "
+            "(per pair and metric: mean with its 95 % Student t interval, rates with a "
+            "Wilson interval; with 'oracle' among the observers, the paired difference "
+            "observer - oracle of the env's primary metric per controller), bar_<metric>.png, "
+            "each pair's plots under pairs/ and results.json into the output folder, and "
+            "prints the table."
+        ),
+        add_arguments=compare_cli.add_arguments,
+        run=compare_cli.run,
     ),
     "train": Command(
         help="train a stable-baselines3 agent (PPO, SAC, TD3) on the state, an estimate or pixels",

@@ -33,6 +33,10 @@ class Task(Protocol):
       by where the estimate comes from ("measurements" or "rgb").
     - ``CONFIG``: task constants recorded in results.json (e.g. tolerances).
     - ``SUMMARY_ROWS``: summary key -> (label, unit, scale from SI to the unit, digits).
+    - ``COMPARE_METRICS``: the metrics of ``observer-gym compare``'s table, key -> (label,
+      unit, scale, digits, "lower" or "higher" is better); the first is the primary one,
+      whose paired observer - oracle difference gets a column. An optional
+      ``compare_extras(episode)`` adds per-episode numbers derived for the table.
     - ``episode_metrics(record)``: one episode's metrics from the record of
       :func:`observer_gym.train.run.run_episode`.
     - ``summarize(episodes)``: the summary of a list of ``episode_metrics`` dicts; it has
