@@ -230,7 +230,8 @@ def test_a_controller_made_for_another_env_raises(tmp_path):
     ("argv", "message"),
     [
         (["--observer", "ekf", "--controller", "lqr"], "invalid choice"),
-        (["--observer", "oracle", "--controller", "rl"], "invalid choice"),
+        (["--observer", "oracle", "--controller", "rl"], "neither a controller"),
+        (["--observer", "oracle", "--controller", "a2c:runs/x"], "neither a controller"),
         (["--observer", "oracle", "--controller", "lqr", "--episodes", "0"], "must be an"),
         (["--observer", "oracle", "--controller", "lqr", "--workers", "x"], "not an integer"),
         (["--observer", "oracle", "--controller", "lqr", "--seed", "-1"], "must be an"),
