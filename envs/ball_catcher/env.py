@@ -88,6 +88,16 @@ class BallCatcherEnv(gym.Env):
     flat enough to pass the hole).
     ``reset(options={"throw": (launch_pos_world, launch_vel_world)})`` sets the throw.
 
+    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
+    sensor noise from its own stream. The throw and the rig's timing (the preset's
+    phases and latencies, the capture jitter, the frame losses) come from ``np_random``
+    in the same order whatever the obs_mode, so episodes with the same seed and actions
+    see the same world and the same frame times in "state", "measurements" and "rgb"
+    (``observer-gym compare`` pairs on this). The measurement noise
+    (``measurement_noise_px``) comes from a generator spawned from ``np_random`` at each
+    reset (``Generator.spawn``, which draws nothing from it): ``reset(seed=s)`` repeats
+    the noise, a reset without a seed continues with new noise.
+
     ## Episode End
     Terminated on a catch (the ball's centre inside the box, behind the front plate) or a
     miss (the ball's centre below 0.15 m, or 0.2 m behind the box's back plane outside
@@ -134,6 +144,7 @@ class BallCatcherEnv(gym.Env):
         self._clock: FrameClock | None = None
         self._latest: list[dict | None] = [None] * self.num_cameras
         self._truth = None
+        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
 
     def _make_observation_space(self) -> spaces.Space:
         cfg, n = self.config, self.num_cameras
@@ -169,6 +180,9 @@ class BallCatcherEnv(gym.Env):
         self._clock = FrameClock(
             timings, cfg.frame_rate_hz, cfg.physics_dt_s, cfg.jitter_s, cfg.frame_drop_prob, rng
         )
+        # Sensor noise gets its own stream, so the world's and the rig's draws from
+        # np_random are the same in every obs_mode; spawning draws nothing from np_random.
+        self._sensor_rng = rng.spawn(1)[0]
         self.sim.clear()
         self.scene = self._build_scene()
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
@@ -293,7 +307,7 @@ class BallCatcherEnv(gym.Env):
         uv = uv[0]
         sigma = self.config.measurement_noise_px
         if sigma > 0.0:
-            uv = uv + self.np_random.normal(0.0, sigma, 2)
+            uv = uv + self._sensor_rng.normal(0.0, sigma, 2)
         w, h = self._image_size
         if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
             return None

@@ -1,5 +1,6 @@
 """BallTable's random disturbances and the robot's head motion, drawn from the env's
-``np_random`` so that a seed fixes them.
+``np_random`` so that a seed fixes them, in the same order in every obs_mode (sensor
+noise has its own stream, see BallTableEnv).
 
 - pushes: a Poisson process of rate ``push_rate_hz``; each push is a horizontal impulse
   on the ball, uniform in [0, ``push_impulse_ns``] with a uniform direction.

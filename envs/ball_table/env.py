@@ -78,6 +78,16 @@ class BallTableEnv(gym.Env):
     in a uniform direction. ``reset(options={"ball_pos_table_m": (x, y),
     "ball_vel_table_mps": (vx, vy)})`` sets them instead.
 
+    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
+    sensor noise from its own stream. The start, the head motion's phases, the pushes,
+    the occluder's passes and the frame drops come from ``np_random`` in the same order
+    whatever the obs_mode, so episodes with the same seed and actions see the same world
+    in "state", "measurements" and "rgb" (``observer-gym compare`` pairs on this). The
+    measurement noise (``measurement_noise_px``) and image noise (``image_noise_std``)
+    come from a generator spawned from ``np_random`` at each reset (``Generator.spawn``,
+    which draws nothing from it): ``reset(seed=s)`` repeats the noise, a reset without a
+    seed continues with new noise.
+
     ## Episode End
     Terminated when the ball's centre leaves the red square (|x| or |y| > L/2: over a
     border). Truncated by the registered time limit of 500 steps (10 s at the default 50 Hz).
@@ -120,6 +130,7 @@ class BallTableEnv(gym.Env):
         self._last_obs = None
         self._frame_index = 0
         self._truth = None
+        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
 
     def _make_observation_space(self) -> spaces.Space:
         cfg = self.config
@@ -162,6 +173,9 @@ class BallTableEnv(gym.Env):
             ball_vel = speed * np.array([np.cos(angle), np.sin(angle)])
         ball_pos = self._checked_option("ball_pos_table_m", ball_pos, geo.BALL_TRAVEL_M)
         ball_vel = self._checked_option("ball_vel_table_mps", ball_vel, 2.0)
+        # Sensor noise gets its own stream, so the world's draws from np_random are the
+        # same in every obs_mode; spawning draws nothing from np_random.
+        self._sensor_rng = rng.spawn(1)[0]
 
         self.sim.clear()
         self.scene = self._build_scene()
@@ -267,7 +281,7 @@ class BallTableEnv(gym.Env):
         if cfg.obs_mode == "rgb":
             image = self.camera.render(T_world_cam)
             if cfg.image_noise_std > 0.0:
-                noise = self.np_random.normal(0.0, cfg.image_noise_std, image.shape)
+                noise = self._sensor_rng.normal(0.0, cfg.image_noise_std, image.shape)
                 image = np.clip(image + noise, 0, 255).astype(np.uint8)
             return image
         occluder = None
@@ -282,5 +296,5 @@ class BallTableEnv(gym.Env):
             self._truth.ball_pos_world,
             occluder=occluder,
             noise_px=cfg.measurement_noise_px,
-            rng=self.np_random,
+            rng=self._sensor_rng,
         )

@@ -97,6 +97,15 @@ class TargetFollowerEnv(gym.Env):
     "occlusions_s": (t0, ...)})`` sets the target's start, the tilt, and times at which the
     occluder starts walking in (it hides the target 1 s later, for ``occluder_hold_s``).
 
+    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
+    sensor noise from its own stream. The start, the target's motion and pushes, the
+    occluder's events and the frame drops come from ``np_random`` in the same order
+    whatever the obs_mode, so episodes with the same seed and actions see the same world
+    in "state", "measurements" and "rgb" (``observer-gym compare`` pairs on this). The
+    measurement and image noise come from a generator spawned from ``np_random`` at each
+    reset (``Generator.spawn``, which draws nothing from it): ``reset(seed=s)`` repeats
+    the noise, a reset without a seed continues with new noise.
+
     ## Episode End
     Terminated when the target has been outside the image for ``lost_timeout_s`` or comes
     closer than ``min_distance_m`` to the camera. Truncated by the registered time limit of
@@ -146,6 +155,7 @@ class TargetFollowerEnv(gym.Env):
         self._last_obs = None
         self._frame_index = 0
         self._truth = None
+        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
 
     def _make_observation_space(self) -> spaces.Space:
         cfg = self.config
@@ -215,6 +225,9 @@ class TargetFollowerEnv(gym.Env):
                 f"reset option target_pos_world_m must be 3 finite numbers, got {target!r}"
             )
         occlusions = tuple(float(t) for t in options.get("occlusions_s", ()))
+        # Sensor noise gets its own stream, so the world's draws from np_random are the
+        # same in every obs_mode; spawning draws nothing from np_random.
+        self._sensor_rng = rng.spawn(1)[0]
 
         self.sim.clear()
         self.scene = self._build_scene()
@@ -323,7 +336,7 @@ class TargetFollowerEnv(gym.Env):
         if cfg.obs_mode == "rgb":
             image = self.camera.render(T_world_cam)
             if cfg.image_noise_std > 0.0:
-                noise = self.np_random.normal(0.0, cfg.image_noise_std, image.shape)
+                noise = self._sensor_rng.normal(0.0, cfg.image_noise_std, image.shape)
                 image = np.clip(image + noise, 0, 255).astype(np.uint8)
             return image
         out = perfect_measurement(
@@ -335,7 +348,7 @@ class TargetFollowerEnv(gym.Env):
             occluder=self.scene.occluder_pose,
             noise_px=cfg.measurement_noise_px,
             rounding=cfg.measurement_rounding,
-            rng=self.np_random,
+            rng=self._sensor_rng,
         )
         space = self.observation_space[TARGET_PX]
         out[TARGET_PX] = np.clip(out[TARGET_PX], space.low, space.high).astype(np.float32)

@@ -157,3 +157,71 @@ def test_out_of_range_actions_are_clipped(make_env, env_id):
         obs_big, *_ = big.step(10.0 * high)
         obs_edge, *_ = edge.step(high)
     np.testing.assert_array_equal(obs_big, obs_edge)
+
+
+# What the pairing test adds to DISTURBED and MEASUREMENT_NOISE: the rest of each env's
+# disturbances, image noise for "rgb", and small images where the image size does not
+# change the world (BallTable, BallCatcher), so that rendering stays cheap.
+PAIRED = {
+    "observer_gym/BallTable-v0": {
+        "occluder_rate_hz": 1.0,
+        "image_noise_std": 8.0,
+        "image_width_px": 80,
+        "image_height_px": 60,
+    },
+    "observer_gym/BallCatcher-v0": {"image_width_px": 80, "image_height_px": 60},
+    "observer_gym/TargetFollower-v0": {"image_noise_std": 8.0},
+}
+
+
+def _world_trace(env: gym.Env, seed: int, steps: int) -> list[tuple]:
+    """Per step: the ground truth, the time, and which frames were captured when (the
+    disturbances: pushes, target motion and occluders act on the state; drops and jitter on
+    the frames); reset without a seed after an episode ends."""
+
+    def world(info, done=False):
+        frames = [(f["camera_id"], f["capture_time_s"]) for f in info["frames"]]
+        return info["state"], info["time_s"], np.array(frames).reshape(-1, 2), done
+
+    _, info = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    trace = [world(info)]
+    for _ in range(steps):
+        action = 0.3 * rng.uniform(env.action_space.low, env.action_space.high)
+        _, _, terminated, truncated, info = env.step(action.astype(np.float32))
+        trace.append(world(info, terminated or truncated))
+        if terminated or truncated:
+            _, info = env.reset()
+            trace.append(world(info))
+    return trace
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_disturbances_are_the_same_in_every_obs_mode(make_env, env_id):
+    # observer-gym compare runs every (observer, controller) pair on the same seeds: the
+    # world (ground truth, frame drops and capture times) must not depend on the obs_mode
+    # or on its sensor noise.
+    kwargs = {**DISTURBED[env_id], **MEASUREMENT_NOISE[env_id], **PAIRED[env_id]}
+    traces = {
+        mode: _world_trace(make_env(env_id, obs_mode=mode, **kwargs), seed=3, steps=150)
+        for mode in OBS_MODES
+    }
+    reference = traces["state"]
+    assert sum(len(frames) == 0 for _, _, frames, _ in reference) > 5  # drops happened
+    for mode in ("measurements", "rgb"):
+        assert len(traces[mode]) == len(reference), mode
+        for i, (a, b) in enumerate(zip(reference, traces[mode], strict=True)):
+            for x, y in zip(a, b, strict=True):
+                np.testing.assert_array_equal(x, y, err_msg=f"{mode}, entry {i} of the trace")
+
+
+def test_later_resets_draw_fresh_sensor_noise(make_env):
+    # The sensor noise has its own stream, derived from the reset seed: reset(seed=s)
+    # repeats it, a reset without a seed continues with new noise.
+    env = make_env("observer_gym/BallTable-v0", obs_mode="measurements", measurement_noise_px=1.0)
+    start = {"ball_pos_table_m": (0.02, -0.01), "ball_vel_table_mps": (0.0, 0.0)}
+    first, _ = env.reset(seed=5, options=start)
+    again, _ = env.reset(seed=5, options=start)
+    later, _ = env.reset(options=start)
+    np.testing.assert_array_equal(first["ball_px"], again["ball_px"])
+    assert np.all(first["ball_px"] != later["ball_px"])
