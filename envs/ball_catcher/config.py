@@ -112,8 +112,8 @@ class BallCatcherConfig(EnvConfig):
     )
     # Reward.
     shaping_weight: float = config_field(
-        0.1,
-        "weight of the per-step penalty on the predicted miss distance (1/m)",
+        1.0,
+        "weight of the potential-based shaping: reward per metre the predicted miss shrinks",
         low=0.0,
         high=10.0,
     )

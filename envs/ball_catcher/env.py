@@ -76,9 +76,14 @@ class BallCatcherEnv(gym.Env):
     another camera (latency).
 
     ## Rewards
-    +1 on the step of the catch. While the ball approaches the box, each step costs
-    ``shaping_weight`` times the distance (m) between the hole's centre and the point
-    where the ball, flying on without drag, will cross the box's front plane.
+    +1 on the step of the catch, plus potential-based shaping (Ng, Harada and Russell,
+    1999): each step earns ``shaping_weight`` times the decrease of the predicted miss,
+    the distance (m) between the hole's centre and the point where the ball, flying on
+    without drag, will cross the box's front plane (it keeps its last value once the
+    ball no longer approaches the plane). The shaping telescopes to ``shaping_weight``
+    times (first - last predicted miss), so it cannot be farmed and ending an episode
+    early earns nothing; a per-step penalty instead taught PPO to rush the box forward
+    to end episodes sooner.
 
     ## Starting State
     The box at its home (0.7, 0, 0.5) m at rest; the ball just launched by a throw from
@@ -193,6 +198,8 @@ class BallCatcherEnv(gym.Env):
         self._latest = [None] * self.num_cameras
         self._truth = self.scene.ground_truth()
         self._capture(0)
+        self._miss_m = 0.0
+        self._miss_m = self._miss_distance_m()
         return self._observe()
 
     def step(self, action):
@@ -207,7 +214,10 @@ class BallCatcherEnv(gym.Env):
             self._capture(self._tick)
         self._truth = self.scene.ground_truth()
         self._outcome = self._judge()
-        reward = 1.0 if self._outcome == CAUGHT else -cfg.shaping_weight * self._miss_distance_m()
+        miss_m = self._miss_distance_m()
+        reward = cfg.shaping_weight * (self._miss_m - miss_m)  # potential-based shaping
+        reward += 1.0 if self._outcome == CAUGHT else 0.0
+        self._miss_m = miss_m
         obs, info = self._observe()
         return obs, reward, self._outcome != FLYING, False, info
 
@@ -326,12 +336,12 @@ class BallCatcherEnv(gym.Env):
         return FLYING
 
     def _miss_distance_m(self) -> float:
-        """Distance between the hole and where the ball will cross its plane (0 once the
-        ball moves away)."""
+        """Distance between the hole and where the ball will cross its plane (the last
+        value once the ball no longer approaches it)."""
         state = self._truth.state
         crossing = plane_crossing(state[BALL_POS], state[BALL_VEL], state[BOX_POS][0])
         if crossing is None:
-            return 0.0
+            return self._miss_m
         return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
 
     def _observe(self):

@@ -8,7 +8,7 @@ import pytest
 
 from observer_gym.envs.ball_catcher import BallCatcherConfig, BallCatcherEnv
 from observer_gym.envs.ball_catcher import geometry as geo
-from observer_gym.envs.ball_catcher.throws import sample_throw, throw_through
+from observer_gym.envs.ball_catcher.throws import plane_crossing, sample_throw, throw_through
 from observer_gym.envs.camera import project_points
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation
@@ -252,3 +252,40 @@ def test_bad_reset_throw_raises(state_env):
         state_env.reset(seed=0, options={"throw": (np.zeros(3), np.array([np.nan, 0, 0]))})
     with pytest.raises(ValueError, match="throw"):
         state_env.reset(seed=0, options={"throw": (np.zeros(2), np.zeros(3))})
+
+
+@pytest.mark.parametrize(("offset_m", "outcome"), [(0.0, "caught"), (0.05, "missed")])
+def test_shaping_is_potential_based_and_the_catch_adds_one(offset_m, outcome):
+    """Each reward is w (m_prev - m) + [caught], m the predicted miss: where the ball,
+    drag-free, crosses the box's front plane, relative to the hole (from the ground
+    truth; kept once the ball stops approaching). The sum telescopes."""
+    weight = 3.0
+    env = BallCatcherEnv(obs_mode="state", shaping_weight=weight)
+
+    def predicted_miss_m(state, previous_m):
+        crossing = plane_crossing(state[0:3], state[3:6], state[6])
+        if crossing is None:
+            return previous_m
+        return float(np.linalg.norm(crossing[1][1:] - state[7:9]))
+
+    try:
+        launch = np.array([3.0, 0.05, 0.55])
+        target = geo.HOLE_HOME_WORLD + np.array([0.0, offset_m, 0.0])
+        _, info = env.reset(seed=0, options={"throw": aimed(launch, target, 0.42)})
+        miss_m = first_m = predicted_miss_m(info["state"], 0.0)
+        assert first_m == pytest.approx(offset_m, abs=3e-3)  # aimed offset_m off (+-2 mm)
+        rewards = []
+        for _ in range(200):  # the box drifts sideways: the predicted miss changes
+            _, reward, terminated, _, info = env.step(np.array([0.0, 0.02, 0.0], np.float32))
+            previous_m, miss_m = miss_m, predicted_miss_m(info["state"], miss_m)
+            expected = weight * (previous_m - miss_m) + (info["outcome"] == "caught")
+            assert reward == pytest.approx(expected, abs=1e-9)
+            rewards.append(reward)
+            if terminated:
+                break
+        assert info["outcome"] == outcome
+        assert np.sum(rewards) == pytest.approx(
+            weight * (first_m - miss_m) + (outcome == "caught"), abs=1e-9
+        )
+    finally:
+        env.close()
