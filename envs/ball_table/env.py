@@ -23,6 +23,7 @@ from observer_gym.envs.ball_table.measurements import perfect_measurement
 from observer_gym.envs.ball_table.scene import BallTableScene
 from observer_gym.envs.camera import Camera, PinholeIntrinsics
 from observer_gym.envs.config import check_render_mode
+from observer_gym.envs.observations import copy_observation
 from observer_gym.envs.sim import Simulation
 
 
@@ -51,7 +52,7 @@ class BallTableEnv(gym.Env):
 
     ## Observation Space
     - ``obs_mode="rgb"`` (default): the latest camera frame, ``Box(0, 255, (240, 320, 3),
-      uint8)``. When a frame is dropped, the previous frame is repeated.
+      uint8)``. When a frame is dropped, the previous frame is repeated (as a copy).
     - ``obs_mode="state"``: ``Box((8,), float32)``, the ground truth with the layout
       ``observer_gym.envs.ball_table.STATE_NAMES`` (ball x, y, vx, vy in the table frame;
       tilt angles and rates), clipped to ``STATE_HIGH``.
@@ -271,7 +272,8 @@ class BallTableEnv(gym.Env):
         if cfg.obs_mode == "state":
             high = self.observation_space.high
             return np.clip(truth.state, -high, high).astype(np.float32), info
-        return self._last_obs, info
+        # A copy: a repeated (dropped) frame must not share memory with the one before.
+        return copy_observation(self._last_obs), info
 
     def _capture(self, T_world_cam: np.ndarray):
         """A new frame in the observation's format."""

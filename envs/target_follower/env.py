@@ -12,6 +12,7 @@ from gymnasium import spaces
 from observer_gym.envs.actions import checked_action
 from observer_gym.envs.camera import Camera, PinholeIntrinsics
 from observer_gym.envs.config import check_render_mode
+from observer_gym.envs.observations import copy_observation
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.target_follower import geometry as geo
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
@@ -61,7 +62,7 @@ class TargetFollowerEnv(gym.Env):
 
     ## Observation Space
     - ``obs_mode="rgb"`` (default): the latest camera frame, ``Box(0, 255, (240, 320, 3),
-      uint8)``. When a frame is dropped, the previous frame is repeated.
+      uint8)``. When a frame is dropped, the previous frame is repeated (as a copy).
     - ``obs_mode="state"``: ``Box((15,), float32)``, the ground truth with the layout
       ``observer_gym.envs.target_follower.STATE_NAMES``: the image state
       X_i = (x_i, y_i, d_x) (px; x_i right and y_i up from the principal point, d_x =
@@ -326,7 +327,8 @@ class TargetFollowerEnv(gym.Env):
         if cfg.obs_mode == "state":
             space = self.state_space
             return np.clip(truth.state, space.low, space.high).astype(np.float32), info
-        return self._last_obs, info
+        # A copy: a repeated (dropped) frame must not share memory with the one before.
+        return copy_observation(self._last_obs), info
 
     def _capture(self, T_world_cam: np.ndarray):
         """A new frame in the observation's format."""

@@ -225,3 +225,23 @@ def test_later_resets_draw_fresh_sensor_noise(make_env):
     later, _ = env.reset(options=start)
     np.testing.assert_array_equal(first["ball_px"], again["ball_px"])
     assert np.all(first["ball_px"] != later["ball_px"])
+
+
+@pytest.mark.parametrize("obs_mode", ("rgb", "measurements"))
+@pytest.mark.parametrize("env_id", ["observer_gym/BallTable-v0", "observer_gym/TargetFollower-v0"])
+def test_a_repeated_frame_is_a_copy(make_env, env_id, obs_mode):
+    # Every frame after the first is dropped, so each step repeats the reset's frame: equal
+    # observations, but not one object, so changing one in place cannot change the next.
+    env = make_env(env_id, obs_mode=obs_mode, frame_drop_prob=1.0)
+    first, _ = env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, np.float32)
+    second, _, _, _, info = env.step(action)
+    third, *_ = env.step(action)
+    assert info["frames"] == []
+    for a, b in ((first, second), (second, third)):
+        assert a is not b
+        arrays_a = a.values() if isinstance(a, dict) else [a]
+        arrays_b = b.values() if isinstance(b, dict) else [b]
+        for x, y in zip(arrays_a, arrays_b, strict=True):
+            np.testing.assert_array_equal(x, y)
+            assert not np.shares_memory(x, y)
