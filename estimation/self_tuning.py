@@ -12,7 +12,7 @@ is sigma^2 = var(eps*) = eps*^T eps* / k, the variance of the k residuals as the
 writes it (their mean is zero: the fit has an intercept). For white noise of variance
 s^2 its expectation is (k - 2) s^2 / k; the Table 2 study (train/reproduce/tsai2009.py)
 matched the paper's figures better with this than with the unbiased eps*^T eps* / (k - 2)
-(at sigma_n = 10, x_i: 17.5 against 20.0 px^2). The measurement covariance is then
+(at sigma_n = 10, x_i: 17.1 against 21.7 px^2). The measurement covariance is then
 
     R_n = R_0 + diag((sigma_1^2)^2, ..., (sigma_m^2)^2)                        (41)
 
