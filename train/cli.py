@@ -14,8 +14,6 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from observer_gym.train import compare_cli
-
 
 @dataclass(frozen=True)
 class Command:
@@ -231,6 +229,21 @@ def _run_run(args: argparse.Namespace) -> int:
         cli_args=cli_args,
     )
     return 0
+
+
+# --- compare ---------------------------------------------------------------------------
+# compare_cli imports this module for its argparse types, so it is imported on use: at
+# the top it would make a cycle when this file runs as __main__ (python -m ...cli).
+def _compare_arguments(parser: argparse.ArgumentParser) -> None:
+    from observer_gym.train import compare_cli
+
+    compare_cli.add_arguments(parser)
+
+
+def _compare_run(args: argparse.Namespace) -> int:
+    from observer_gym.train import compare_cli
+
+    return compare_cli.run(args)
 
 
 # --- train -----------------------------------------------------------------------------
@@ -496,8 +509,8 @@ COMMANDS: dict[str, Command] = {
             "each pair's plots under pairs/ and results.json into the output folder, and "
             "prints the table."
         ),
-        add_arguments=compare_cli.add_arguments,
-        run=compare_cli.run,
+        add_arguments=_compare_arguments,
+        run=_compare_run,
     ),
     "train": Command(
         help="train a stable-baselines3 agent (PPO, SAC, TD3) on the state, an estimate or pixels",

@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-# The module, not its names: cli.py may import this module while it is still loading.
+# The module, not its names (cli.py imports this module on use, inside its functions).
 from observer_gym.train import cli
 
 DEFAULT_EPISODES = 10
