@@ -47,6 +47,19 @@ def _int_at_least(minimum: int, text: str) -> int:
     return value
 
 
+def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
+    """``--out DIR`` (default ``default_out_dir(command)``'s pattern) and ``--no-progress``,
+    the two options every command that writes results takes."""
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help=f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1."""
     return _int_at_least(1, text)
@@ -73,14 +86,7 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="save the camera frame every N steps (default: %(default)s)",
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="output folder (default: ./observer-gym-out/demo-YYYYmmdd-HHMMSS)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    add_output_arguments(parser, "demo")
 
 
 def _demo_run(args: argparse.Namespace) -> int:
@@ -332,14 +338,7 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="continue the run in DIR from its last checkpoint (takes only --timesteps)",
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="output folder (default: ./observer-gym-out/train-YYYYmmdd-HHMMSS)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    add_output_arguments(parser, "train")
 
 
 # options a resumed run takes from its config.json instead
@@ -415,14 +414,7 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--workers", type=positive_int, default=1, metavar="W", help="processes to run in"
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="output folder (default: ./observer-gym-out/evaluate-YYYYmmdd-HHMMSS)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    add_output_arguments(parser, "evaluate")
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:

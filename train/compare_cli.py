@@ -136,14 +136,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)",
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="output folder (default: ./observer-gym-out/compare-YYYYmmdd-HHMMSS)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    cli.add_output_arguments(parser, "compare")
 
 
 def _error(message: str) -> int:
