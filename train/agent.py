@@ -91,8 +91,6 @@ class Agent:
         self._low = np.asarray(config["action_low"], dtype=np.float64)
         self._high = np.asarray(config["action_high"], dtype=np.float64)
 
-    describe = staticmethod(read_config)
-
     @classmethod
     def load(cls, run_dir: str | Path, algo: str | None = None) -> Agent:
         """The agent of the training run in ``run_dir`` (final model, else the latest

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
+from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import write_json_atomic
 
 LATEST = "latest.json"
@@ -74,20 +74,12 @@ def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
     return {k: (v if k == "timesteps" else Path(directory) / v) for k, v in entry.items()}
 
 
-class CheckpointCallback(BaseCallback):
+class CheckpointCallback(EveryStepsCallback):
     """Saves a checkpoint (:func:`save_checkpoint`) every ``every_steps`` env steps."""
 
     def __init__(self, directory: Path, every_steps: int, save_replay_buffer: bool) -> None:
-        super().__init__()
-        self.directory, self.every_steps = Path(directory), int(every_steps)
-        self.save_replay_buffer = save_replay_buffer
-        self._next = None
+        super().__init__(every_steps)
+        self.directory, self.save_replay_buffer = Path(directory), save_replay_buffer
 
-    def _on_training_start(self) -> None:
-        self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
-            save_checkpoint(self.model, self.directory, self.save_replay_buffer)
-            self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
-        return True
+    def act(self) -> None:
+        save_checkpoint(self.model, self.directory, self.save_replay_buffer)

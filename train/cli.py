@@ -107,7 +107,7 @@ def _demo_run(args: argparse.Namespace) -> int:
 # them against observer_gym.train.run.OBSERVERS and observer_gym.controllers.CONTROLLERS.
 RUN_OBSERVERS = ("oracle", "kf", "kf-measurements", "stkf", "stkf-measurements", "pixels")
 RUN_CONTROLLERS = ("lqr", "mpc", "pid", "intercept", "vtc")
-AGENT_ALGOS = ("ppo", "sac", "td3")
+AGENT_ALGOS = ("ppo", "sac", "td3")  # observer_gym.train.hyperparams.ALGOS, without torch
 
 
 def controller_name(text: str) -> str:
@@ -131,16 +131,29 @@ def env_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _literal(value: str) -> object:
+    """``value`` read as a Python literal (number, True, 'text'), else kept as text."""
+    try:
+        return ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return value
+
+
 def env_option(text: str) -> tuple[str, object]:
     """argparse type: ``KEY=VALUE``, the value read as a Python literal (number, True,
     'text') or else kept as text: ``camera_preset=single``, ``latency_s=0.02``."""
     key, sep, value = text.partition("=")
     if not sep or not key.isidentifier():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        return key, ast.literal_eval(value)
-    except (ValueError, SyntaxError):
-        return key, value
+    return key, _literal(value)
+
+
+def recorded_args(args: argparse.Namespace) -> dict[str, object]:
+    """The parsed command line as results record it: paths as text, without the
+    command's handler."""
+    recorded = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    recorded.pop("run", None)
+    return recorded
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -219,8 +232,7 @@ def _run_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
     from observer_gym.train.run import run_experiment  # deferred: PyBullet
 
-    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-    cli_args.pop("run", None)
+    cli_args = recorded_args(args)
     run_experiment(
         env_id=args.env,
         observer=args.observer,
@@ -254,7 +266,6 @@ def _compare_run(args: argparse.Namespace) -> int:
 
 # --- train -----------------------------------------------------------------------------
 # Listed here so that parsing needs no heavy import; train_agent checks them again.
-TRAIN_ALGOS = ("ppo", "sac", "td3")
 TRAIN_OBS = ("state", "estimate", "rgb")
 
 
@@ -265,17 +276,14 @@ def hyperparam_option(text: str) -> tuple[str, object]:
     key, sep, value = text.partition("=")
     if not sep or not all(part.isidentifier() for part in key.split(".")):
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE (KEY may be dotted), got {text!r}")
-    try:
-        return key, ast.literal_eval(value)
-    except (ValueError, SyntaxError):
-        return key, value
+    return key, _literal(value)
 
 
 def _train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
     )
-    parser.add_argument("--algo", choices=TRAIN_ALGOS, help="stable-baselines3 algorithm")
+    parser.add_argument("--algo", choices=AGENT_ALGOS, help="stable-baselines3 algorithm")
     parser.add_argument(
         "--obs",
         choices=TRAIN_OBS,
@@ -363,8 +371,7 @@ def _train_run(args: argparse.Namespace) -> int:
             raise SystemExit(
                 f"observer-gym train: error: {' and '.join(missing)} required (or --resume DIR)"
             )
-        cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-        cli_args.pop("run", None)
+        cli_args = recorded_args(args)
         state = train_agent(
             env_id=args.env,
             algo=args.algo,
@@ -421,8 +428,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     from observer_gym.train.evaluate import evaluate_agent  # deferred: torch, PyBullet
     from observer_gym.train.outputs import default_out_dir
 
-    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-    cli_args.pop("run", None)
+    cli_args = recorded_args(args)
     evaluate_agent(
         args.model,
         episodes=args.episodes,

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 # The module, not its names (cli.py imports this module on use, inside its functions).
 from observer_gym.train import cli
@@ -174,8 +173,7 @@ def run(args: argparse.Namespace) -> int:
         check_comparison(**options)
     except ValueError as exc:
         return _error(str(exc))
-    cli_args = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-    cli_args.pop("run", None)
+    cli_args = cli.recorded_args(args)
     run_comparison(
         **options,
         out_dir=args.out if args.out is not None else default_out_dir("compare"),

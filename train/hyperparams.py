@@ -48,6 +48,7 @@ TRAINING_DEFAULTS: dict[str, Any] = {
     "policy": None,
     "env_kwargs": {},
 }
+INTEGER_KEYS = ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes")
 VEC_ENVS = ("subproc", "dummy")
 ACTIVATIONS = ("relu", "tanh", "elu")
 
@@ -114,7 +115,7 @@ def _validate(params: Mapping[str, Any], cls: type) -> None:
             f"unknown hyperparameter(s) {unknown} for {cls.__name__}; allowed: training keys "
             f"{', '.join(TRAINING_DEFAULTS)} and {cls.__name__}'s {', '.join(sorted(allowed))}"
         )
-    for key in ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes"):
+    for key in INTEGER_KEYS:
         value = params[key]
         if isinstance(value, float) and value.is_integer():
             value = int(value)
@@ -145,7 +146,7 @@ def split(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """(training keys, algorithm constructor keys) of resolved ``params``."""
     training = {k: v for k, v in params.items() if k in TRAINING_DEFAULTS}
     algo_kwargs = {k: v for k, v in params.items() if k not in TRAINING_DEFAULTS}
-    for key in ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes"):
+    for key in INTEGER_KEYS:
         training[key] = int(training[key])
     return training, algo_kwargs
 

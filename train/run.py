@@ -26,7 +26,7 @@ from tqdm import tqdm
 import observer_gym.envs
 from observer_gym.controllers import CONTROLLERS, make_controller
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.agent import Agent, parse_agent_spec
+from observer_gym.train.agent import Agent, parse_agent_spec, read_config
 from observer_gym.train.outputs import (
     format_table,
     package_versions,
@@ -127,7 +127,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
                 "gives camera frames, which only an agent trained with --obs rgb reads"
             )
         return
-    agent = Agent.describe(agent_spec[1], algo=agent_spec[0])
+    agent = read_config(agent_spec[1], algo=agent_spec[0])
     if agent["env_id"] != env_id:
         raise ValueError(f"agent {controller!r} was trained on {agent['env_id']}, not {env_id}")
     if (agent["obs"] == "rgb") != reads_pixels:

@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
 from observer_gym.train.agent import CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE, read_config
 from observer_gym.train.agent_env import make_agent_env, observer_for
+from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import package_versions, to_jsonable, write_json_atomic
 
 TRAIN_SEED_OFFSET = 1_000_000
@@ -237,8 +237,9 @@ def _learn(
     save_replay_buffer = config["obs"] != "rgb"  # image buffers are GBs; not kept
 
     train_seed = TRAIN_SEED_OFFSET + SEED_STRIDE * seed + start_steps
+    eval_seed = EVAL_SEED_OFFSET + SEED_STRIDE * seed
     venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor")
-    eval_env = _vec_env(config, 1, EVAL_SEED_OFFSET + SEED_STRIDE * seed, None)
+    eval_env = _vec_env(config, 1, eval_seed, None)
     try:
         normalize = training["normalize"]
         if normalize:
@@ -268,7 +269,7 @@ def _learn(
             run_dir / "eval.csv",
             every_steps=training["eval_freq"],
             episodes=training["eval_episodes"],
-            eval_seed=EVAL_SEED_OFFSET + SEED_STRIDE * seed,
+            eval_seed=eval_seed,
         )
         callbacks = [
             CheckpointCallback(
@@ -344,7 +345,7 @@ def _report(run_dir: Path, state: Mapping[str, Any]) -> None:
         )
 
 
-class EvalCurveCallback(BaseCallback):
+class EvalCurveCallback(EveryStepsCallback):
     """Every ``every_steps`` env steps, scores the deterministic policy on the same
     ``episodes`` evaluation episodes (seeded with ``eval_seed``) and appends a row of
     :data:`EVAL_COLUMNS` to ``csv_path``; ``time_s`` is the time spent evaluating."""
@@ -352,27 +353,17 @@ class EvalCurveCallback(BaseCallback):
     def __init__(
         self, eval_env: Any, csv_path: Path, every_steps: int, episodes: int, eval_seed: int
     ) -> None:
-        super().__init__()
+        super().__init__(every_steps)
         self.eval_env, self.csv_path = eval_env, Path(csv_path)
-        self.every_steps, self.episodes, self.eval_seed = every_steps, episodes, eval_seed
+        self.episodes, self.eval_seed = episodes, eval_seed
         self.time_s = 0.0
-        self._next = None
         self._start_s = time.time()
-
-    def _on_training_start(self) -> None:
-        self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
-            self.evaluate()
-            self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
-        return True
 
     def _on_training_end(self) -> None:
         if self.num_timesteps % self.every_steps:
-            self.evaluate()  # the final policy's score, unless just measured
+            self.act()  # the final policy's score, unless just measured
 
-    def evaluate(self) -> None:
+    def act(self) -> None:
         from stable_baselines3.common.evaluation import evaluate_policy
         from stable_baselines3.common.vec_env import sync_envs_normalization
 

@@ -1,0 +1,31 @@
+"""The schedule the training callbacks share: act every ``every_steps`` env steps."""
+
+from __future__ import annotations
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+
+class EveryStepsCallback(BaseCallback):
+    """Calls :meth:`act` at the first callback step at or past each multiple of
+    ``every_steps`` env steps (the count moves by ``n_envs`` per vector step, and a
+    resumed run starts from its checkpoint's count)."""
+
+    def __init__(self, every_steps: int) -> None:
+        super().__init__()
+        self.every_steps = int(every_steps)
+        self._next = None
+
+    def _schedule(self) -> None:
+        self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
+
+    def _on_training_start(self) -> None:
+        self._schedule()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self.act()
+            self._schedule()
+        return True
+
+    def act(self) -> None:
+        raise NotImplementedError
