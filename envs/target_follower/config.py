@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from observer_gym.envs.config import EnvConfig, config_field
@@ -58,6 +59,12 @@ class TargetFollowerConfig(EnvConfig):
     )
     target_motion: str = config_field(
         "random_walk", "how the target moves", choices=("random_walk", "profile", "static")
+    )
+    profile_turn_rate_radps: float = config_field(
+        5.0 * math.pi / 72.0,
+        "profile: the turn rate of the target's heading (spec (44): 5 pi / 72 rad/s)",
+        low=-2.0,
+        high=2.0,
     )
     walk_speed_mps: float = config_field(
         0.1,

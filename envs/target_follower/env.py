@@ -239,6 +239,7 @@ class TargetFollowerEnv(gym.Env):
             walk_speed_mps=cfg.walk_speed_mps,
             push_rate_hz=cfg.push_rate_hz,
             push_speed_mps=cfg.push_speed_mps,
+            turn_rate_radps=cfg.profile_turn_rate_radps,
         )
         self.scene.start(tilt, motion)
         self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz, occlusions)

@@ -4,7 +4,9 @@ Target motions (``TargetFollowerConfig.target_motion``):
 - ``"profile"``: spec (44), in world axes (x forward at the start, y left, z up):
   V_t = v_t (cos theta_t, sin theta_t, 0) with v_t = 0.15 cos(pi t / 20) m/s and
   theta_t = theta_t(0) + (5 pi / 72) t, the continuous form of (44) (its samples at
-  t = nT are the spec's; the spec's (v_x, v_z) are our (v_y, v_x)).
+  t = nT are the spec's; the spec's (v_x, v_z) are our (v_y, v_x)). The turn rate is
+  ``profile_turn_rate_radps`` (5 pi / 72 by default; 0 makes the target go back and forth
+  on a line, which isolates what the turning costs an estimator).
 - ``"random_walk"``: a smooth random walk: an Ornstein-Uhlenbeck process (correlation
   time 2 s, stationary std ``walk_speed_mps`` per horizontal axis) drives the velocity
   through a first-order lag of 0.5 s, so the velocity is smooth (a walker's acceleration
@@ -52,6 +54,7 @@ class TargetMotion:
         push_rate_hz: float = 0.0,
         push_speed_mps: float = 0.2,
         heading_rad: float = 0.0,
+        turn_rate_radps: float = PROFILE_TURN_RATE_RADPS,
     ) -> None:
         self.kind = kind
         self.pos = np.array(pos_world, dtype=float)
@@ -61,6 +64,7 @@ class TargetMotion:
         self._push_rate = push_rate_hz
         self._push_speed = push_speed_mps
         self._heading0 = heading_rad
+        self._turn_rate = turn_rate_radps
         self._walk_vel = np.zeros(3)
         self._walk_drive = np.zeros(3)
         if kind == "random_walk":
@@ -72,7 +76,7 @@ class TargetMotion:
     def base_velocity(self, t_s: float) -> np.ndarray:
         if self.kind == "profile":
             speed = PROFILE_SPEED_MPS * math.cos(math.pi * t_s / 20.0)  # (44)
-            heading = self._heading0 + PROFILE_TURN_RATE_RADPS * t_s  # (44)
+            heading = self._heading0 + self._turn_rate * t_s  # (44)
             return np.array([speed * math.cos(heading), speed * math.sin(heading), 0.0])
         if self.kind == "random_walk":
             return self._walk_vel.copy()

@@ -49,6 +49,19 @@ def test_profile_44_velocity_and_position(make_env):
     np.testing.assert_allclose(info["target_pos_world"][:2], expected, atol=1e-6)
 
 
+def test_profile_without_turning_goes_back_and_forth_on_a_line(make_env):
+    # profile_turn_rate_radps = 0: (44)'s speed along a fixed heading, here the start's.
+    env = make_env(ENV_ID, obs_mode="state", target_motion="profile", profile_turn_rate_radps=0.0)
+    _, info = env.reset(seed=0, options={"target_pos_world_m": (2.0, 0.0, 1.4)})
+    start = info["target_pos_world"].copy()
+    for n in range(1, 401):
+        _, _, _, _, info = env.step(STILL)
+        speed = 0.15 * math.cos(n * math.pi * T_S / 20.0)  # (44)
+        np.testing.assert_allclose(info["target_vel_world"], [speed, 0.0, 0.0], atol=1e-12)
+    # One period of v_t: the integral of 0.15 cos(pi t / 20) over 40 s is 0.
+    np.testing.assert_allclose(info["target_pos_world"], start, atol=1e-9)
+
+
 def test_state_rates_are_the_time_derivative_of_the_image_state(make_env):
     # With the robot still, X_i' is all target-induced: J_t V_t of the state must equal the
     # central difference of the image state over +-T.

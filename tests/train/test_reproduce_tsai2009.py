@@ -29,6 +29,22 @@ def test_short_study_orders_the_filters_as_the_paper(capsys):
     assert study["ended_early"] == 0
 
 
+def test_the_targets_turning_is_what_sets_x_i_apart():
+    """Why x_i misses its Table 2 target (docs/target_follower.md): without (44)'s turning,
+    x_i's STKF/KF ratio is y_i's and within 1.25x the paper's; with it, x_i's ratio and
+    its rate's grow, and y_i's and d_x's do not move."""
+    ratios = {}
+    for turn in (0.0, tsai2009.PROFILE_TURN_RATE_RADPS):
+        mse = tsai2009.run_study([10], runs=3, steps=400, turn_rate_radps=turn)["mse"]
+        ratios[turn] = mse["stkf"][0].mean(axis=0) / mse["kf"][0].mean(axis=0)
+    straight, turning = ratios[0.0], ratios[tsai2009.PROFILE_TURN_RATE_RADPS]
+    paper = np.array(tsai2009.PAPER_TABLE2[10][1]) / np.array(tsai2009.PAPER_TABLE2[10][0])
+    assert abs(straight[0] - straight[1]) < 0.1  # x_i as y_i
+    assert straight[0] <= tsai2009.RATIO_SLACK * paper[0]
+    assert turning[0] > straight[0] + 0.2 and turning[3] > straight[3] + 0.3
+    np.testing.assert_allclose(turning[[1, 2, 4, 5]], straight[[1, 2, 4, 5]], atol=0.1)
+
+
 def test_cli_prints_table_2_and_writes_the_plot_and_json(tmp_path, capsys):
     code = main(
         [
