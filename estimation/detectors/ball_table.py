@@ -54,6 +54,9 @@ Beyond the spec, and why (numbers from tests/estimation/test_ball_table_detector
 Cost (``python benchmarks/bench_detector.py``, one core): ~0.39 ms per frame, ~0.45 ms
 with the observer's filters: 1.26-1.35x a bare OpenCV pass over the whole frame over nine
 runs on a shared machine (medians of three 1.28-1.32; 1.5x before the tracked region).
+Under heavier load on the same machine the same code measured 1.44-1.67x (0.66-0.74 ms
+against 0.41-0.49 ms): the ~35 small calls per frame slow down more than the bare pass's
+few whole-frame ones.
 The pixel work is done on a region of interest around the table: on a sequence of frames
 (:class:`TableTracker`, the observer's) the previous frame's, with HLS and the red mask in
 the red top's part of it only; on the first frame, after a flagged one and when the table
