@@ -214,7 +214,7 @@ class BallTableEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self.config.obs_mode == "rgb" and self._last_obs is not None:
-            return self._last_obs
+            return copy_observation(self._last_obs)  # drawing on it leaves the obs as it was
         return self.camera.render(self.disturbances.camera_pose(self._time_s))
 
     def close(self) -> None:

@@ -272,7 +272,7 @@ class TargetFollowerEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self.config.obs_mode == "rgb" and self._last_obs is not None:
-            return self._last_obs
+            return copy_observation(self._last_obs)  # drawing on it leaves the obs as it was
         return self.camera.render(self.scene.camera_pose())
 
     def close(self) -> None:

@@ -245,3 +245,17 @@ def test_a_repeated_frame_is_a_copy(make_env, env_id, obs_mode):
         for x, y in zip(arrays_a, arrays_b, strict=True):
             np.testing.assert_array_equal(x, y)
             assert not np.shares_memory(x, y)
+
+
+@pytest.mark.parametrize("env_id", ["observer_gym/BallTable-v0", "observer_gym/TargetFollower-v0"])
+def test_render_in_rgb_mode_gives_a_copy_of_the_last_frame(make_env, env_id):
+    # In rgb mode render() gives the last camera frame, not a new render; drawing on it
+    # (an overlay) must change neither a later render nor the frame a dropped one repeats.
+    env = make_env(env_id, obs_mode="rgb", render_mode="rgb_array", frame_drop_prob=1.0)
+    obs, _ = env.reset(seed=0)
+    frame = env.render()
+    np.testing.assert_array_equal(frame, obs)
+    frame[:] = 0
+    np.testing.assert_array_equal(env.render(), obs)
+    repeated, *_ = env.step(np.zeros(env.action_space.shape, np.float32))
+    np.testing.assert_array_equal(repeated, obs)
