@@ -344,7 +344,8 @@ def run_episodes(
     specs: Sequence[EpisodeSpec], workers: int = 1, progress: bool = True, desc: str = "run"
 ) -> list[dict]:
     """The records of ``specs`` (:func:`run_episode`), in order; in ``workers`` spawned
-    processes if > 1, with the same results."""
+    processes if > 1, with the same results. With workers, the first episode that fails
+    raises at once (with a note naming it), and the episodes not started are dropped."""
     bar = tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress)
     with bar:
         if workers == 1:
@@ -357,9 +358,18 @@ def run_episodes(
         with concurrent.futures.ProcessPoolExecutor(
             max_workers=min(workers, len(specs)), mp_context=context
         ) as pool:
-            futures = [pool.submit(run_episode, spec) for spec in specs]
-            for _ in concurrent.futures.as_completed(futures):
-                bar.update(1)
+            futures = {pool.submit(run_episode, spec): spec for spec in specs}
+            try:
+                for future in concurrent.futures.as_completed(futures):
+                    error = future.exception()
+                    if error is not None:  # ends the run now, not after the other episodes
+                        error.add_note(f"in the episode {futures[future]}")
+                        raise error
+                    bar.update(1)
+            except BaseException:  # a failed episode, or Ctrl-C
+                for pending in futures:
+                    pending.cancel()  # the episodes not started yet are dropped
+                raise
             return [future.result() for future in futures]
 
 

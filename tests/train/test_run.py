@@ -10,7 +10,7 @@ import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.outputs import VERSIONED_PACKAGES
-from observer_gym.train.run import resolve_env_id, run_experiment
+from observer_gym.train.run import EpisodeSpec, resolve_env_id, run_episodes, run_experiment
 from observer_gym.train.tasks.ball_table import SUMMARY_ROWS
 
 ENV_ID = "observer_gym/BallTable-v0"
@@ -180,6 +180,14 @@ def test_two_workers_give_the_results_of_one(tmp_path):
     assert two["config"]["workers"] == 2
     assert one["episodes"] == two["episodes"]
     assert one["summary"] == two["summary"]
+
+
+def test_a_failing_episode_in_a_worker_raises_naming_the_episode():
+    good = EpisodeSpec(ENV_ID, "oracle", "lqr", seed=0, max_steps=5)
+    bad = EpisodeSpec(ENV_ID, "oracle", "lqr", seed=1, max_steps=5, env_kwargs={"bogus": 1})
+    with pytest.raises(ValueError, match="bogus") as raised:
+        run_episodes([good, bad, good, good], workers=2, progress=False)
+    assert any("seed=1" in note for note in raised.value.__notes__)
 
 
 def test_bad_arguments_raise(tmp_path):
