@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from observer_gym.envs.config import EnvConfig, config_field
+from observer_gym.envs.target_follower.motion import PROFILE_TURN_RATE_RADPS
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,7 @@ class TargetFollowerConfig(EnvConfig):
         "random_walk", "how the target moves", choices=("random_walk", "profile", "static")
     )
     profile_turn_rate_radps: float = config_field(
-        5.0 * math.pi / 72.0,
+        PROFILE_TURN_RATE_RADPS,
         "profile: the turn rate of the target's heading (spec (44): 5 pi / 72 rad/s)",
         low=-2.0,
         high=2.0,
