@@ -57,6 +57,12 @@ RAY_INSTALL_HINT = "pip install 'observer-gym[distributed]'"
 
 
 # --- statistics ------------------------------------------------------------------------
+def _interval_of_nothing(n: int, method: str) -> dict[str, Any]:
+    """An interval's fields with every value None, for :func:`mean_interval` and
+    :func:`rate_interval` to fill."""
+    return {"n": n, "mean": None, "half_width": None, "low": None, "high": None, "method": method}
+
+
 def mean_interval(values: Sequence[float | None], confidence: float = CONFIDENCE) -> dict[str, Any]:
     """Mean of the values that are not None with its Student t interval.
 
@@ -66,14 +72,7 @@ def mean_interval(values: Sequence[float | None], confidence: float = CONFIDENCE
     """
     x = np.array([float(v) for v in values if v is not None], dtype=float)
     n = len(x)
-    result: dict[str, Any] = {
-        "n": n,
-        "mean": None,
-        "half_width": None,
-        "low": None,
-        "high": None,
-        "method": "student-t",
-    }
+    result = _interval_of_nothing(n, "student-t")
     if n == 0:
         return result
     mean = float(np.mean(x))
@@ -94,14 +93,7 @@ def rate_interval(values: Sequence[bool | None], confidence: float = CONFIDENCE)
     """
     x = [bool(v) for v in values if v is not None]
     n = len(x)
-    result: dict[str, Any] = {
-        "n": n,
-        "mean": None,
-        "half_width": None,
-        "low": None,
-        "high": None,
-        "method": "wilson",
-    }
+    result = _interval_of_nothing(n, "wilson")
     if n == 0:
         return result
     successes = sum(x)
