@@ -4,7 +4,7 @@
   reset as they end) in each obs_mode, and the simulated time each wall second buys.
 - The observer pipeline's cost per delivered frame (rgb: detector + viewline filter;
   measurements: the filter alone), timed around ``pipeline.observe`` only, beside the
-  paper's "detection < 4 ms per image" (spec/catcher.md).
+  paper's "detection < 4 ms per image" (docs/spec/catcher.md).
 
     python benchmarks/bench_ball_catcher.py [--episodes 20]
 """

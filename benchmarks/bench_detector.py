@@ -34,10 +34,10 @@ import gymnasium as gym
 import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.estimation.ball_table_observer import BallTableObserver
-from observer_gym.estimation.detectors import ball_table as bt
+from observer_gym.estimation.ball_table.detector import ball_table as bt
+from observer_gym.estimation.ball_table.observer import BallTableObserver
 
-REPORT_MS = 2.9  # spec/table_ball.md, "Results to beat" (detection + filter, i7-8750H)
+REPORT_MS = 2.9  # docs/spec/table_ball.md, "Results to beat" (detection + filter, i7-8750H)
 TARGET_RATIO = 1.3
 TARGET_MS = 1.0
 

@@ -22,8 +22,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKalmanFilter
 
 from observer_gym.envs.ball_table.geometry import up_in_table
+from observer_gym.estimation.ball_table.models import RollingBallModel
 from observer_gym.estimation.filters import KalmanFilter, SteadyStateKalmanFilter
-from observer_gym.estimation.models import RollingBallModel
 
 DT_S = 0.02
 RATIO_TARGET = 0.7

@@ -14,7 +14,7 @@ import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.estimation import VisionObserver
-from observer_gym.estimation.follower_detector import FollowerDetector
+from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.train.outputs import format_table
 
 ENV_ID = "observer_gym/TargetFollower-v0"
@@ -85,7 +85,7 @@ def step_rows() -> list[list[str]]:
         env.close()
     env = gym.make(ENV_ID, obs_mode="rgb")
     obs, info = env.reset(seed=0)
-    detector = FollowerDetector()
+    detector = TargetFollowerDetector()
     rows.append(
         ["detector on one frame", _per_call_ms(lambda: detector.detect(obs, info["camera"]["K"]))]
     )

@@ -1,8 +1,9 @@
-"""Viewline Kalman filter cost per frame on one core (spec/catcher.md; the paper's
+"""Viewline Kalman filter cost per frame on one core (docs/spec/catcher.md; the paper's
 detection took < 4 ms per image, so the filter is a small share of the observer's cost).
 
-Workload: throws seen by the two rig cameras of observer_gym.estimation.synthetic_throws
-(656 x 480, alternating every 20 ms, 0.5 px noise), the filter gated (p = 3.5). Cases:
+Workload: throws seen by the two rig cameras of
+observer_gym.estimation.ball_catcher.synthetic_throws (656 x 480, alternating every 20 ms,
+0.5 px noise), the filter gated (p = 3.5). Cases:
 
 - add_frame: one frame, exact Phi, Gamma, R1 to its capture time, two viewline rows.
 - add_frames_at_tick, 2 frames: the paper's stacked form, four rows with offsets (26).
@@ -25,8 +26,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from observer_gym.estimation import synthetic_throws as st
-from observer_gym.estimation.viewline import CameraFrame, ViewlineKalmanFilter
+from observer_gym.estimation.ball_catcher import synthetic_throws as st
+from observer_gym.estimation.ball_catcher.filters import ViewlineKalmanFilter
+from observer_gym.estimation.viewline import CameraFrame
 
 PAPER_DETECTION_MS = 4.0  # the paper: image processing < 4 ms per image
 

@@ -6,28 +6,30 @@
 observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an SB3 agent.
 """
 
+from observer_gym.controllers.ball_catcher.intercept import InterceptController
+from observer_gym.controllers.ball_catcher.plant import BallCatcherPlant
+from observer_gym.controllers.ball_table.plant import BallTablePlant
+from observer_gym.controllers.ball_table.weights import ball_table_weights
 from observer_gym.controllers.base import Controller, StateFeedbackController
-from observer_gym.controllers.follower_plant import FollowerPlant
-from observer_gym.controllers.intercept import InterceptController
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
-from observer_gym.controllers.plant import BallCatcherPlant, BallTablePlant
 from observer_gym.controllers.registry import CONTROLLERS, make_controller
-from observer_gym.controllers.vtc import VisualTrackingController
-from observer_gym.controllers.weights import ball_table_weights, check_weights
+from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
+from observer_gym.controllers.target_follower.vtc import VisualTrackingController
+from observer_gym.controllers.weights import check_weights
 
 __all__ = [
     "CONTROLLERS",
     "BallCatcherPlant",
     "BallTablePlant",
     "Controller",
-    "FollowerPlant",
     "InterceptController",
     "LQRController",
     "MPCController",
     "PIDController",
     "StateFeedbackController",
+    "TargetFollowerPlant",
     "VisualTrackingController",
     "ball_table_weights",
     "check_weights",

@@ -17,9 +17,10 @@ from __future__ import annotations
 
 from typing import Any, Protocol, runtime_checkable
 
+import gymnasium as gym
 import numpy as np
 
-__all__ = ["Controller", "StateFeedbackController"]
+__all__ = ["Controller", "StateFeedbackController", "unwrapped_env"]
 
 
 @runtime_checkable
@@ -86,3 +87,11 @@ class StateFeedbackController:
         actions = np.clip(self.act(batch, starts), self.action_low, self.action_high)
         actions = actions.astype(np.float32)
         return (actions[0] if single else actions), state
+
+
+def unwrapped_env(env: gym.Env, env_class: type, env_id: str, needed_by: str) -> gym.Env:
+    """The base env under ``env``'s wrappers; ValueError unless it is an ``env_class``."""
+    base = env.unwrapped
+    if not isinstance(base, env_class):
+        raise ValueError(f"{needed_by} needs a {env_id} env, got {type(base).__name__}")
+    return base

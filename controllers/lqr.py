@@ -5,9 +5,10 @@ from __future__ import annotations
 import control
 import numpy as np
 
+from observer_gym.controllers.ball_table.plant import BallTablePlant
+from observer_gym.controllers.ball_table.weights import ball_table_weights
 from observer_gym.controllers.base import StateFeedbackController
-from observer_gym.controllers.plant import BallTablePlant
-from observer_gym.controllers.weights import ball_table_weights, check_weights
+from observer_gym.controllers.weights import check_weights
 
 __all__ = ["LQRController"]
 

@@ -1,7 +1,7 @@
 """Linear MPC on the BallTable model: a sparse QP per step, solved by OSQP.
 
 Over the horizon N, with x_0 the observed state and the plant's exact discretisation
-(Phi, Gamma) of estimation/ball_table_model.py:
+(Phi, Gamma) of estimation/ball_table/control_model.py:
 
     minimise   sum_{k<N} (x_k^T Q x_k + u_k^T R u_k) + x_N^T P x_N
     subject to x_{k+1} = Phi x_k + Gamma u_k                 (the model)
@@ -25,9 +25,9 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from observer_gym.controllers.ball_table.plant import BallTablePlant
 from observer_gym.controllers.base import StateFeedbackController
 from observer_gym.controllers.lqr import LQRController
-from observer_gym.controllers.plant import BallTablePlant
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M
 
 __all__ = ["MPCController"]

@@ -1,7 +1,7 @@
 """PID per table axis: the simple baseline.
 
 Each ball axis is a double integrator driven by one tilt axis, v' = G theta (G from
-estimation/ball_table_model.py: tilt_y drives x, -tilt_x drives y, gain (5/7) g). Per
+estimation/ball_table/control_model.py: tilt_y drives x, -tilt_x drives y, gain (5/7) g). Per
 axis the PID asks for the acceleration
 
     a_des = -(kp p + ki integral(p) dt + kd v)
@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from observer_gym.controllers.ball_table.plant import BallTablePlant
 from observer_gym.controllers.base import StateFeedbackController
-from observer_gym.controllers.plant import BallTablePlant
 
 __all__ = ["PIDController"]
 

@@ -8,14 +8,15 @@ from typing import Any
 
 import gymnasium as gym
 
+from observer_gym.controllers.ball_catcher.intercept import InterceptController
+from observer_gym.controllers.ball_catcher.plant import BallCatcherPlant
+from observer_gym.controllers.ball_table.plant import BallTablePlant
 from observer_gym.controllers.base import Controller
-from observer_gym.controllers.follower_plant import FollowerPlant
-from observer_gym.controllers.intercept import InterceptController
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
-from observer_gym.controllers.plant import BallCatcherPlant, BallTablePlant
-from observer_gym.controllers.vtc import VisualTrackingController
+from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
+from observer_gym.controllers.target_follower.vtc import VisualTrackingController
 
 __all__ = ["CONTROLLERS", "make_controller"]
 
@@ -26,7 +27,7 @@ CONTROLLERS: dict[str, tuple[type[Controller], Callable[[gym.Env], Any]]] = {
     "mpc": (MPCController, BallTablePlant.from_env),
     "pid": (PIDController, BallTablePlant.from_env),
     "intercept": (InterceptController, BallCatcherPlant.from_env),
-    "vtc": (VisualTrackingController, FollowerPlant.from_env),
+    "vtc": (VisualTrackingController, TargetFollowerPlant.from_env),
 }
 
 

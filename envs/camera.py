@@ -41,7 +41,7 @@ class PinholeIntrinsics:
     def from_fov(cls, width_px: int, height_px: int, hfov_deg: float) -> PinholeIntrinsics:
         """Square pixels, principal point at the image centre, focal length from the
         horizontal field of view (320x240 at 90 deg gives fx = fy = 160, cx = 160, cy = 120,
-        as in spec/table_ball.md)."""
+        as in docs/spec/table_ball.md)."""
         if not 0.0 < hfov_deg < 180.0:
             raise ValueError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
         f = (width_px / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)

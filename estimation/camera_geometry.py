@@ -4,7 +4,7 @@ Conventions are those of :mod:`observer_gym.envs.camera` (OpenCV: camera x right
 z forward; pixel (i, j) centred at (i, j); ``T_world_cam`` maps camera-frame points to the
 world). Forward projection of points is :func:`observer_gym.envs.camera.project_points`;
 this module adds the inverse direction and the viewline-plane form of a pixel measurement
-used by the viewline Kalman filter (spec/catcher.md, equations (12)-(22)).
+used by the viewline Kalman filter (docs/spec/catcher.md, equations (12)-(22)).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Kalman-filter core: time-varying C, variable measurement size, missed measurements,
 Joseph-form updates, cross-covariance R12, outlier gates and the steady-state gain.
 
-Notation follows spec/catcher.md (Linderoth et al., ICRA 2010); equation numbers in
+Notation follows docs/spec/catcher.md (Linderoth et al., ICRA 2010); equation numbers in
 brackets are that paper's:
 
     x(k+1) = Phi x(k) + Gamma u(k) + v(k),   y(k) = C(k) x(k) + e(k)          (1)(2)
@@ -52,7 +52,7 @@ class Gate(Protocol):
 
 
 class PSigmaGate:
-    """The paper's outlier test, spec/catcher.md (27)-(30).
+    """The paper's outlier test, docs/spec/catcher.md (27)-(30).
 
     With d = y - C x (27) and R = R2 + C P C^T (28), sigma^2 = d^T R d / d^T d is the
     variance along d (29); the measurement is an outlier if ||d|| > p sigma (30).

@@ -52,9 +52,9 @@ class ObserverPipeline(Protocol):
 
 # env class name -> "module:class" of its default pipeline, built as cls(env, **options).
 PIPELINES: dict[str, str] = {
-    "BallTableEnv": "observer_gym.estimation.ball_table_observer:BallTableObserver",
-    "BallCatcherEnv": "observer_gym.estimation.ball_catcher_observer:BallCatcherObserver",
-    "TargetFollowerEnv": "observer_gym.estimation.follower_observer:FollowerObserver",
+    "BallTableEnv": "observer_gym.estimation.ball_table.observer:BallTableObserver",
+    "BallCatcherEnv": "observer_gym.estimation.ball_catcher.observer:BallCatcherObserver",
+    "TargetFollowerEnv": "observer_gym.estimation.target_follower.observer:TargetFollowerObserver",
 }
 
 

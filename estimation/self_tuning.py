@@ -1,4 +1,4 @@
-"""Self-tuning measurement covariance (spec/follower.md (35)-(41), Tsai et al. 2009).
+"""Self-tuning measurement covariance (docs/spec/follower.md (35)-(41), Tsai et al. 2009).
 
 For each measured channel keep the last k observations Y = (y_1 .. y_k) in a shift
 register. Fitting a line y_n = a n + b by least squares, with the fixed regressor

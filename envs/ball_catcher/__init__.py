@@ -1,5 +1,5 @@
 """``observer_gym/BallCatcher-v0``: an arm carries a box with a hole; a ball is thrown at
-it; unsynchronised cameras watch (spec/catcher.md)."""
+it; unsynchronised cameras watch (docs/spec/catcher.md)."""
 
 from observer_gym.envs.ball_catcher.config import (
     CAMERA_PRESETS,

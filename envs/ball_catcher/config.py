@@ -16,7 +16,7 @@ class RobotProfile:
     max_accel_mps2: float
 
 
-# "paper": the ABB IRB 140's limits in spec/catcher.md. "fast": a quicker arm, about what
+# "paper": the ABB IRB 140's limits in docs/spec/catcher.md. "fast": a quicker arm, about what
 # the KUKA iiwa's joint speed limits (85-135 deg/s) give at the box's 0.6 m reach.
 ROBOT_PROFILES: dict[str, RobotProfile] = {
     "paper": RobotProfile(max_speed_mps=0.5, max_accel_mps2=13.0),

@@ -30,7 +30,7 @@ class BallCatcherEnv(gym.Env):
     """An arm carries a box with a hole; a ball is thrown; get it through the hole.
 
     ## Description
-    The ball-catching robot of spec/catcher.md. A KUKA LBR iiwa arm carries a box whose
+    The ball-catching robot of docs/spec/catcher.md. A KUKA LBR iiwa arm carries a box whose
     front face, turned toward the thrower (+x), has a round hole (6 cm by default); a
     ball of diameter 5 cm is thrown at it from about 2.5 m and takes 0.40-0.48 s to arrive.
     A catch is the ball passing through the hole into the box. Cameras beside the flight

@@ -1,4 +1,4 @@
-"""BallCatcher geometry: the rig's layout, the box, the cameras (spec/catcher.md).
+"""BallCatcher geometry: the rig's layout, the box, the cameras (docs/spec/catcher.md).
 
 World frame: z up, the arm's base at the origin, the thrower on the +x side. The box's
 front face (with the hole) always faces +x, toward the thrower; the box frame has its

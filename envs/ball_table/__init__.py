@@ -1,4 +1,4 @@
-"""BallTable-v0: a ball on a tilting table held by a robot arm (spec/table_ball.md)."""
+"""BallTable-v0: a ball on a tilting table held by a robot arm (docs/spec/table_ball.md)."""
 
 from observer_gym.envs.ball_table.config import BallTableConfig
 from observer_gym.envs.ball_table.env import BallTableEnv

@@ -31,7 +31,7 @@ class BallTableEnv(gym.Env):
     """A robot arm holds a square table with a ball rolling on it; keep the ball at the centre.
 
     ## Description
-    The ball-on-tilting-table system of spec/table_ball.md. A KUKA LBR iiwa arm holds a
+    The ball-on-tilting-table system of docs/spec/table_ball.md. A KUKA LBR iiwa arm holds a
     0.30 m square table (red top, raised black borders) at its flange; a solid green ball
     of radius 0.025 m rolls on it. A camera above the table (the robot's eye: 320x240 px,
     90 deg horizontal field of view, 50 frames/s) watches. The agent commands the table's

@@ -1,4 +1,4 @@
-"""BallTable geometry and the tilt convention (spec/table_ball.md, "Scene and camera").
+"""BallTable geometry and the tilt convention (docs/spec/table_ball.md, "Scene and camera").
 
 Table frame TRF: origin at the centre of the red top surface, z up out of it, x and y
 along its edges; the corners are (+-L/2, +-L/2, 0). At the home pose TRF is parallel to

@@ -36,7 +36,7 @@ class TargetFollowerEnv(gym.Env):
     """A wheeled robot with a tilt camera keeps a moving target centred at a set size.
 
     ## Description
-    The visual tracking system of spec/follower.md (Tsai et al. 2009). A differential-drive
+    The visual tracking system of docs/spec/follower.md (Tsai et al. 2009). A differential-drive
     robot (wheel base D = 0.40 m) carries a camera on a tilt platform whose axis is 1.20 m
     above the floor; the camera sits delta_y = 0.10 m above the axis (320x240 px,
     f_x, f_y = 393.4, 391.8 px, 10 frames/s: T = 100 ms). An orange sphere of width

@@ -9,7 +9,7 @@ import pytest
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.controllers import make_controller
-from observer_gym.controllers.intercept import crossing_and_jacobian
+from observer_gym.controllers.ball_catcher.intercept import crossing_and_jacobian
 from observer_gym.envs.ball_catcher.throws import plane_crossing
 
 ENV_ID = "observer_gym/BallCatcher-v0"

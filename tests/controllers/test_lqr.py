@@ -9,8 +9,8 @@ import pytest
 from observer_gym.controllers import BallTablePlant, LQRController, make_controller
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.sim import GRAVITY_MPS2
-from observer_gym.estimation.ball_table_model import BallTableControlModel
-from observer_gym.estimation.models import ROLLING_ACCEL_FACTOR
+from observer_gym.estimation.ball_table.control_model import BallTableControlModel
+from observer_gym.estimation.ball_table.models import ROLLING_ACCEL_FACTOR
 
 
 @pytest.fixture(scope="module")

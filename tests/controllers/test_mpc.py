@@ -8,7 +8,7 @@ import pytest
 
 from observer_gym.controllers import BallTablePlant, LQRController, MPCController
 from observer_gym.envs.ball_table import BallTableConfig
-from observer_gym.estimation.ball_table_model import BallTableControlModel
+from observer_gym.estimation.ball_table.control_model import BallTableControlModel
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The visual tracking controller (spec/follower.md (5)-(19)) in closed loop on
+"""The visual tracking controller (docs/spec/follower.md (5)-(19)) in closed loop on
 TargetFollower-v0: exponential error decay per channel at the gains of Table 1, the
 dual-Jacobian feedforward, the singularity stop and the design from the env."""
 
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from observer_gym.controllers import make_controller
-from observer_gym.controllers.follower_plant import FollowerPlant
-from observer_gym.controllers.vtc import SIMULATION_GAINS, VisualTrackingController
+from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
+from observer_gym.controllers.target_follower.vtc import SIMULATION_GAINS, VisualTrackingController
 from observer_gym.envs.target_follower import IMAGE, STATE_DIM, StateIndex
 from observer_gym.envs.target_follower import geometry as geo
-from observer_gym.estimation.follower_model import (
-    FollowerCameraParams,
+from observer_gym.estimation.target_follower.models import (
+    TargetFollowerCameraParams,
     robot_jacobian,
     singularity_margin,
 )
@@ -81,7 +81,7 @@ def test_feedforward_of_the_target_image_velocity_tracks_a_moving_target(make_en
 
 
 def _plant():
-    return FollowerPlant(
+    return TargetFollowerPlant(
         camera=_camera(),
         desired_px=(0.0, 0.0, 35.0),
         dt_s=T_S,
@@ -92,7 +92,7 @@ def _plant():
 
 
 def _camera():
-    return FollowerCameraParams()  # Table 1
+    return TargetFollowerCameraParams()  # Table 1
 
 
 def _obs(X_i, rates=(0.0, 0.0, 0.0), tilt=0.0, valid=1.0):

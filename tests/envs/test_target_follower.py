@@ -175,10 +175,10 @@ def test_occluder_hides_the_target_for_its_hold_time(make_env):
 
 
 def test_rendered_target_is_where_the_state_says(make_env):
-    from observer_gym.estimation.follower_detector import FollowerDetector
+    from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 
     env = make_env(ENV_ID, obs_mode="rgb", target_motion="static")
-    detector = FollowerDetector()
+    detector = TargetFollowerDetector()
     for seed in range(5):
         obs, info = env.reset(seed=seed)
         z = detector.detect(obs, info["camera"]["K"])
@@ -186,14 +186,14 @@ def test_rendered_target_is_where_the_state_says(make_env):
 
 
 def test_occluded_frame_shows_no_target(make_env):
-    from observer_gym.estimation.follower_detector import FollowerDetector
+    from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 
     env = make_env(ENV_ID, obs_mode="rgb", target_motion="static")
     env.reset(seed=1, options={"occlusions_s": (0.0,)})
     for _ in range(20):
         obs, _, _, _, info = env.step(STILL)
     assert info["occluded"]
-    assert FollowerDetector().detect(obs, info["camera"]["K"]) is None
+    assert TargetFollowerDetector().detect(obs, info["camera"]["K"]) is None
 
 
 def test_lost_target_terminates_after_the_timeout(make_env):

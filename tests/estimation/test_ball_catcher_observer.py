@@ -12,8 +12,8 @@ import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.camera import project_points
 from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation import VisionObserver
-from observer_gym.estimation.ball_catcher_observer import BallCatcherObserver
-from observer_gym.estimation.detectors.ball_catcher import BallCatcherDetector
+from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
+from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 
 ENV_ID = "observer_gym/BallCatcher-v0"
 

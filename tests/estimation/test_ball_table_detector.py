@@ -20,8 +20,7 @@ import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
 from observer_gym.envs.camera import project_points, sphere_image
-from observer_gym.estimation.camera_geometry import pixel_ray, ray_plane_intersection
-from observer_gym.estimation.detectors.ball_table import (
+from observer_gym.estimation.ball_table.detector import (
     BORDER_OUTLINE,
     RED_TOP,
     BallTableDetector,
@@ -29,6 +28,7 @@ from observer_gym.estimation.detectors.ball_table import (
     extract_features,
     features_from_measurement,
 )
+from observer_gym.estimation.camera_geometry import pixel_ray, ray_plane_intersection
 
 # Default detector (IPPE_SQUARE + joint 8-corner pose with the borders' outline), 155
 # rendered frames, fixed camera and head motion together:

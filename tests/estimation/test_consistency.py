@@ -9,8 +9,8 @@ import pytest
 from scipy.stats import chi2
 
 from observer_gym.envs.ball_table import geometry as geo
+from observer_gym.estimation.ball_table.models import RollingBallModel
 from observer_gym.estimation.filters import KalmanFilter
-from observer_gym.estimation.models import RollingBallModel
 
 DT_S = 0.02
 RUNS = 50

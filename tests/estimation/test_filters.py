@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from observer_gym.estimation.ball_table.models import RollingBallModel
 from observer_gym.estimation.filters import (
     ChiSquareGate,
     KalmanFilter,
@@ -17,7 +18,6 @@ from observer_gym.estimation.filters import (
     predictor_step,
     steady_state_gain,
 )
-from observer_gym.estimation.models import RollingBallModel
 
 DT_S = 0.02
 

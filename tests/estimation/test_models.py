@@ -9,12 +9,8 @@ import scipy.linalg
 
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.sim import GRAVITY_MPS2
-from observer_gym.estimation.models import (
-    ConstantVelocityModel,
-    RollingBallModel,
-    RollingBallParams,
-    discretize,
-)
+from observer_gym.estimation.ball_table.models import RollingBallModel, RollingBallParams
+from observer_gym.estimation.models import ConstantVelocityModel, discretize
 
 DT_S = 0.02
 

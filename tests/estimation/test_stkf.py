@@ -1,4 +1,4 @@
-"""The self-tuning Kalman filter (spec/follower.md (30)-(41)): the R update against its
+"""The self-tuning Kalman filter (docs/spec/follower.md (30)-(41)): the R update against its
 closed form, the procedure's reliability threshold, and the STKF against the KF on a known
 image motion with the spec's noise model."""
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer_gym.estimation.follower_filter import VisualStateEstimator, VSEParams
-from observer_gym.estimation.follower_model import image_state_transition
 from observer_gym.estimation.self_tuning import SelfTuningR, line_residual_projector
+from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
+from observer_gym.estimation.target_follower.models import image_state_transition
 
 R0 = np.diag([5.0, 5.0, 5.0])  # Table 1
 T_S = 0.1

@@ -1,5 +1,5 @@
 """The viewline Kalman filter against geometry, the exact ballistic flight and the paper's
-figures (spec/catcher.md: rows (17)-(26), model (19)-(20), gate (27)-(30))."""
+figures (docs/spec/catcher.md: rows (17)-(26), model (19)-(20), gate (27)-(30))."""
 
 from __future__ import annotations
 
@@ -8,15 +8,12 @@ import pytest
 
 from observer_gym.envs.camera import look_at, project_points
 from observer_gym.envs.sim import GRAVITY_MPS2
-from observer_gym.estimation import synthetic_throws as st
+from observer_gym.estimation.ball_catcher import synthetic_throws as st
+from observer_gym.estimation.ball_catcher.filters import ViewlineKalmanFilter
+from observer_gym.estimation.ball_catcher.models import BallisticModel
 from observer_gym.estimation.camera_geometry import projection_matrix
-from observer_gym.estimation.models import BallisticModel, discretize
-from observer_gym.estimation.viewline import (
-    CameraFrame,
-    ViewlineKalmanFilter,
-    viewline_noise_std,
-    viewline_rows,
-)
+from observer_gym.estimation.models import discretize
+from observer_gym.estimation.viewline import CameraFrame, viewline_noise_std, viewline_rows
 
 G = np.array([0.0, 0.0, -GRAVITY_MPS2])
 # 320 x 240 camera, fx = fy = 160 px.

@@ -1,7 +1,7 @@
 """``observer-gym reproduce linderoth2010``: the viewline Kalman filter's convergence
-(spec/catcher.md, "Results to reproduce") on synthetic throws with known truth.
+(docs/spec/catcher.md, "Results to reproduce") on synthetic throws with known truth.
 
-Experiments (scenario in :mod:`observer_gym.estimation.synthetic_throws`):
+Experiments (scenario in :mod:`observer_gym.estimation.ball_catcher.synthetic_throws`):
 
 1. Two cameras, 656 x 480, alternating every 20 ms; init the paper's position (0, 0, 3)
    and velocity (0, 0, -8) (y up), i.e. (3, 0, 0) and (-8, 0, 0) in our z-up frame,
@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 import scipy.stats
 
-from observer_gym.estimation import synthetic_throws as st
-from observer_gym.estimation.viewline import DEFAULT_GATE_P, ViewlineKalmanFilter
+from observer_gym.estimation.ball_catcher import synthetic_throws as st
+from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.train.outputs import (
     default_out_dir,
     format_table,

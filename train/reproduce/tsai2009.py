@@ -1,5 +1,5 @@
 """``observer-gym reproduce tsai2009``: the self-tuning Kalman filter's simulation study,
-Table 2 and Fig. 8 of Tsai et al. 2009 (spec/follower.md, "Simulation study to reproduce").
+Table 2 and Fig. 8 of Tsai et al. 2009 (docs/spec/follower.md, "Simulation study to reproduce").
 
 Every run is a closed loop on TargetFollower-v0 in ``obs_mode="measurements"``: the
 target moves by the profile (44); the detector reports Z = round(X + sigma_n (2 w - 1))
@@ -31,13 +31,13 @@ import gymnasium as gym
 import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.controllers.follower_plant import FollowerPlant
-from observer_gym.controllers.vtc import VisualTrackingController
+from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
+from observer_gym.controllers.target_follower.vtc import VisualTrackingController
 from observer_gym.envs.target_follower.motion import PROFILE_TURN_RATE_RADPS
-from observer_gym.estimation.follower_filter import VSEParams
-from observer_gym.estimation.follower_model import FollowerCameraParams
-from observer_gym.estimation.follower_observer import FollowerObserver
 from observer_gym.estimation.observer import VisionObserver
+from observer_gym.estimation.target_follower.filters import VSEParams
+from observer_gym.estimation.target_follower.models import TargetFollowerCameraParams
+from observer_gym.estimation.target_follower.observer import TargetFollowerObserver
 from observer_gym.train.outputs import (
     default_out_dir,
     format_table,
@@ -96,11 +96,13 @@ def run_once(
         max_episode_steps=steps + 1,
     )
     rho = np.random.default_rng([seed, run_index]).uniform(-RHO_MAX, RHO_MAX, 4)
-    calibrated = FollowerCameraParams.from_calibration(env.unwrapped.calibration)
-    pipeline = FollowerObserver(env.unwrapped, filter=filter_name, params=VSEParams(window=window))
+    calibrated = TargetFollowerCameraParams.from_calibration(env.unwrapped.calibration)
+    pipeline = TargetFollowerObserver(
+        env.unwrapped, filter=filter_name, params=VSEParams(window=window)
+    )
     observed = VisionObserver(env, pipeline=pipeline)
     try:
-        plant = FollowerPlant.from_env(observed)
+        plant = TargetFollowerPlant.from_env(observed)
         controller = VisualTrackingController(plant, camera=calibrated.scaled(rho))
         obs, info = observed.reset(seed=seed + run_index)
         sq, tracking, valid = [], [], []

@@ -1,4 +1,4 @@
-"""The dual-Jacobian image model of TargetFollower (spec/follower.md, Tsai et al. 2009).
+"""The dual-Jacobian image model of TargetFollower (docs/spec/follower.md, Tsai et al. 2009).
 
 Image state X_i = (x_i, y_i, d_x) in pixels (x_i right, y_i up from the principal point,
 d_x = f_x W / z_c; envs/target_follower/geometry.py), robot input u = (v, omega, omega_t):
@@ -11,7 +11,7 @@ with p = R (X_t - X_m) = X_c + (0, delta_y, 0), the robot's motion moves p at
 p' = v (0, sin phi, -cos phi) + omega (sin phi p_y - cos phi p_z, -sin phi p_x,
 cos phi p_x) + omega_t (0, -p_z, p_y), and the chain rule through the projection gives
 exactly the matrix the spec prints (2), which is therefore right as printed.
-tests/estimation/test_follower_model.py checks it against finite differences of the
+tests/estimation/test_target_follower_models.py checks it against finite differences of the
 env's simulated projection at random configurations.
 
 Its determinant in closed form (derived with SymPy, also checked in the tests) is
@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 __all__ = [
-    "FollowerCameraParams",
+    "TargetFollowerCameraParams",
     "image_state_transition",
     "robot_jacobian",
     "singularity_margin",
@@ -47,7 +47,7 @@ MEASUREMENT_MATRIX.flags.writeable = False
 
 
 @dataclass(frozen=True)
-class FollowerCameraParams:
+class TargetFollowerCameraParams:
     """The parameters B_i depends on: f_x, f_y (px), W (m), delta_y (m) (spec Table 1)."""
 
     fx_px: float = 393.4
@@ -59,12 +59,14 @@ class FollowerCameraParams:
         for name in ("fx_px", "fy_px", "target_width_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"FollowerCameraParams.{name} = {value!r}, must be > 0")
+                raise ValueError(f"TargetFollowerCameraParams.{name} = {value!r}, must be > 0")
         if not (math.isfinite(self.delta_y_m) and self.delta_y_m >= 0.0):
-            raise ValueError(f"FollowerCameraParams.delta_y_m = {self.delta_y_m!r}, must be >= 0")
+            raise ValueError(
+                f"TargetFollowerCameraParams.delta_y_m = {self.delta_y_m!r}, must be >= 0"
+            )
 
     @classmethod
-    def from_calibration(cls, calibration: dict) -> FollowerCameraParams:
+    def from_calibration(cls, calibration: dict) -> TargetFollowerCameraParams:
         """From a TargetFollower env's ``info["calibration"]`` (or ``env.calibration``)."""
         return cls(
             calibration["fx_px"],
@@ -73,7 +75,7 @@ class FollowerCameraParams:
             calibration["delta_y_m"],
         )
 
-    def scaled(self, rho: np.ndarray) -> FollowerCameraParams:
+    def scaled(self, rho: np.ndarray) -> TargetFollowerCameraParams:
         """f_x, f_y, W, delta_y each scaled by (1 + rho_j): the spec's parametric
         uncertainty of the Table 2 study."""
         r = np.broadcast_to(np.asarray(rho, dtype=float), (4,))
@@ -86,7 +88,9 @@ class FollowerCameraParams:
         )
 
 
-def robot_jacobian(X_i: np.ndarray, tilt_rad: float, params: FollowerCameraParams) -> np.ndarray:
+def robot_jacobian(
+    X_i: np.ndarray, tilt_rad: float, params: TargetFollowerCameraParams
+) -> np.ndarray:
     """B_i (3, 3) of (2)-(4) at the image state X_i = (x_i, y_i, d_x) and tilt phi."""
     x, y, d = float(X_i[0]), float(X_i[1]), float(X_i[2])
     fx, fy = params.fx_px, params.fy_px
@@ -105,7 +109,9 @@ def robot_jacobian(X_i: np.ndarray, tilt_rad: float, params: FollowerCameraParam
     )
 
 
-def singularity_margin(X_i: np.ndarray, tilt_rad: float, params: FollowerCameraParams) -> float:
+def singularity_margin(
+    X_i: np.ndarray, tilt_rad: float, params: TargetFollowerCameraParams
+) -> float:
     """m = f_y cos(phi) - (y_i + S d_x) sin(phi), S = f_y delta_y / (f_x W), in pixels:
     B_i is singular where m = 0 (18)(19); det B_i = -d_x^2 m^2 / (W f_y)."""
     S = params.fy_px * params.delta_y_m / (params.fx_px * params.target_width_m)  # (19)

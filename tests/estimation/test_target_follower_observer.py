@@ -9,8 +9,8 @@ import pytest
 from observer_gym.controllers import make_controller
 from observer_gym.envs.target_follower import APPLIED, IMAGE, StateIndex
 from observer_gym.estimation import VisionObserver
-from observer_gym.estimation.follower_detector import FollowerDetector
-from observer_gym.estimation.follower_observer import FollowerObserver
+from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
+from observer_gym.estimation.target_follower.observer import TargetFollowerObserver
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 DESIRED = np.array([0.0, 0.0, 35.0])
@@ -18,7 +18,7 @@ DESIRED = np.array([0.0, 0.0, 35.0])
 
 def test_default_pipeline_is_the_stkf(make_env):
     observed = VisionObserver(make_env(ENV_ID, obs_mode="measurements"))
-    assert isinstance(observed.pipeline, FollowerObserver)
+    assert isinstance(observed.pipeline, TargetFollowerObserver)
     assert observed.pipeline.filter == "stkf" and observed.pipeline.params.self_tuning
     kf = VisionObserver(make_env(ENV_ID, obs_mode="measurements"), filter="kf")
     assert not kf.pipeline.params.self_tuning
@@ -28,7 +28,7 @@ def test_default_pipeline_is_the_stkf(make_env):
 
 def test_detector_on_rendered_frames(make_env):
     env = make_env(ENV_ID, obs_mode="rgb", start_distance_min_m=0.8, start_distance_max_m=3.0)
-    detector = FollowerDetector()
+    detector = TargetFollowerDetector()
     errors = []
     for seed in range(12):
         obs, info = env.reset(seed=seed)

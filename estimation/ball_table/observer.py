@@ -1,8 +1,8 @@
-"""The BallTable observer: detector + two Kalman filters (spec/table_ball.md, "Dynamics and
+"""The BallTable observer: detector + two Kalman filters (docs/spec/table_ball.md, "Dynamics and
 estimator").
 
 Per frame:
-1. The detector (estimation/detectors/ball_table.py) turns the frame (or, in the
+1. The detector (estimation/ball_table/detector.py) turns the frame (or, in the
    measurements obs_mode, the perfect detector's pixels) into the table's pose and the
    ball's position on the table. The camera pose comes from the frame's calibration in
    ``info["frames"]`` (the report had to guess it). The table's region of interest is
@@ -31,13 +31,17 @@ import numpy as np
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.geometry import up_in_table
-from observer_gym.estimation.detectors.ball_table import (
+from observer_gym.estimation.ball_table.detector import (
     BallTableDetector,
     TableTracker,
     features_from_measurement,
 )
+from observer_gym.estimation.ball_table.models import (
+    RollingBallModel,
+    RollingBallParams,
+    TiltLagModel,
+)
 from observer_gym.estimation.filters import ChiSquareGate, KalmanFilter
-from observer_gym.estimation.models import RollingBallModel, RollingBallParams, TiltLagModel
 from observer_gym.estimation.observer import Estimate
 
 

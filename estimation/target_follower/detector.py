@@ -9,7 +9,7 @@ Pixels whose HSV colour is orange are segmented, the largest connected blob is t
   d_x = s 2 sqrt(area / pi) sqrt(f_x / f_y). The renderer draws the sphere as a polygon
   mesh, whose area is about 3 % short of the disc's for targets of 15-60 px; the scale
   s = ``width_scale`` = 1.03 is that calibration (measured on rendered frames,
-  tests/estimation/test_follower_observer.py).
+  tests/estimation/test_target_follower_observer.py).
 
 A blob smaller than ``min_area_px`` (or none) is "no detection": the target is hidden,
 outside the image, or too far. A partly hidden target is still detected, with the bias
@@ -24,11 +24,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["FollowerDetector"]
+__all__ = ["TargetFollowerDetector"]
 
 
 @dataclass(frozen=True)
-class FollowerDetector:
+class TargetFollowerDetector:
     """Orange-blob detector; thresholds in OpenCV's HSV (H in 0..179)."""
 
     hue_range: tuple[int, int] = (5, 25)

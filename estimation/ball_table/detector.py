@@ -1,4 +1,4 @@
-"""The BallTable detector: spec/table_ball.md's "Vision pipeline" in OpenCV, in two stages.
+"""The BallTable detector: docs/spec/table_ball.md's "Vision pipeline" in OpenCV, in two stages.
 
 1. Image stage, :func:`extract_features` (pixels -> :class:`BallTableFeatures`): the red
    top's four corners (table steps 1-4 and the ordering of step 5) and the ball's image

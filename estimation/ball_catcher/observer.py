@@ -3,14 +3,14 @@
 For each frame of a step (``info["frames"]``, in capture-time order, each with its capture
 time, K and ``T_world_cam``), the ball's pixel centre (the detector's on the frame's image
 in ``obs_mode="rgb"``, the env's perfect-detector report in ``"measurements"``) updates
-:class:`~observer_gym.estimation.viewline.ViewlineKalmanFilter` at the frame's exact
+:class:`~observer_gym.estimation.ball_catcher.filters.ViewlineKalmanFilter` at the frame's exact
 capture time; a frame captured before one already used (latency) is handled by the
 filter's re-filtering. The estimate reported at each step is the filter's prediction to
 the step's time (frames are 0-30 ms old when they arrive). The box's position and
 velocity come from the robot's own kinematics (``info["box_pos_world_m"]``,
 ``info["box_vel_world_mps"]``): a controller knows where its tool is.
 
-Initial estimate (spec/catcher.md, "Initialisation"): the centre of the throw
+Initial estimate (docs/spec/catcher.md, "Initialisation"): the centre of the throw
 distribution's launch region with the velocity of a throw from there to the hole's home
 in the middle of the flight-time range, both with a standard deviation of 10 m and
 10 m/s (the paper's 10^2 variance): large enough that the first frames decide, small
@@ -27,9 +27,9 @@ from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.envs.ball_catcher.throws import throw_through
-from observer_gym.estimation.detectors.ball_catcher import BallCatcherDetector
+from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
+from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.estimation.observer import Estimate
-from observer_gym.estimation.viewline import DEFAULT_GATE_P, ViewlineKalmanFilter
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0

@@ -2,7 +2,7 @@
 and the target's image velocity, with the self-tuning R of the spec or a fixed one.
 
 State X_n = (x_i, y_i, d_x, x_i^t', y_i^t', d_x^t') (28)(29); model (30)(31) from
-:mod:`observer_gym.estimation.follower_model`; predict and update (33)(34) by the KF core
+:mod:`observer_gym.estimation.target_follower.models`; predict and update (33)(34) by the KF core
 (:class:`observer_gym.estimation.filters.KalmanFilter`, Joseph form) with Q = Q_0 and R_n.
 The spec's procedure, one call of :meth:`VisualStateEstimator.step` per sample:
 
@@ -28,8 +28,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer_gym.estimation.filters import KalmanFilter
-from observer_gym.estimation.follower_model import MEASUREMENT_MATRIX, image_state_transition
 from observer_gym.estimation.self_tuning import SelfTuningR
+from observer_gym.estimation.target_follower.models import (
+    MEASUREMENT_MATRIX,
+    image_state_transition,
+)
 
 __all__ = ["VSEParams", "VisualStateEstimator"]
 

@@ -1,8 +1,8 @@
 """The BallTable plant for control: ball and arm, linearised about the level table.
 
-The same pieces the BallTable observer filters with (estimation/ball_table_observer.py):
+The same pieces the BallTable observer filters with (estimation/ball_table/observer.py):
 the rolling ball's in-plane gravity acceleration a = -(5/7) g Z_gnd,table[x, y]
-(:meth:`RollingBallModel.gravity_acceleration` of :func:`up_in_table`, spec/table_ball.md
+(:meth:`RollingBallModel.gravity_acceleration` of :func:`up_in_table`, docs/spec/table_ball.md
 "Dynamics and estimator") and the arm's first-order tilt lag from the commanded tilt
 (:class:`TiltLagModel`, time constant from the env's joint gain). Linearised at zero tilt,
 per table axis:
@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from observer_gym.envs.ball_table.geometry import up_in_table
-from observer_gym.estimation.models import LinearModel, RollingBallModel, TiltLagModel
+from observer_gym.estimation.ball_table.models import RollingBallModel, TiltLagModel
+from observer_gym.estimation.models import LinearModel
 
 __all__ = ["BallTableControlModel", "tilt_to_acceleration"]
 

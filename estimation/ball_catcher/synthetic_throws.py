@@ -1,5 +1,5 @@
 """Synthetic throws seen by calibrated cameras: the scenario of the viewline filter's tests
-and of ``observer-gym reproduce linderoth2010`` (spec/catcher.md, "Results to reproduce").
+and of ``observer-gym reproduce linderoth2010`` (docs/spec/catcher.md, "Results to reproduce").
 
 Frame: the paper's coordinates (x_p, y_p, z_p) have y up and the ball coming in along
 -z_p; ours are z up with the thrower on +x, as in BallCatcher-v0, so (x, y, z) =

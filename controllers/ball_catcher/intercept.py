@@ -1,8 +1,8 @@
 """The intercept controller of BallCatcher-v0: move the hole to where the ball will cross
-the box's front plane, re-planned every step (spec/catcher.md, "The ball-catching robot").
+the box's front plane, re-planned every step (docs/spec/catcher.md, "The ball-catching robot").
 
 Prediction: the drag-free flight of the estimated state (the model of the observer,
-:class:`~observer_gym.estimation.models.BallisticModel`): with the plane x = X,
+:class:`~observer_gym.estimation.ball_catcher.models.BallisticModel`): with the plane x = X,
 t* = (X - p_x) / v_x and the crossing point c = p + v t* - (0, 0, g t*^2 / 2). Its
 covariance follows to first order, Sigma_c = J P J^T with J = dc/d(p, v) (written out
 in :func:`crossing_and_jacobian`); while the larger lateral standard deviation exceeds
@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.controllers.ball_catcher.plant import BallCatcherPlant
 from observer_gym.controllers.base import StateFeedbackController
-from observer_gym.controllers.plant import BallCatcherPlant
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.envs.ball_catcher.throws import plane_crossing
 

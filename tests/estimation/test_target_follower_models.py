@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from observer_gym.envs.target_follower import geometry as geo
-from observer_gym.estimation.follower_model import (
-    FollowerCameraParams,
+from observer_gym.estimation.target_follower.models import (
+    TargetFollowerCameraParams,
     image_state_transition,
     robot_jacobian,
     singularity_margin,
 )
 
-PARAMS = FollowerCameraParams()  # Table 1
+PARAMS = TargetFollowerCameraParams()  # Table 1
 K = np.array([[PARAMS.fx_px, 0.0, 160.0], [0.0, PARAMS.fy_px, 120.0], [0.0, 0.0, 1.0]])
 
 
@@ -61,7 +61,9 @@ def test_robot_jacobian_matches_finite_differences_of_the_projection():
 
 def test_robot_jacobian_follows_the_parameters():
     # Other f_x, f_y, W, delta_y: the projection and B_i change together.
-    params = FollowerCameraParams(fx_px=600.0, fy_px=580.0, target_width_m=0.3, delta_y_m=0.25)
+    params = TargetFollowerCameraParams(
+        fx_px=600.0, fy_px=580.0, target_width_m=0.3, delta_y_m=0.25
+    )
     K2 = np.array([[600.0, 0.0, 320.0], [0.0, 580.0, 240.0], [0.0, 0.0, 1.0]])
     xy, yaw, tilt = np.array([0.3, -0.2]), 0.4, 0.5
     target = np.array([2.0, 1.2, 2.4])
@@ -129,4 +131,4 @@ def test_scaled_parameters():
     assert (p.fx_px, p.fy_px) == pytest.approx((393.4 * 1.1, 391.8 * 0.9))
     assert (p.target_width_m, p.delta_y_m) == pytest.approx((0.126, 0.10))
     with pytest.raises(ValueError, match="fx_px"):
-        FollowerCameraParams(fx_px=0.0)
+        TargetFollowerCameraParams(fx_px=0.0)

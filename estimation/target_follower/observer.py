@@ -1,15 +1,15 @@
-"""The TargetFollower observer: detector + the visual state estimator (spec/follower.md).
+"""The TargetFollower observer: detector + the visual state estimator (docs/spec/follower.md).
 
 Per step:
 1. The detection: in ``obs_mode="rgb"`` the orange-blob detector
-   (:class:`~observer_gym.estimation.follower_detector.FollowerDetector`) on the frame, in
-   ``"measurements"`` the perfect detector's (x_i, y_i, d_x); none when the frame was
+   (:class:`~observer_gym.estimation.target_follower.detector.TargetFollowerDetector`) on
+   the frame, in ``"measurements"`` the perfect detector's (x_i, y_i, d_x); none when the frame was
    dropped or the target not found.
 2. The robot's proprioception: its pose and tilt from the frame's calibration
    ``T_world_cam`` (envs/target_follower/geometry.robot_pose_from_camera) and the velocity
    applied over the last step (``info["applied_action"]``: after the drive's scaling and
    quantisation, spec "the previous applied u feeds the estimator").
-3. The estimator (:class:`~observer_gym.estimation.follower_filter.VisualStateEstimator`):
+3. The estimator (:class:`~observer_gym.estimation.target_follower.filters.VisualStateEstimator`):
    the self-tuning KF by default (``filter="stkf"``) or the conventional KF
    (``filter="kf"``), predicting with B_i at the previous estimate and tilt (30).
 The output has the env's state layout; ``tracking_valid`` is 1 while the estimate is
@@ -35,15 +35,18 @@ from observer_gym.envs.target_follower import (
     TargetFollowerEnv,
 )
 from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
-from observer_gym.estimation.follower_detector import FollowerDetector
-from observer_gym.estimation.follower_filter import VisualStateEstimator, VSEParams
-from observer_gym.estimation.follower_model import FollowerCameraParams, robot_jacobian
 from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
+from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
+from observer_gym.estimation.target_follower.models import (
+    TargetFollowerCameraParams,
+    robot_jacobian,
+)
 
 FILTERS = ("stkf", "kf")
 
 
-class FollowerObserver:
+class TargetFollowerObserver:
     """The default observer pipeline for TargetFollower-v0 (see the module docstring).
 
     Args:
@@ -61,17 +64,19 @@ class FollowerObserver:
         env: TargetFollowerEnv,
         filter: str = "stkf",
         params: VSEParams | None = None,
-        camera_params: FollowerCameraParams | None = None,
-        detector: FollowerDetector | None = None,
+        camera_params: TargetFollowerCameraParams | None = None,
+        detector: TargetFollowerDetector | None = None,
     ) -> None:
         if filter not in FILTERS:
             raise ValueError(f"filter={filter!r} is not allowed; choose one of {list(FILTERS)}")
         self.filter = filter
         base = params or VSEParams()
         self.params = VSEParams(**{**base.__dict__, "self_tuning": filter == "stkf"})
-        self.camera_params = camera_params or FollowerCameraParams.from_calibration(env.calibration)
+        self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
+            env.calibration
+        )
         self.delta_y_m = env.calibration["delta_y_m"]
-        self.detector = detector or FollowerDetector()
+        self.detector = detector or TargetFollowerDetector()
         self.from_pixels = env.config.obs_mode == "rgb"
         self.vse = VisualStateEstimator(self.params)
         self.reset()

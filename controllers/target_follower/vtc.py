@@ -1,4 +1,4 @@
-"""The visual tracking controller (VTC) of TargetFollower (spec/follower.md, (5)-(19)).
+"""The visual tracking controller (VTC) of TargetFollower (docs/spec/follower.md, (5)-(19)).
 
 With the error X_e = X_i* - X_i (desired minus estimated image state), X_e' = -X_i^t' -
 B_i u (5)(6), and the feedback-linearising law
@@ -6,7 +6,7 @@ B_i u (5)(6), and the feedback-linearising law
     u = B_i^-1 (K_g X_e - X_i^t'),   K_g = diag(alpha_1, alpha_2, alpha_3) > 0     (13)
 
 gives X_e' = -K_g X_e: each channel's error decays as exp(-alpha_i t) (7)-(13). B_i is
-:func:`~observer_gym.estimation.follower_model.robot_jacobian` at the estimate and the
+:func:`~observer_gym.estimation.target_follower.models.robot_jacobian` at the estimate and the
 tilt, with the controller's nominal camera parameters. Near the singularity of B_i
 (f_y = (y_i + S d_x) tan(phi), (18)(19): |m| below ``singular_margin_px``) the controller
 stops (u = 0), as it does while the observation's ``tracking_valid`` is 0 (the estimator
@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from observer_gym.controllers.base import StateFeedbackController
-from observer_gym.controllers.follower_plant import FollowerPlant
+from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
 from observer_gym.envs.target_follower import IMAGE, IMAGE_RATE, StateIndex
-from observer_gym.estimation.follower_model import (
-    FollowerCameraParams,
+from observer_gym.estimation.target_follower.models import (
+    TargetFollowerCameraParams,
     robot_jacobian,
     singularity_margin,
 )
@@ -36,7 +36,7 @@ ROBOT_GAINS = (1.25, 3.0, 0.5)  # Table 1, the real robot
 class VisualTrackingController(StateFeedbackController):
     """u = B_i^-1 (K_g X_e - X_i^t') (13).
 
-    Arguments: ``plant`` (:class:`FollowerPlant`), ``gains`` (alpha_1..3, default Table 1's
+    Arguments: ``plant`` (:class:`TargetFollowerPlant`), ``gains`` (alpha_1..3, default Table 1's
     simulation gains), ``camera`` (the f_x, f_y, W, delta_y of B_i; default the plant's),
     ``singular_margin_px`` (stop when |m| of (18) is below this; default 5 % of f_y).
     Attributes: ``K_g``, ``desired``, ``stops`` (count of rows where it stopped).
@@ -46,9 +46,9 @@ class VisualTrackingController(StateFeedbackController):
 
     def __init__(
         self,
-        plant: FollowerPlant,
+        plant: TargetFollowerPlant,
         gains=SIMULATION_GAINS,
-        camera: FollowerCameraParams | None = None,
+        camera: TargetFollowerCameraParams | None = None,
         singular_margin_px: float | None = None,
     ) -> None:
         super().__init__(plant.obs_dim, plant.action_low, plant.action_high)
