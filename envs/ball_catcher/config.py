@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from observer_gym.envs.ball_catcher import geometry as geo
-from observer_gym.envs.config import EnvConfig, config_field
+from observer_gym.envs.config import config_field
+from observer_gym.envs.sensor import SensorConfig
 
 
 @dataclass(frozen=True)
@@ -34,10 +35,10 @@ CAMERA_PRESETS = ("synchronised", "alternating", "random_offsets", "single")
 
 
 @dataclass(frozen=True)
-class BallCatcherConfig(EnvConfig):
-    obs_mode: str = config_field(
-        "rgb", "what the agent observes", choices=("rgb", "state", "measurements")
-    )
+class BallCatcherConfig(SensorConfig):
+    """BallCatcher-v0's options: every camera's sensor model (:class:`SensorConfig`) and
+    these."""
+
     # Cameras.
     camera_preset: str = config_field(
         "alternating", "camera timing preset (see CAMERA_PRESETS)", choices=CAMERA_PRESETS
@@ -48,26 +49,8 @@ class BallCatcherConfig(EnvConfig):
         low=0,
         high=geo.MAX_CAMERAS,
     )
-    image_width_px: int = config_field(
-        320, "camera image width (the paper's: 656)", low=32, high=1280
-    )
-    image_height_px: int = config_field(
-        240, "camera image height (the paper's: 480)", low=32, high=960
-    )
     hfov_deg: float = config_field(60.0, "horizontal field of view", low=20.0, high=120.0)
     frame_rate_hz: float = config_field(50.0, "every camera's frame rate", low=5.0, high=500.0)
-    latency_s: float = config_field(
-        0.0, "time from a frame's capture to its delivery", low=0.0, high=0.2
-    )
-    jitter_s: float = config_field(
-        0.0,
-        "std of the capture time's jitter (capture times stay on physics steps)",
-        low=0.0,
-        high=0.01,
-    )
-    frame_drop_prob: float = config_field(
-        0.0, "probability a captured frame is never delivered", low=0.0, high=1.0
-    )
     measurement_noise_px: float = config_field(
         0.5,
         "measurements mode: std of Gaussian noise on the ball's pixel coordinates",

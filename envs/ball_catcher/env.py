@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from observer_gym.envs.actions import checked_action
 from observer_gym.envs.ball_catcher import geometry as geo
+from observer_gym.envs.ball_catcher.camera_presets import preset_timings
 from observer_gym.envs.ball_catcher.config import BallCatcherConfig
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS, BOX_VEL, STATE_HIGH
-from observer_gym.envs.ball_catcher.rig import FrameClock, preset_timings
 from observer_gym.envs.ball_catcher.scene import BallCatcherScene, interior_contains
 from observer_gym.envs.ball_catcher.throws import Throw, plane_crossing, sample_throw
-from observer_gym.envs.camera import Camera, PinholeIntrinsics, look_at, project_points
-from observer_gym.envs.config import check_render_mode
+from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
+from observer_gym.envs.camera_rig import CameraTiming, Frame
+from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
@@ -26,7 +26,7 @@ NEAR_M, FAR_M = 0.1, 8.0  # the cameras' clipping planes; nearer points are not 
 VIEWER_POSE = look_at(np.array([1.9, -3.2, 1.9]), np.array([1.9, 0.0, 0.9]))
 
 
-class BallCatcherEnv(gym.Env):
+class BallCatcherEnv(CameraEnv):
     """An arm carries a box with a hole; a ball is thrown; get it through the hole.
 
     ## Description
@@ -117,43 +117,44 @@ class BallCatcherEnv(gym.Env):
     - v0: initial version.
     """
 
+    config_class = BallCatcherConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 100}  # noqa: RUF012
+    clipping_planes_m = (NEAR_M, FAR_M)
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        self.config = BallCatcherConfig.from_kwargs(**options)
-        check_render_mode(render_mode, self.metadata)
-        cfg = self.config
-        self.render_mode = render_mode
+        cfg = BallCatcherConfig.from_kwargs(**options)
+        self.tick_s = cfg.physics_dt_s
+        self.ticks_per_step = cfg.physics_substeps
         self.metadata = {**self.metadata, "render_fps": round(1.0 / cfg.control_dt_s)}
         self.num_cameras = cfg.cameras
-        self.intrinsics = PinholeIntrinsics.from_fov(
-            cfg.image_width_px, cfg.image_height_px, cfg.hfov_deg
-        )
-        self._image_size = (cfg.image_width_px, cfg.image_height_px)
         self.camera_poses = [geo.camera_pose(c) for c in range(self.num_cameras)]
-
-        v_max = np.full(3, cfg.profile.max_speed_mps, dtype=np.float32)
-        self.action_space = spaces.Box(-v_max, v_max, dtype=np.float32)
-        high = STATE_HIGH.astype(np.float32)
-        self.state_space = spaces.Box(-high, high, dtype=np.float32)
-        self.observation_space = self._make_observation_space()
-
-        self.sim = Simulation(cfg.physics_dt_s)
         self._arm_home_q = None
-        self.scene = self._build_scene()
-        self.camera = Camera(self.sim, self.intrinsics, near_m=NEAR_M, far_m=FAR_M)
-        self._tick = 0
         self._box_vel_cmd = np.zeros(3)
         self._outcome = FLYING
         self._throw: Throw | None = None
-        self._clock: FrameClock | None = None
-        self._latest: list[dict | None] = [None] * self.num_cameras
         self._truth = None
-        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
+        self._miss_m = 0.0
+        super().__init__(render_mode, **options)
+
+    # --- the system's hooks -------------------------------------------------------------
+    def camera_intrinsics(self) -> list[PinholeIntrinsics]:
+        cfg = self.config
+        intrinsics = PinholeIntrinsics.from_fov(
+            cfg.image_width_px, cfg.image_height_px, cfg.hfov_deg
+        )
+        return [intrinsics] * self.num_cameras
+
+    def _make_action_space(self) -> spaces.Box:
+        v_max = np.full(3, self.config.profile.max_speed_mps, dtype=np.float32)
+        return spaces.Box(-v_max, v_max, dtype=np.float32)
+
+    def _make_state_space(self) -> spaces.Box:
+        high = STATE_HIGH.astype(np.float32)
+        return spaces.Box(-high, high, dtype=np.float32)
 
     def _make_observation_space(self) -> spaces.Space:
         cfg, n = self.config, self.num_cameras
-        w, h = self._image_size
+        w, h = self.rig.image_size_px
         age = spaces.Box(0.0, NO_FRAME_AGE_S, (n,), dtype=np.float32)
         if cfg.obs_mode == "rgb":
             images = {f"camera_{c}": spaces.Box(0, 255, (h, w, 3), np.uint8) for c in range(n)}
@@ -169,79 +170,139 @@ class BallCatcherEnv(gym.Env):
             }
         )
 
-    # --- Gymnasium API ----------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+    def _build_world(self, sim: Simulation) -> None:
         cfg = self.config
-        options = dict(options or {})
-        given = options.pop("throw", None)
-        if options:
-            raise ValueError(f"unknown reset options {sorted(options)}; allowed: throw")
-        rng = self.np_random
-        throw = sample_throw(cfg, rng) if given is None else self._checked_throw(given)
+        self.scene = BallCatcherScene(
+            sim, cfg.hole_diameter_m, cfg.arm_position_gain, arm_home_q=self._arm_home_q
+        )
+        self._arm_home_q = self.scene.arm.home_q
+
+    def _reset_options(self) -> tuple[str, ...]:
+        return ("throw",)
+
+    def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
+        given = options.get("throw")
+        throw = sample_throw(self.config, rng) if given is None else self._checked_throw(given)
+        self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
+        self._throw = throw
+        self._box_vel_cmd = np.zeros(3)
+
+    def _camera_timings(self, rng: np.random.Generator) -> list[CameraTiming]:
+        cfg = self.config
         timings = preset_timings(
             cfg.camera_preset, self.num_cameras, cfg.frame_rate_hz, cfg.latency_s, rng
         )
-        self._clock = FrameClock(
-            timings, cfg.frame_rate_hz, cfg.physics_dt_s, cfg.jitter_s, cfg.frame_drop_prob, rng
-        )
-        # Sensor noise gets its own stream, so the world's and the rig's draws from
-        # np_random are the same in every obs_mode; spawning draws nothing from np_random.
-        self._sensor_rng = rng.spawn(1)[0]
-        self.sim.clear()
-        self.scene = self._build_scene()
-        self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
-        self._throw = throw
-        self._tick = 0
-        self._box_vel_cmd = np.zeros(3)
-        self._outcome = FLYING
-        self._latest = [None] * self.num_cameras
-        self._truth = self.scene.ground_truth()
-        self._capture(0)
-        self._miss_m = 0.0
-        self._miss_m = self._miss_distance_m()
-        return self._observe()
+        if cfg.frame_phase_s == 0.0:
+            return timings
+        return [CameraTiming(t.phase_s + cfg.frame_phase_s, t.latency_s) for t in timings]
 
-    def step(self, action):
-        velocity_cmd = checked_action(action, self.action_space)
-        cfg = self.config
-        self._command_box(velocity_cmd)
-        for _ in range(cfg.physics_substeps):
-            if cfg.air_drag:
+    def _apply_action(self, action: np.ndarray) -> None:
+        self._command_box(action)
+
+    def _advance(self, on_tick: Callable[[], None]) -> None:
+        drag = self.config.air_drag
+        for _ in range(self.ticks_per_step):
+            if drag:
                 self.scene.apply_drag()
             self.sim.step()
-            self._tick += 1
-            self._capture(self._tick)
+            on_tick()
+
+    def _after_physics(self) -> None:
         self._truth = self.scene.ground_truth()
-        self._outcome = self._judge()
-        miss_m = self._miss_distance_m()
-        reward = cfg.shaping_weight * (self._miss_m - miss_m)  # potential-based shaping
-        reward += 1.0 if self._outcome == CAUGHT else 0.0
-        self._miss_m = miss_m
-        obs, info = self._observe()
-        return obs, reward, self._outcome != FLYING, False, info
+        if self._tick == 0:
+            self._outcome = FLYING
+            self._miss_m = 0.0
+            self._miss_m = self._miss_distance_m()
+        else:
+            self._outcome = self._judge()
 
-    def render(self):
-        if self.render_mode != "rgb_array":
+    def camera_pose(self, camera_id: int) -> np.ndarray:
+        return self.camera_poses[camera_id]
+
+    def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray):
+        """A perfect detector's report: the projected centre with noise, or None when the
+        centre is behind the camera or outside the image."""
+        ball_pos_world = self.scene.ball_pos_world()
+        uv, depth = project_points(K, T_world_cam, ball_pos_world[None])
+        uv = uv[0]
+        sigma = self.config.measurement_noise_px
+        if sigma > 0.0:
+            uv = uv + self.rig.noise_rng.normal(0.0, sigma, 2)
+        w, h = self.rig.image_size_px
+        if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
             return None
-        return self.camera.render(VIEWER_POSE)
+        return uv
 
-    def close(self) -> None:
-        if hasattr(self, "sim"):
-            self.sim.close()
+    def _ground_truth_state(self) -> np.ndarray:
+        return self._truth.state
 
-    # --- internals --------------------------------------------------------------------
-    @property
-    def time_s(self) -> float:
-        return self._tick * self.config.physics_dt_s
+    def _reward(self, action: np.ndarray) -> float:
+        miss_m = self._miss_distance_m()
+        reward = self.config.shaping_weight * (self._miss_m - miss_m)  # potential-based
+        self._miss_m = miss_m
+        return reward + (1.0 if self._outcome == CAUGHT else 0.0)
 
-    def _build_scene(self) -> BallCatcherScene:
+    def _terminated(self) -> bool:
+        return self._outcome != FLYING
+
+    def _info(self) -> dict[str, Any]:
+        truth, throw = self._truth, self._throw
+        return {
+            "T_world_box": truth.T_world_box.copy(),
+            "box_pos_world_m": truth.state[BOX_POS].copy(),
+            "box_vel_world_mps": truth.state[BOX_VEL].copy(),
+            "outcome": self._outcome,
+            "caught": self._outcome == CAUGHT,
+            "throw": {
+                "launch_pos_world": throw.launch_pos_world.copy(),
+                "launch_vel_world": throw.launch_vel_world.copy(),
+                "crossing_time_s": throw.crossing_time_s,
+                "crossing_pos_world": throw.crossing_pos_world.copy(),
+            },
+        }
+
+    def _frame_info(self, frame: Frame) -> dict[str, Any]:
+        mode = self.config.obs_mode
+        if mode == "rgb":
+            return {"image": frame.payload}
+        if mode == "measurements":
+            return {"uv_px": frame.payload}
+        return {}
+
+    def _observation(self):
         cfg = self.config
-        scene = BallCatcherScene(
-            self.sim, cfg.hole_diameter_m, cfg.arm_position_gain, arm_home_q=self._arm_home_q
+        if cfg.obs_mode == "state":
+            return super()._observation()
+        now = self.time_s
+        latest = self.rig.latest
+        ages = np.array(
+            [
+                NO_FRAME_AGE_S
+                if f is None
+                else min(now - f.capture_tick * self.tick_s, NO_FRAME_AGE_S)
+                for f in latest
+            ],
+            dtype=np.float32,
         )
-        self._arm_home_q = scene.arm.home_q
-        return scene
+        if cfg.obs_mode == "rgb":
+            w, h = self.rig.image_size_px
+            blank = np.zeros((h, w, 3), np.uint8)
+            images = {  # copies: an observation must not share data with another
+                f"camera_{c}": blank if f is None else f.payload.copy()
+                for c, f in enumerate(latest)
+            }
+            return {**images, "frame_age_s": ages}
+        n = self.num_cameras
+        uv = np.zeros(2 * n, np.float32)
+        detected = np.zeros(n, np.int8)
+        for c, f in enumerate(latest):
+            if f is not None and f.payload is not None:
+                uv[2 * c : 2 * c + 2] = f.payload
+                detected[c] = 1
+        return {"uv_px": uv, "detected": detected, "frame_age_s": ages}
+
+    def _render_view(self) -> np.ndarray:
+        return self.rig.render_view(VIEWER_POSE)
 
     @staticmethod
     def _checked_throw(given) -> Throw:
@@ -288,41 +349,6 @@ class BallCatcherEnv(gym.Env):
         self._box_vel_cmd = velocity
         self.scene.command_hole(np.clip(target, low, high))
 
-    def _capture(self, tick: int) -> None:
-        """Take the frames of the cameras that capture at ``tick``."""
-        cameras = self._clock.captures_at(tick)
-        if not cameras:
-            return
-        cfg = self.config
-        ball_pos = self.scene.ball_pos_world()
-        for c in cameras:
-            T_world_cam = self.camera_poses[c]
-            frame = {
-                "camera_id": c,
-                "capture_time_s": tick * cfg.physics_dt_s,
-                "K": self.camera.K.copy(),
-                "T_world_cam": T_world_cam.copy(),
-                "image_size_px": self._image_size,
-            }
-            if cfg.obs_mode == "rgb":
-                frame["image"] = self.camera.render(T_world_cam)
-            elif cfg.obs_mode == "measurements":
-                frame["uv_px"] = self._measure(ball_pos, T_world_cam)
-            self._clock.add(c, tick, frame)
-
-    def _measure(self, ball_pos_world: np.ndarray, T_world_cam: np.ndarray):
-        """A perfect detector's report: the projected centre with noise, or None when the
-        centre is behind the camera or outside the image."""
-        uv, depth = project_points(self.camera.K, T_world_cam, ball_pos_world[None])
-        uv = uv[0]
-        sigma = self.config.measurement_noise_px
-        if sigma > 0.0:
-            uv = uv + self._sensor_rng.normal(0.0, sigma, 2)
-        w, h = self._image_size
-        if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
-            return None
-        return uv
-
     def _judge(self) -> str:
         state = self._truth.state
         ball = state[BALL_POS]
@@ -343,58 +369,3 @@ class BallCatcherEnv(gym.Env):
         if crossing is None:
             return self._miss_m
         return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
-
-    def _observe(self):
-        frames = self._clock.deliver(self._tick)
-        now = self.time_s
-        for frame in frames:
-            frame["delivery_time_s"] = now
-            self._latest[frame["camera_id"]] = frame
-        truth = self._truth
-        throw = self._throw
-        info = {
-            "state": truth.state.copy(),
-            "time_s": now,
-            "T_world_box": truth.T_world_box.copy(),
-            "box_pos_world_m": truth.state[BOX_POS].copy(),
-            "box_vel_world_mps": truth.state[BOX_VEL].copy(),
-            "outcome": self._outcome,
-            "caught": self._outcome == CAUGHT,
-            "throw": {
-                "launch_pos_world": throw.launch_pos_world.copy(),
-                "launch_vel_world": throw.launch_vel_world.copy(),
-                "crossing_time_s": throw.crossing_time_s,
-                "crossing_pos_world": throw.crossing_pos_world.copy(),
-            },
-            "frames": frames,
-        }
-        return self._observation(now), info
-
-    def _observation(self, now: float):
-        cfg = self.config
-        if cfg.obs_mode == "state":
-            high = self.state_space.high
-            return np.clip(self._truth.state, -high, high).astype(np.float32)
-        ages = np.array(
-            [
-                NO_FRAME_AGE_S if f is None else min(now - f["capture_time_s"], NO_FRAME_AGE_S)
-                for f in self._latest
-            ],
-            dtype=np.float32,
-        )
-        if cfg.obs_mode == "rgb":
-            w, h = self._image_size
-            blank = np.zeros((h, w, 3), np.uint8)
-            images = {  # copies: an observation must not share data with another
-                f"camera_{c}": blank if f is None else f["image"].copy()
-                for c, f in enumerate(self._latest)
-            }
-            return {**images, "frame_age_s": ages}
-        n = self.num_cameras
-        uv = np.zeros(2 * n, np.float32)
-        detected = np.zeros(n, np.int8)
-        for c, f in enumerate(self._latest):
-            if f is not None and f["uv_px"] is not None:
-                uv[2 * c : 2 * c + 2] = f["uv_px"]
-                detected[c] = 1
-        return {"uv_px": uv, "detected": detected, "frame_age_s": ages}

@@ -4,17 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from observer_gym.envs.config import EnvConfig, config_field
+from observer_gym.envs.config import config_field
+from observer_gym.envs.sensor import SensorConfig
 
 
 @dataclass(frozen=True)
-class BallTableConfig(EnvConfig):
-    obs_mode: str = config_field(
-        "rgb", "what the agent observes", choices=("rgb", "state", "measurements")
-    )
+class BallTableConfig(SensorConfig):
+    """BallTable-v0's options: the camera's sensor model (:class:`SensorConfig`) and these."""
+
     # Camera (spec: 320x240, 90 deg horizontal field of view, 50 frames/s).
-    image_width_px: int = config_field(320, "camera image width", low=32, high=1280)
-    image_height_px: int = config_field(240, "camera image height", low=32, high=960)
     hfov_deg: float = config_field(90.0, "horizontal field of view", low=20.0, high=120.0)
     frame_rate_hz: float = config_field(
         50.0, "camera frame rate; one frame and one action per step", low=5.0, high=200.0
@@ -55,21 +53,6 @@ class BallTableConfig(EnvConfig):
     )
     push_impulse_ns: float = config_field(
         0.005, "largest push impulse (N s); each push is uniform in [0, this]", low=0.0, high=0.1
-    )
-    measurement_noise_px: float = config_field(
-        0.0,
-        "measurements mode: std of Gaussian noise on every pixel coordinate",
-        low=0.0,
-        high=20.0,
-    )
-    image_noise_std: float = config_field(
-        0.0, "rgb mode: std of Gaussian noise on every pixel intensity (0-255)", low=0.0, high=64.0
-    )
-    frame_drop_prob: float = config_field(
-        0.0,
-        "probability a frame is dropped (the last delivered one is repeated)",
-        low=0.0,
-        high=1.0,
     )
     occluder_rate_hz: float = config_field(
         0.0, "mean rate at which an occluder starts passing over the table", low=0.0, high=5.0

@@ -1,10 +1,9 @@
 """BallTable's random disturbances and the robot's head motion, drawn from the env's
-``np_random`` so that a seed fixes them, in the same order in every obs_mode (sensor
-noise has its own stream, see BallTableEnv).
+``np_random`` so that a seed fixes them, in the same order in every obs_mode (the
+camera's timing and noise belong to the camera rig, envs/camera_rig.py).
 
 - pushes: a Poisson process of rate ``push_rate_hz``; each push is a horizontal impulse
   on the ball, uniform in [0, ``push_impulse_ns``] with a uniform direction.
-- dropped frames: each frame is lost with probability ``frame_drop_prob``.
 - occluder: passes start as a Poisson process of rate ``occluder_rate_hz`` (never while
   one is under way); a pass crosses the table along the world y axis, 0.2 m above it, in
   ``occluder_pass_s``, at a random offset along x.
@@ -51,10 +50,6 @@ class Disturbances:
         angle = rng.uniform(0.0, 2.0 * np.pi)
         magnitude = rng.uniform(0.0, self.config.push_impulse_ns)
         return magnitude * np.array([np.cos(angle), np.sin(angle), 0.0])
-
-    def frame_dropped(self, rng: np.random.Generator) -> bool:
-        p = self.config.frame_drop_prob
-        return p > 0.0 and bool(rng.random() < p)
 
     def occluder_position(self, time_s: float, rng: np.random.Generator) -> np.ndarray | None:
         """Where the occluder is at ``time_s`` (world), or None when no pass is under way."""

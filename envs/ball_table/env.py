@@ -4,11 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from observer_gym.envs.actions import checked_action
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.config import BallTableConfig
 from observer_gym.envs.ball_table.disturbances import Disturbances
@@ -19,15 +17,16 @@ from observer_gym.envs.ball_table.layout import (
     DETECTED,
     STATE_HIGH,
 )
-from observer_gym.envs.ball_table.measurements import perfect_measurement
+from observer_gym.envs.ball_table.measurements import empty_measurement, perfect_measurement
 from observer_gym.envs.ball_table.scene import BallTableScene
-from observer_gym.envs.camera import Camera, PinholeIntrinsics
-from observer_gym.envs.config import check_render_mode
-from observer_gym.envs.observations import copy_observation
+from observer_gym.envs.camera import PinholeIntrinsics
+from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
 
+RESET_OPTIONS = ("ball_pos_table_m", "ball_vel_table_mps")
 
-class BallTableEnv(gym.Env):
+
+class BallTableEnv(CameraEnv):
     """A robot arm holds a square table with a ball rolling on it; keep the ball at the centre.
 
     ## Description
@@ -51,22 +50,31 @@ class BallTableEnv(gym.Env):
     ``gymnasium.wrappers.RescaleAction(env, -1, 1)``.
 
     ## Observation Space
-    - ``obs_mode="rgb"`` (default): the latest camera frame, ``Box(0, 255, (240, 320, 3),
-      uint8)``. When a frame is dropped, the previous frame is repeated (as a copy).
+    - ``obs_mode="rgb"`` (default): the newest delivered camera frame, ``Box(0, 255,
+      (240, 320, 3), uint8)`` (a copy; black before the first frame arrives).
     - ``obs_mode="state"``: ``Box((8,), float32)``, the ground truth with the layout
       ``observer_gym.envs.ball_table.STATE_NAMES`` (ball x, y, vx, vy in the table frame;
       tilt angles and rates), clipped to ``STATE_HIGH``.
     - ``obs_mode="measurements"``: a Dict with what a perfect detector reports for the
-      latest frame (no rendering): ``table_corners_px`` (u0, v0, ..., u3, v3),
+      newest delivered frame (no rendering): ``table_corners_px`` (u0, v0, ..., u3, v3),
       ``ball_px`` (u, v, radius) and ``detected`` (table, ball) flags; with
       ``measurement_noise_px`` Gaussian noise.
 
+    The camera follows the sensor model shared by every env (observer_gym.envs.sensor):
+    by default one frame per step, captured at the end of the step and delivered at once;
+    ``frame_phase_s``, ``latency_s``, ``latency_jitter_s``, ``jitter_s`` and
+    ``frame_drop_prob`` change when frames are captured and arrive (a step's observation
+    is the newest frame delivered by then, captured earlier), and the ``calib_*`` options
+    make the real camera differ from the nominal calibration that ``info`` reports.
+
     ``env.state_space`` is the Box of the state layout whatever the obs_mode (an
     observer's estimate lives there). ``info`` always holds ``state`` (ground truth,
-    unclipped), ``time_s``,
-    ``T_world_table`` (4x4), ``camera`` (the current ``K``, ``T_world_cam``,
-    ``image_size_px``) and ``frames``: the frames delivered this step (empty if dropped),
-    each with ``camera_id``, ``capture_time_s``, ``K``, ``T_world_cam``, ``image_size_px``.
+    unclipped), ``time_s``, ``T_world_table`` (4x4), ``camera`` (the nominal ``K``,
+    ``T_world_cam`` now, ``image_size_px``), ``push_impulse_ns`` and ``frames``: the frames
+    delivered this step (possibly none), each with ``camera_id``, ``capture_time_s``,
+    ``delivery_time_s``, the nominal ``K`` and ``T_world_cam`` at the capture, and
+    ``image_size_px``; ``info["truth"]["frames"]`` has each frame's true ``K`` and
+    ``T_world_cam`` (for analysis only: an observer knows the nominal calibration).
 
     ## Rewards
     ``1 - d / (L/2 - r) - effort_weight * mean((a / max_tilt_rad)^2)`` per step, with d
@@ -79,15 +87,13 @@ class BallTableEnv(gym.Env):
     in a uniform direction. ``reset(options={"ball_pos_table_m": (x, y),
     "ball_vel_table_mps": (vx, vy)})`` sets them instead.
 
-    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
-    sensor noise from its own stream. The start, the head motion's phases, the pushes,
-    the occluder's passes and the frame drops come from ``np_random`` in the same order
+    Randomness: the start, the head motion's phases, the pushes, the occluder's passes
+    and the camera's timing (jitters, drops) come from ``np_random`` in the same order
     whatever the obs_mode, so episodes with the same seed and actions see the same world
     in "state", "measurements" and "rgb" (``observer-gym compare`` pairs on this). The
-    measurement noise (``measurement_noise_px``) and image noise (``image_noise_std``)
-    come from a generator spawned from ``np_random`` at each reset (``Generator.spawn``,
-    which draws nothing from it): ``reset(seed=s)`` repeats the noise, a reset without a
-    seed continues with new noise.
+    measurement and image noise and the calibration errors come from generators spawned
+    from ``np_random`` at each reset (``Generator.spawn``, which draws nothing from it):
+    ``reset(seed=s)`` repeats them, a reset without a seed continues with new ones.
 
     ## Episode End
     Terminated when the ball's centre leaves the red square (|x| or |y| > L/2: over a
@@ -102,44 +108,37 @@ class BallTableEnv(gym.Env):
     - v0: initial version.
     """
 
+    config_class = BallTableConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012
+    clipping_planes_m = (0.05, 3.0)
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        self.config = BallTableConfig.from_kwargs(**options)
-        check_render_mode(render_mode, self.metadata)
-        cfg = self.config
-        self.render_mode = render_mode
+        cfg = BallTableConfig.from_kwargs(**options)
+        self.tick_s = cfg.physics_dt_s
+        self.ticks_per_step = cfg.physics_substeps
         self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}
-        self.intrinsics = PinholeIntrinsics.from_fov(
-            cfg.image_width_px, cfg.image_height_px, cfg.hfov_deg
-        )
-        self._image_size = (cfg.image_width_px, cfg.image_height_px)
-
-        tilt = np.full(2, cfg.max_tilt_rad, dtype=np.float32)
-        self.action_space = spaces.Box(-tilt, tilt, dtype=np.float32)
-        high = np.array(STATE_HIGH, dtype=np.float32)
-        # The space of the ground-truth state (and of an observer's estimate of it).
-        self.state_space = spaces.Box(-high, high, dtype=np.float32)
-        self.observation_space = self._make_observation_space()
-
-        self.sim = Simulation(cfg.physics_dt_s)
-        self._arm_home_q = None  # refined by IK at the first build, reused by the next ones
-        self.scene = self._build_scene()  # builds once now, so a broken setup fails here
-        self.camera = Camera(self.sim, self.intrinsics, near_m=0.05, far_m=3.0)
         self.disturbances = Disturbances(cfg)
-        self._time_s = 0.0
-        self._last_obs = None
-        self._frame_index = 0
+        self._arm_home_q = None  # refined by IK at the first build, reused by the next ones
+        self._push_impulse: np.ndarray | None = None
         self._truth = None
-        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
+        self._truth_tick = -1  # the tick self._truth describes
+        super().__init__(render_mode, **options)
 
-    def _make_observation_space(self) -> spaces.Space:
+    # --- the system's hooks -------------------------------------------------------------
+    def camera_intrinsics(self) -> list[PinholeIntrinsics]:
         cfg = self.config
-        w, h = self._image_size
-        if cfg.obs_mode == "rgb":
-            return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
-        if cfg.obs_mode == "state":
-            return self.state_space
+        return [PinholeIntrinsics.from_fov(cfg.image_width_px, cfg.image_height_px, cfg.hfov_deg)]
+
+    def _make_action_space(self) -> spaces.Box:
+        tilt = np.full(2, self.config.max_tilt_rad, dtype=np.float32)
+        return spaces.Box(-tilt, tilt, dtype=np.float32)
+
+    def _make_state_space(self) -> spaces.Box:
+        high = np.array(STATE_HIGH, dtype=np.float32)
+        return spaces.Box(-high, high, dtype=np.float32)
+
+    def _measurement_space(self) -> spaces.Dict:
+        w, h = self.rig.image_size_px
         uv_high = np.array([w - 1, h - 1], dtype=np.float32)
         return spaces.Dict(
             {
@@ -151,19 +150,25 @@ class BallTableEnv(gym.Env):
             }
         )
 
-    # --- Gymnasium API ----------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+    def _empty_measurement(self) -> dict:
+        return empty_measurement()
+
+    def _build_world(self, sim: Simulation) -> None:
+        self.scene = BallTableScene(
+            sim,
+            self.config.arm_position_gain,
+            with_occluder=self.config.occluder_rate_hz > 0,
+            arm_home_q=self._arm_home_q,
+        )
+        self._arm_home_q = self.scene.arm.home_q
+
+    def _reset_options(self) -> tuple[str, ...]:
+        return RESET_OPTIONS
+
+    def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
-        options = dict(options or {})
-        rng = self.np_random
-        ball_pos = options.pop("ball_pos_table_m", None)
-        ball_vel = options.pop("ball_vel_table_mps", None)
-        if options:
-            raise ValueError(
-                f"unknown reset options {sorted(options)}; allowed: ball_pos_table_m, "
-                "ball_vel_table_mps"
-            )
+        ball_pos = options.get("ball_pos_table_m")
+        ball_vel = options.get("ball_vel_table_mps")
         if ball_pos is None:
             radius = cfg.start_radius_m * np.sqrt(rng.uniform())
             angle = rng.uniform(0.0, 2.0 * np.pi)
@@ -174,63 +179,69 @@ class BallTableEnv(gym.Env):
             ball_vel = speed * np.array([np.cos(angle), np.sin(angle)])
         ball_pos = self._checked_option("ball_pos_table_m", ball_pos, geo.BALL_TRAVEL_M)
         ball_vel = self._checked_option("ball_vel_table_mps", ball_vel, 2.0)
-        # Sensor noise gets its own stream, so the world's draws from np_random are the
-        # same in every obs_mode; spawning draws nothing from np_random.
-        self._sensor_rng = rng.spawn(1)[0]
-
-        self.sim.clear()
-        self.scene = self._build_scene()
         self.scene.place_ball(ball_pos, ball_vel)
         self.disturbances.reset(rng)
-        self._time_s = 0.0
-        self._frame_index = 0
-        self._last_obs = None
+        self._push_impulse = None
+
+    def _apply_action(self, action: np.ndarray) -> None:
+        self.scene.command_tilt(float(action[0]), float(action[1]))
+        self._push_impulse = self.disturbances.push_impulse(self.np_random)
+        if self._push_impulse is not None:
+            self.scene.push_ball(self._push_impulse)
+
+    def _after_physics(self) -> None:
         self._truth = self.scene.ground_truth()
-        obs, info = self._observe(dropped=False)
-        return obs, info
+        self._truth_tick = self._tick
+        occluder_pos = self.disturbances.occluder_position(self.time_s, self.np_random)
+        if self.scene.occluder is not None:
+            if occluder_pos is None:
+                self.scene.park_occluder()
+            else:
+                self.scene.place_occluder(occluder_pos)
 
-    def step(self, action):
-        tilt_cmd = checked_action(action, self.action_space)
-        cfg = self.config
-        rng = self.np_random
-        self.scene.command_tilt(float(tilt_cmd[0]), float(tilt_cmd[1]))
-        impulse = self.disturbances.push_impulse(rng)
-        if impulse is not None:
-            self.scene.push_ball(impulse)
-        self.sim.step(cfg.physics_substeps)
-        self._time_s += cfg.dt_s
-        self._truth = self.scene.ground_truth()
+    def camera_pose(self, camera_id: int = 0) -> np.ndarray:
+        return self.disturbances.camera_pose(self.time_s)
 
-        distance = float(np.linalg.norm(self._truth.state[BALL_POS]))
-        effort = float(np.mean((tilt_cmd / cfg.max_tilt_rad) ** 2))
-        reward = 1.0 - distance / geo.BALL_TRAVEL_M - cfg.effort_weight * effort
-        terminated = bool(np.max(np.abs(self._truth.ball_pos_table[:2])) > geo.TABLE_SIDE_M / 2)
-
-        obs, info = self._observe(dropped=self.disturbances.frame_dropped(rng))
-        info["push_impulse_ns"] = impulse
-        return obs, reward, terminated, False, info
-
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        if self.config.obs_mode == "rgb" and self._last_obs is not None:
-            return copy_observation(self._last_obs)  # drawing on it leaves the obs as it was
-        return self.camera.render(self.disturbances.camera_pose(self._time_s))
-
-    def close(self) -> None:
-        if hasattr(self, "sim"):
-            self.sim.close()
-
-    # --- internals --------------------------------------------------------------------
-    def _build_scene(self) -> BallTableScene:
-        scene = BallTableScene(
-            self.sim,
-            self.config.arm_position_gain,
-            with_occluder=self.config.occluder_rate_hz > 0,
-            arm_home_q=self._arm_home_q,
+    def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:
+        occluder = None
+        if self.scene.occluder_pose_world is not None:
+            centre, rotation = self.scene.occluder_pose_world
+            occluder = (centre, rotation, geo.OCCLUDER_HALF_EXTENTS_M)
+        truth = self._truth if self._truth_tick == self._tick else self.scene.ground_truth()
+        return perfect_measurement(
+            K,
+            T_world_cam,
+            self.rig.image_size_px,
+            truth.T_world_table,
+            truth.ball_pos_world,
+            occluder=occluder,
+            noise_px=self.config.measurement_noise_px,
+            rng=self.rig.noise_rng,
         )
-        self._arm_home_q = scene.arm.home_q
-        return scene
+
+    def _ground_truth_state(self) -> np.ndarray:
+        return self._truth.state
+
+    def _reward(self, action: np.ndarray) -> float:
+        cfg = self.config
+        distance = float(np.linalg.norm(self._truth.state[BALL_POS]))
+        effort = float(np.mean((action / cfg.max_tilt_rad) ** 2))
+        return 1.0 - distance / geo.BALL_TRAVEL_M - cfg.effort_weight * effort
+
+    def _terminated(self) -> bool:
+        return bool(np.max(np.abs(self._truth.ball_pos_table[:2])) > geo.TABLE_SIDE_M / 2)
+
+    def _info(self) -> dict[str, Any]:
+        T_world_cam = self.camera_pose()
+        return {
+            "T_world_table": self._truth.T_world_table.copy(),
+            "camera": {
+                "K": self.rig.K_nominal[0].copy(),
+                "T_world_cam": T_world_cam.copy(),
+                "image_size_px": self.rig.image_size_px,
+            },
+            "push_impulse_ns": self._push_impulse,
+        }
 
     @staticmethod
     def _checked_option(name: str, value, bound: float) -> np.ndarray:
@@ -240,63 +251,3 @@ class BallTableEnv(gym.Env):
                 f"reset option {name} must be 2 finite numbers within +-{bound}, got {value!r}"
             )
         return v
-
-    def _observe(self, dropped: bool):
-        """The observation and info after the world reached ``self._time_s``."""
-        cfg = self.config
-        T_world_cam = self.disturbances.camera_pose(self._time_s)
-        occluder_pos = self.disturbances.occluder_position(self._time_s, self.np_random)
-        if self.scene.occluder is not None:
-            if occluder_pos is None:
-                self.scene.park_occluder()
-            else:
-                self.scene.place_occluder(occluder_pos)
-        camera = {
-            "K": self.camera.K.copy(),
-            "T_world_cam": T_world_cam.copy(),
-            "image_size_px": self._image_size,
-        }
-        frames = []
-        if not dropped or self._frame_index == 0:
-            frames.append({"camera_id": 0, "capture_time_s": self._time_s, **camera})
-            self._last_obs = self._capture(T_world_cam)
-            self._frame_index += 1
-        truth = self._truth
-        info = {
-            "state": truth.state.copy(),
-            "time_s": self._time_s,
-            "T_world_table": truth.T_world_table.copy(),
-            "camera": camera,
-            "frames": frames,
-        }
-        if cfg.obs_mode == "state":
-            high = self.observation_space.high
-            return np.clip(truth.state, -high, high).astype(np.float32), info
-        # A copy: a repeated (dropped) frame must not share memory with the one before.
-        return copy_observation(self._last_obs), info
-
-    def _capture(self, T_world_cam: np.ndarray):
-        """A new frame in the observation's format."""
-        cfg = self.config
-        if cfg.obs_mode == "state":
-            return None
-        if cfg.obs_mode == "rgb":
-            image = self.camera.render(T_world_cam)
-            if cfg.image_noise_std > 0.0:
-                noise = self._sensor_rng.normal(0.0, cfg.image_noise_std, image.shape)
-                image = np.clip(image + noise, 0, 255).astype(np.uint8)
-            return image
-        occluder = None
-        if self.scene.occluder_pose_world is not None:
-            centre, rotation = self.scene.occluder_pose_world
-            occluder = (centre, rotation, geo.OCCLUDER_HALF_EXTENTS_M)
-        return perfect_measurement(
-            self.camera.K,
-            T_world_cam,
-            self._image_size,
-            self._truth.T_world_table,
-            self._truth.ball_pos_world,
-            occluder=occluder,
-            noise_px=cfg.measurement_noise_px,
-            rng=self._sensor_rng,
-        )

@@ -4,18 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from observer_gym.envs.config import EnvConfig, config_field
+from observer_gym.envs.config import config_field
+from observer_gym.envs.sensor import SensorConfig
 from observer_gym.envs.target_follower.motion import PROFILE_TURN_RATE_RADPS
 
 
 @dataclass(frozen=True)
-class TargetFollowerConfig(EnvConfig):
-    obs_mode: str = config_field(
-        "rgb", "what the agent observes", choices=("rgb", "state", "measurements")
-    )
+class TargetFollowerConfig(SensorConfig):
+    """TargetFollower-v0's options: the camera's sensor model (:class:`SensorConfig`) and
+    these."""
+
     # Camera (spec Table 1: f_x, f_y = 393.4, 391.8 px; T = 100 ms).
-    image_width_px: int = config_field(320, "camera image width", low=32, high=1280)
-    image_height_px: int = config_field(240, "camera image height", low=32, high=960)
     fx_px: float = config_field(393.4, "focal length f_x", low=20.0, high=5000.0)
     fy_px: float = config_field(391.8, "focal length f_y", low=20.0, high=5000.0)
     frame_rate_hz: float = config_field(
@@ -108,18 +107,6 @@ class TargetFollowerConfig(EnvConfig):
     )
     measurement_rounding: bool = config_field(
         True, "measurements mode: round to whole pixels, as the spec's noise model does"
-    )
-    image_noise_std: float = config_field(
-        0.0,
-        "rgb mode: std of Gaussian noise on every pixel intensity (0-255)",
-        low=0.0,
-        high=64.0,
-    )
-    frame_drop_prob: float = config_field(
-        0.0,
-        "probability a frame is dropped (the last delivered one is repeated)",
-        low=0.0,
-        high=1.0,
     )
     occluder_rate_hz: float = config_field(
         0.0,

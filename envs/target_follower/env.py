@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from observer_gym.envs.actions import checked_action
-from observer_gym.envs.camera import Camera, PinholeIntrinsics
-from observer_gym.envs.config import check_render_mode
-from observer_gym.envs.observations import copy_observation
+from observer_gym.envs.camera import PinholeIntrinsics
+from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.target_follower import geometry as geo
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
@@ -24,7 +22,7 @@ from observer_gym.envs.target_follower.layout import (
     STATE_LOW,
     TARGET_PX,
 )
-from observer_gym.envs.target_follower.measurements import perfect_measurement
+from observer_gym.envs.target_follower.measurements import empty_measurement, perfect_measurement
 from observer_gym.envs.target_follower.motion import OccluderWalk, TargetMotion
 from observer_gym.envs.target_follower.scene import TargetFollowerScene
 
@@ -32,7 +30,7 @@ FAR_PLANE_M = 8.0  # the renderer's far plane: the target stays within a few met
 RESET_OPTIONS = ("target_pos_world_m", "tilt_rad", "occlusions_s")
 
 
-class TargetFollowerEnv(gym.Env):
+class TargetFollowerEnv(CameraEnv):
     """A wheeled robot with a tilt camera keeps a moving target centred at a set size.
 
     ## Description
@@ -121,61 +119,34 @@ class TargetFollowerEnv(gym.Env):
     - v0: initial version.
     """
 
+    config_class = TargetFollowerConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
+    clipping_planes_m = (0.05, FAR_PLANE_M)
+    # One uniform per frame for its drop, whatever frame_drop_prob: this env has always
+    # drawn it, and keeping it keeps every seed's episode.
+    always_draw_drops = True
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
-        self.config = TargetFollowerConfig.from_kwargs(**options)
-        check_render_mode(render_mode, self.metadata)
-        cfg = self.config
-        self.render_mode = render_mode
+        cfg = TargetFollowerConfig.from_kwargs(**options)
+        self.tick_s = cfg.dt_s / cfg.substeps
+        self.ticks_per_step = cfg.substeps
         self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}
-        w, h = cfg.image_width_px, cfg.image_height_px
-        self.intrinsics = PinholeIntrinsics(w, h, cfg.fx_px, cfg.fy_px, w / 2.0, h / 2.0)
-        self._image_size = (w, h)
-        high = np.array(
-            [cfg.max_speed_mps, cfg.max_yaw_rate_radps, cfg.max_tilt_rate_radps], np.float32
-        )
-        self.action_space = spaces.Box(-high, high, dtype=np.float32)
-        # The space of the ground-truth state (and of an observer's estimate of it).
-        self.state_space = spaces.Box(
-            np.array(STATE_LOW, np.float32), np.array(STATE_HIGH, np.float32), dtype=np.float32
-        )
-        self.observation_space = self._make_observation_space()
         self.limits = DriveLimits(
             cfg.wheel_base_m,
             cfg.wheel_speed_max_mps,
             cfg.wheel_accel_max_mps2,
             cfg.wheel_quantization,
         )
-        self.sim = Simulation(cfg.dt_s / cfg.substeps)
-        self.scene = self._build_scene()  # builds once now, so a broken setup fails here
-        self.camera = Camera(self.sim, self.intrinsics, near_m=0.05, far_m=FAR_PLANE_M)
         self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz)
-        self._time_s = 0.0
+        self._command = np.zeros(3)
         self._lost_s = 0.0
-        self._last_obs = None
-        self._frame_index = 0
         self._truth = None
-        self._sensor_rng: np.random.Generator | None = None  # spawned at each reset
+        super().__init__(render_mode, **options)
 
-    def _make_observation_space(self) -> spaces.Space:
-        cfg = self.config
-        w, h = self._image_size
-        if cfg.obs_mode == "rgb":
-            return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
-        if cfg.obs_mode == "state":
-            return self.state_space
-        bound = float(max(w, h)) + 2.0 * cfg.measurement_noise_px + 1.0
-        d_max = 4.0 * max(w, h)
-        return spaces.Dict(
-            {
-                TARGET_PX: spaces.Box(
-                    np.array([-bound, -bound, 0.0], np.float32),
-                    np.array([bound, bound, d_max], np.float32),
-                ),
-                DETECTED: spaces.MultiBinary(1),
-            }
-        )
+    @property
+    def intrinsics(self) -> PinholeIntrinsics:
+        """The camera's nominal calibration."""
+        return self.rig.nominal[0]
 
     @property
     def calibration(self) -> dict[str, float]:
@@ -192,17 +163,60 @@ class TargetFollowerEnv(gym.Env):
             "dt_s": cfg.dt_s,
         }
 
-    # --- Gymnasium API ----------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+    # --- the system's hooks -------------------------------------------------------------
+    def camera_intrinsics(self) -> list[PinholeIntrinsics]:
         cfg = self.config
-        options = dict(options or {})
-        unknown = sorted(set(options) - set(RESET_OPTIONS))
-        if unknown:
-            raise ValueError(
-                f"unknown reset options {unknown}; allowed: {', '.join(RESET_OPTIONS)}"
-            )
-        rng = self.np_random
+        w, h = cfg.image_width_px, cfg.image_height_px
+        return [PinholeIntrinsics(w, h, cfg.fx_px, cfg.fy_px, w / 2.0, h / 2.0)]
+
+    def _make_action_space(self) -> spaces.Box:
+        cfg = self.config
+        high = np.array(
+            [cfg.max_speed_mps, cfg.max_yaw_rate_radps, cfg.max_tilt_rate_radps], np.float32
+        )
+        return spaces.Box(-high, high, dtype=np.float32)
+
+    def _make_state_space(self) -> spaces.Box:
+        return spaces.Box(
+            np.array(STATE_LOW, np.float32), np.array(STATE_HIGH, np.float32), dtype=np.float32
+        )
+
+    def _measurement_space(self) -> spaces.Dict:
+        cfg = self.config
+        w, h = self.rig.image_size_px
+        bound = float(max(w, h)) + 2.0 * cfg.measurement_noise_px + 1.0
+        d_max = 4.0 * max(w, h)
+        return spaces.Dict(
+            {
+                TARGET_PX: spaces.Box(
+                    np.array([-bound, -bound, 0.0], np.float32),
+                    np.array([bound, bound, d_max], np.float32),
+                ),
+                DETECTED: spaces.MultiBinary(1),
+            }
+        )
+
+    def _empty_measurement(self) -> dict:
+        return empty_measurement()
+
+    def _build_world(self, sim: Simulation) -> None:
+        cfg = self.config
+        self.scene = TargetFollowerScene(
+            sim,
+            self.intrinsics.K,
+            self.rig.image_size_px,
+            cfg.target_width_m,
+            cfg.delta_y_m,
+            (cfg.tilt_min_rad, cfg.tilt_max_rad),
+            self.limits,
+            with_occluder=True,
+        )
+
+    def _reset_options(self) -> tuple[str, ...]:
+        return RESET_OPTIONS
+
+    def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
+        cfg = self.config
         tilt = float(options.get("tilt_rad", 0.0))
         if not cfg.tilt_min_rad <= tilt <= cfg.tilt_max_rad:
             raise ValueError(
@@ -226,12 +240,6 @@ class TargetFollowerEnv(gym.Env):
                 f"reset option target_pos_world_m must be 3 finite numbers, got {target!r}"
             )
         occlusions = tuple(float(t) for t in options.get("occlusions_s", ()))
-        # Sensor noise gets its own stream, so the world's draws from np_random are the
-        # same in every obs_mode; spawning draws nothing from np_random.
-        self._sensor_rng = rng.spawn(1)[0]
-
-        self.sim.clear()
-        self.scene = self._build_scene()
         motion = TargetMotion(
             cfg.target_motion,
             target,
@@ -243,81 +251,81 @@ class TargetFollowerEnv(gym.Env):
         )
         self.scene.start(tilt, motion)
         self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz, occlusions)
-        self._time_s = 0.0
         self._lost_s = 0.0
-        self._frame_index = 0
-        self._last_obs = None
-        return self._observe(dropped=False)
 
-    def step(self, action):
-        command = checked_action(action, self.action_space)
-        cfg = self.config
-        rng = self.np_random
-        self.scene.advance(command, cfg.dt_s, cfg.substeps)
-        self._time_s += cfg.dt_s
-        dropped = rng.uniform() < cfg.frame_drop_prob
-        obs, info = self._observe(dropped=dropped)
+    def _apply_action(self, action: np.ndarray) -> None:
+        self._command = action
 
-        error = info["state"][IMAGE] - np.array([0.0, 0.0, cfg.desired_width_px])
-        w, h = self._image_size
-        scale = np.array([w / 2.0, h / 2.0, cfg.desired_width_px])
-        in_view = info["target_in_image"]
-        reward = 1.0 - float(np.mean(np.minimum(np.abs(error) / scale, 1.0))) if in_view else 0.0
-        self._lost_s = 0.0 if in_view else self._lost_s + cfg.dt_s
-        too_close = self._truth.depth_m < cfg.min_distance_m
-        terminated = bool(self._lost_s >= cfg.lost_timeout_s - 1e-9 or too_close)
-        return obs, reward, terminated, False, info
-
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        if self.config.obs_mode == "rgb" and self._last_obs is not None:
-            return copy_observation(self._last_obs)  # drawing on it leaves the obs as it was
-        return self.camera.render(self.scene.camera_pose())
-
-    def close(self) -> None:
-        if hasattr(self, "sim"):
-            self.sim.close()
-
-    # --- internals --------------------------------------------------------------------
-    def _build_scene(self) -> TargetFollowerScene:
-        cfg = self.config
-        return TargetFollowerScene(
-            self.sim,
-            self.intrinsics.K,
-            self._image_size,
-            cfg.target_width_m,
-            cfg.delta_y_m,
-            (cfg.tilt_min_rad, cfg.tilt_max_rad),
-            self.limits,
-            with_occluder=True,
+    def _advance(self, on_tick: Callable[[], None]) -> None:
+        first = self._tick + 1
+        self.scene.advance(
+            self._command,
+            self.config.dt_s,
+            self.ticks_per_step,
+            on_substep=on_tick,
+            placed_at=lambda k: self.rig.captures_pending_at(first + k),
         )
 
-    def _observe(self, dropped: bool):
-        """The observation and info after the world reached ``self._time_s``."""
-        cfg = self.config
-        scene = self.scene
-        T_world_cam = scene.camera_pose()
+    def _after_physics(self) -> None:
+        cfg, scene = self.config, self.scene
+        if self._tick == 0:  # a new episode: the ground truth is what the real camera sees
+            error = self.rig.errors[0] if cfg.has_calibration_error else None
+            scene.set_true_camera(
+                self.rig.cameras[0].K, None if error is None else error.T_nominal_true
+            )
         walk = self.occluder_walk
-        walk.update(self._time_s, cfg.dt_s, self.np_random)
-        scene.place_occluder(walk.pose(self._time_s, T_world_cam[:3, 3], scene.motion.pos))
-        truth = self._truth = scene.ground_truth()
-        K = self.camera.K
-        camera = {
-            "K": K.copy(),
-            "T_world_cam": T_world_cam.copy(),
-            "image_size_px": self._image_size,
-        }
-        frames = []
-        if not dropped or self._frame_index == 0:
-            frames.append({"camera_id": 0, "capture_time_s": self._time_s, **camera})
-            self._last_obs = self._capture(T_world_cam)
-            self._frame_index += 1
-        info = {
-            "state": truth.state.copy(),
-            "time_s": self._time_s,
-            "camera": camera,
-            "frames": frames,
+        walk.update(self.time_s, cfg.dt_s, self.np_random)
+        T_world_cam = scene.camera_pose()
+        scene.place_occluder(walk.pose(self.time_s, T_world_cam[:3, 3], scene.motion.pos))
+        self._truth = scene.ground_truth()
+
+    def camera_pose(self, camera_id: int = 0) -> np.ndarray:
+        return self.scene.camera_pose()
+
+    def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:
+        cfg = self.config
+        out = perfect_measurement(
+            K,
+            T_world_cam,
+            self.rig.image_size_px,
+            self.scene.motion.pos,
+            cfg.target_width_m,
+            occluder=self.scene.occluder_pose,
+            noise_px=cfg.measurement_noise_px,
+            rounding=cfg.measurement_rounding,
+            rng=self.rig.noise_rng,
+        )
+        space = self.observation_space[TARGET_PX]
+        out[TARGET_PX] = np.clip(out[TARGET_PX], space.low, space.high).astype(np.float32)
+        return out
+
+    def _ground_truth_state(self) -> np.ndarray:
+        return self._truth.state
+
+    def _reward(self, action: np.ndarray) -> float:
+        cfg = self.config
+        error = self._truth.state[IMAGE] - np.array([0.0, 0.0, cfg.desired_width_px])
+        w, h = self.rig.image_size_px
+        scale = np.array([w / 2.0, h / 2.0, cfg.desired_width_px])
+        if not self._truth.in_image:
+            return 0.0
+        return 1.0 - float(np.mean(np.minimum(np.abs(error) / scale, 1.0)))
+
+    def _terminated(self) -> bool:
+        """Called once per step: it also advances the time the target has been lost."""
+        cfg = self.config
+        self._lost_s = 0.0 if self._truth.in_image else self._lost_s + cfg.dt_s
+        too_close = self._truth.depth_m < cfg.min_distance_m
+        return bool(self._lost_s >= cfg.lost_timeout_s - 1e-9 or too_close)
+
+    def _info(self) -> dict[str, Any]:
+        truth, scene = self._truth, self.scene
+        return {
+            "camera": {
+                "K": self.intrinsics.K,
+                "T_world_cam": scene.camera_pose(),
+                "image_size_px": self.rig.image_size_px,
+            },
             "calibration": self.calibration,
             "applied_action": scene.applied.copy(),
             "target_pos_world": truth.target_pos_world.copy(),
@@ -325,34 +333,3 @@ class TargetFollowerEnv(gym.Env):
             "target_in_image": truth.in_image,
             "occluded": truth.occluded,
         }
-        if cfg.obs_mode == "state":
-            space = self.state_space
-            return np.clip(truth.state, space.low, space.high).astype(np.float32), info
-        # A copy: a repeated (dropped) frame must not share memory with the one before.
-        return copy_observation(self._last_obs), info
-
-    def _capture(self, T_world_cam: np.ndarray):
-        """A new frame in the observation's format."""
-        cfg = self.config
-        if cfg.obs_mode == "state":
-            return None
-        if cfg.obs_mode == "rgb":
-            image = self.camera.render(T_world_cam)
-            if cfg.image_noise_std > 0.0:
-                noise = self._sensor_rng.normal(0.0, cfg.image_noise_std, image.shape)
-                image = np.clip(image + noise, 0, 255).astype(np.uint8)
-            return image
-        out = perfect_measurement(
-            self.camera.K,
-            T_world_cam,
-            self._image_size,
-            self._truth.target_pos_world,
-            cfg.target_width_m,
-            occluder=self.scene.occluder_pose,
-            noise_px=cfg.measurement_noise_px,
-            rounding=cfg.measurement_rounding,
-            rng=self._sensor_rng,
-        )
-        space = self.observation_space[TARGET_PX]
-        out[TARGET_PX] = np.clip(out[TARGET_PX], space.low, space.high).astype(np.float32)
-        return out

@@ -24,6 +24,7 @@ out of the way: enter and exit take ``OCCLUDER_WALK_S`` each.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -87,8 +88,12 @@ class TargetMotion:
         """The target's world velocity now (m/s)."""
         return self.base_velocity(self.time_s) + self._kick
 
-    def advance(self, dt_s: float, substeps: int) -> None:
-        """Move the target over ``dt_s`` in ``substeps`` integration steps."""
+    def advance(
+        self, dt_s: float, substeps: int, after_substep: Callable[[int], None] | None = None
+    ) -> None:
+        """Move the target over ``dt_s`` in ``substeps`` integration steps, calling
+        ``after_substep(k)`` after step k (0-based). A push drawn for this interval starts
+        at its end."""
         rng = self._rng
         push = rng.uniform() < 1.0 - math.exp(-self._push_rate * dt_s)
         push_speed = rng.uniform(0.0, self._push_speed)
@@ -106,6 +111,8 @@ class TargetMotion:
                     self._step_walk(h, noise[k])
             self._kick *= decay
             self.time_s = t + h
+            if after_substep is not None:
+                after_substep(k)
         if push:
             self._kick[:2] += push_speed * np.array([math.cos(push_dir), math.sin(push_dir)])
 

@@ -10,6 +10,7 @@ would cost most of the rendering time (benchmarks/bench_follower.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,6 +85,7 @@ class TargetFollowerScene:
     ) -> None:
         self.sim = sim
         self.K = K
+        self.T_nominal_true: np.ndarray | None = None  # None: the nominal pose is true
         self.image_size_px = image_size_px
         self.target_width_m = target_width_m
         self.delta_y_m = delta_y_m
@@ -121,22 +123,47 @@ class TargetFollowerScene:
         self.motion = motion
         self._place()
 
-    def advance(self, command: np.ndarray, dt_s: float, substeps: int) -> None:
-        """Drive for ``dt_s`` with the command (v, omega, omega_t) and move the target."""
+    def advance(
+        self,
+        command: np.ndarray,
+        dt_s: float,
+        substeps: int,
+        on_substep: Callable[[], None] | None = None,
+        placed_at: Callable[[int], bool] | None = None,
+    ) -> None:
+        """Drive for ``dt_s`` with the command (v, omega, omega_t) and move the target in
+        ``substeps`` steps, calling ``on_substep()`` after each. The bodies are placed in
+        the world at the end, and after substep k (0-based) when ``placed_at(k)``: the
+        robot at its exact arc there, the target where its integration is."""
         self.wheels_mps = applied_wheel_speeds(
             float(command[0]), float(command[1]), self.wheels_mps, dt_s, self.limits
         )
         v, omega = body_velocity(self.wheels_mps, self.limits.wheel_base_m)
         low, high = self.tilt_range_rad
-        tilt_end = min(max(self.tilt_rad + float(command[2]) * dt_s, low), high)
-        omega_t = (tilt_end - self.tilt_rad) / dt_s  # the tilt stops at its end stops
-        x, y, yaw = integrate_unicycle(*self.robot_xy_m, self.yaw_rad, v, omega, dt_s)
-        self.robot_xy_m = np.array([x, y])
-        self.yaw_rad = wrap_angle(yaw)
-        self.tilt_rad = tilt_end
+        tilt_start = self.tilt_rad
+        tilt_end = min(max(tilt_start + float(command[2]) * dt_s, low), high)
+        omega_t = (tilt_end - tilt_start) / dt_s  # the tilt stops at its end stops
+        start = (*self.robot_xy_m, self.yaw_rad)
         self.applied = np.array([v, omega, omega_t])
-        self.motion.advance(dt_s, substeps)
-        self._place()
+
+        def at_substep(k: int) -> None:
+            if k == substeps - 1:
+                x, y, yaw = integrate_unicycle(*start, v, omega, dt_s)
+                self.robot_xy_m = np.array([x, y])
+                self.yaw_rad = wrap_angle(yaw)
+                self.tilt_rad = tilt_end
+                self._place()
+            elif placed_at is not None and placed_at(k):
+                t_s = (k + 1) * dt_s / substeps
+                x, y, yaw = integrate_unicycle(*start, v, omega, t_s)
+                self.robot_xy_m = np.array([x, y])
+                self.yaw_rad = wrap_angle(yaw)
+                self.tilt_rad = tilt_start + omega_t * t_s
+                self._place()
+            if on_substep is not None:
+                on_substep()
+
+        self.motion.advance(dt_s, substeps, at_substep)
 
     def place_occluder(self, pose: tuple[np.ndarray, float] | None) -> None:
         """``pose`` (centre_world, yaw_rad), or None to park it out of sight."""
@@ -160,11 +187,20 @@ class TargetFollowerScene:
         )
 
     # --- ground truth -----------------------------------------------------------------
+    def set_true_camera(self, K: np.ndarray, T_nominal_true: np.ndarray | None) -> None:
+        """The real camera: its intrinsics and its pose in the nominal camera's frame (the
+        ground truth is what the real camera sees)."""
+        self.K = K
+        self.T_nominal_true = T_nominal_true
+
     def camera_pose(self) -> np.ndarray:
+        """The nominal ``T_world_cam``: where the calibration says the camera is."""
         return geo.camera_pose(self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m)
 
     def ground_truth(self) -> GroundTruth:
         T = self.camera_pose()
+        if self.T_nominal_true is not None:
+            T = T @ self.T_nominal_true
         pos, vel = self.motion.pos.copy(), self.motion.velocity
         W = self.target_width_m
         depth = float(geo.target_in_camera(T, pos)[2])

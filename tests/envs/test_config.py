@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-import observer_gym.envs.ball_table.env as ball_table_env
+import observer_gym.envs.core as env_core
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.config import BallTableConfig
 
@@ -86,13 +86,13 @@ def test_bad_render_mode():
 def simulation_calls(monkeypatch):
     """Replace the env's Simulation with a recorder that still builds the real one."""
     calls = []
-    real_simulation = ball_table_env.Simulation
+    real_simulation = env_core.Simulation
 
     def recording_simulation(*args, **kwargs):
         calls.append((args, kwargs))
         return real_simulation(*args, **kwargs)
 
-    monkeypatch.setattr(ball_table_env, "Simulation", recording_simulation)
+    monkeypatch.setattr(env_core, "Simulation", recording_simulation)
     return calls
 
 

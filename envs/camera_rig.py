@@ -1,0 +1,333 @@
+"""The camera rig: when each camera captures, what it sees, when each frame arrives.
+
+One :class:`CameraRig` serves every env. It owns the sensor model of
+:mod:`observer_gym.envs.sensor` for one or more cameras:
+
+- the schedule (:class:`FrameClock`): capture times on physics ticks, jitter, drops,
+  latency, delivery in capture-time order;
+- the calibration error of each camera (:class:`CalibrationError`), drawn at reset;
+- capture: a rendered image (with image noise) or the env's perfect measurement through
+  the *true* camera, recorded with the *nominal* calibration an observer may know;
+- delivery: the frames due by a tick, and the newest delivered frame of each camera.
+
+Times are whole physics ticks, so a frame is made from exactly the world at its capture
+tick and every time is exact (tick x tick_s).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.camera import Camera, PinholeIntrinsics
+from observer_gym.envs.sensor import SensorConfig
+from observer_gym.envs.sim import Simulation
+from observer_gym.envs.transforms import pose_matrix
+
+_DIAGONAL_2 = np.array([1.0, 1.0]) / math.sqrt(2.0)
+_DIAGONAL_3 = np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0)
+
+
+@dataclass(frozen=True)
+class CameraTiming:
+    """A camera's capture phase (s after reset) and latency (s from capture to delivery)."""
+
+    phase_s: float
+    latency_s: float
+
+
+@dataclass(frozen=True)
+class CalibrationError:
+    """How a real camera differs from its nominal calibration.
+
+    ``K_true = [[s fx, 0, cx + dx], [0, s fy, cy + dy], [0, 0, 1]]`` with
+    ``s = focal_scale`` and ``(dx, dy) = principal_point_offset_px``;
+    ``T_world_cam_true = T_world_cam_nominal @ T_nominal_true``.
+    """
+
+    focal_scale: float = 1.0
+    principal_point_offset_px: tuple[float, float] = (0.0, 0.0)
+    T_nominal_true: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def true_intrinsics(self, nominal: PinholeIntrinsics) -> PinholeIntrinsics:
+        dx, dy = self.principal_point_offset_px
+        return dataclasses.replace(
+            nominal,
+            fx_px=nominal.fx_px * self.focal_scale,
+            fy_px=nominal.fy_px * self.focal_scale,
+            cx_px=nominal.cx_px + dx,
+            cy_px=nominal.cy_px + dy,
+        )
+
+    def true_pose(self, T_world_cam_nominal: np.ndarray) -> np.ndarray:
+        return T_world_cam_nominal @ self.T_nominal_true
+
+
+def _rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rodrigues' formula: the rotation by ``angle_rad`` about the unit vector ``axis``."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + math.sin(angle_rad) * k + (1.0 - math.cos(angle_rad)) * (k @ k)
+
+
+def _unit(rng: np.random.Generator | None, fixed: np.ndarray) -> np.ndarray:
+    """``fixed``, or a direction uniform on the circle / sphere of its dimension."""
+    if rng is None:
+        return fixed
+    v = rng.normal(size=fixed.shape)
+    return v / np.linalg.norm(v)
+
+
+def draw_calibration_error(cfg: SensorConfig, rng: np.random.Generator) -> CalibrationError:
+    """One camera's calibration error under ``cfg`` (the sizes are exact; the directions
+    come from ``rng`` when ``cfg.calib_error_draw == "per_episode"``)."""
+    if not cfg.has_calibration_error:
+        return CalibrationError()
+    draw = rng if cfg.calib_error_draw == "per_episode" else None
+    sign = 1.0 if draw is None else float(draw.choice([-1.0, 1.0]))
+    offset = cfg.calib_principal_point_error_px * _unit(draw, _DIAGONAL_2)
+    rotation = _rotation_about(_unit(draw, _DIAGONAL_3), math.radians(cfg.calib_rotation_error_deg))
+    translation = cfg.calib_translation_error_m * _unit(draw, _DIAGONAL_3)
+    return CalibrationError(
+        focal_scale=1.0 + sign * cfg.calib_focal_error,
+        principal_point_offset_px=(float(offset[0]), float(offset[1])),
+        T_nominal_true=pose_matrix(rotation, translation),
+    )
+
+
+@dataclass
+class Frame:
+    """A captured frame: when, through which calibration, and what it holds."""
+
+    camera_id: int
+    capture_tick: int
+    delivery_tick: int
+    K: np.ndarray  # nominal: what the rig's calibration says
+    T_world_cam: np.ndarray  # nominal pose at the capture
+    K_true: np.ndarray
+    T_world_cam_true: np.ndarray
+    payload: Any  # an image (rgb), a measurement (measurements) or None (state)
+
+
+@dataclass
+class _CameraSchedule:
+    timing: CameraTiming
+    index: int = 0  # the next frame's number
+    next_tick: int = 0
+    last_tick: int = -1
+
+
+class FrameClock:
+    """Capture and delivery schedule of every camera for one episode.
+
+    Camera c captures its k-th frame at ``phase_c + k / rate`` (+ Gaussian jitter, clipped
+    to a quarter period, rounded to a tick and kept after the previous capture). A frame
+    is lost with probability ``drop_prob`` (one uniform draw per frame when > 0, or always
+    with ``always_draw_drops``; frames at tick 0 are never lost and draw nothing). A kept
+    frame is delivered ``latency_c`` (+ Gaussian latency jitter, kept >= 0) after its
+    capture, rounded to a tick.
+
+    Args:
+        rng: the env's generator, drawn in a fixed order so episodes are reproducible.
+    """
+
+    def __init__(
+        self,
+        timings: Sequence[CameraTiming],
+        rate_hz: float,
+        tick_s: float,
+        rng: np.random.Generator,
+        jitter_s: float = 0.0,
+        latency_jitter_s: float = 0.0,
+        drop_prob: float = 0.0,
+        always_draw_drops: bool = False,
+    ) -> None:
+        self.rate_hz = float(rate_hz)
+        self.tick_s = float(tick_s)
+        self.rng = rng
+        self.jitter_s = float(jitter_s)
+        self.latency_jitter_s = float(latency_jitter_s)
+        self.drop_prob = float(drop_prob)
+        self.always_draw_drops = always_draw_drops
+        self.schedules = [_CameraSchedule(t) for t in timings]
+        for schedule in self.schedules:
+            schedule.next_tick = self._draw_tick(schedule)
+
+    def _draw_tick(self, schedule: _CameraSchedule) -> int:
+        t = schedule.timing.phase_s + schedule.index / self.rate_hz
+        if self.jitter_s > 0.0:
+            limit = 0.25 / self.rate_hz
+            t += float(np.clip(self.rng.normal(0.0, self.jitter_s), -limit, limit))
+        return max(round(t / self.tick_s), schedule.last_tick + 1, 0)
+
+    def captures_at(self, tick: int) -> list[int]:
+        """The cameras that capture a kept frame at ``tick`` (advancing their schedules)."""
+        cameras = []
+        for camera_id, schedule in enumerate(self.schedules):
+            if schedule.next_tick != tick:
+                continue
+            schedule.last_tick = tick
+            schedule.index += 1
+            schedule.next_tick = self._draw_tick(schedule)
+            if tick > 0 and (self.drop_prob > 0.0 or self.always_draw_drops):
+                if self.rng.uniform() < self.drop_prob:
+                    continue
+            cameras.append(camera_id)
+        return cameras
+
+    def capture_scheduled_at(self, tick: int) -> bool:
+        """Whether some camera's next capture falls on ``tick``."""
+        return any(s.next_tick == tick for s in self.schedules)
+
+    def delivery_tick(self, camera_id: int, capture_tick: int) -> int:
+        """When a frame of ``camera_id`` captured at ``capture_tick`` arrives."""
+        latency_s = self.schedules[camera_id].timing.latency_s
+        if self.latency_jitter_s > 0.0:
+            latency_s = max(latency_s + float(self.rng.normal(0.0, self.latency_jitter_s)), 0.0)
+        return capture_tick + round(latency_s / self.tick_s)
+
+
+Measure = Callable[[int, np.ndarray, np.ndarray], Any]
+
+
+class CameraRig:
+    """The cameras of one env: schedule, calibration errors, capture and delivery.
+
+    Args:
+        sim: the world to render.
+        intrinsics: each camera's nominal calibration.
+        config: the env's sensor options.
+        near_m, far_m: the renderer's clipping planes.
+        always_draw_drops: draw a uniform for every frame even when ``frame_drop_prob``
+            is 0 (TargetFollower-v0 always has, and keeps its seeds' episodes).
+    """
+
+    def __init__(
+        self,
+        sim: Simulation,
+        intrinsics: Sequence[PinholeIntrinsics],
+        config: SensorConfig,
+        near_m: float,
+        far_m: float,
+        always_draw_drops: bool = False,
+    ) -> None:
+        self.sim = sim
+        self.nominal = list(intrinsics)
+        self.config = config
+        self.near_m, self.far_m = near_m, far_m
+        self.always_draw_drops = always_draw_drops
+        self.num_cameras = len(self.nominal)
+        self.image_size_px = (config.image_width_px, config.image_height_px)
+        self.errors = [CalibrationError() for _ in self.nominal]
+        self.cameras = [Camera(sim, i, near_m, far_m) for i in self.nominal]
+        self.clock: FrameClock | None = None
+        self.noise_rng: np.random.Generator | None = None
+        self.pending: list[Frame] = []
+        self.latest: list[Frame | None] = [None] * self.num_cameras
+
+    @property
+    def K_nominal(self) -> list[np.ndarray]:
+        return [i.K for i in self.nominal]
+
+    def reset(
+        self, sim: Simulation, rng: np.random.Generator, timings: Sequence[CameraTiming]
+    ) -> None:
+        """A new episode: the schedule from ``timings``; noise and calibration streams
+        spawned from ``rng`` (spawning draws nothing from it)."""
+        cfg = self.config
+        self.sim = sim
+        self.clock = FrameClock(
+            timings,
+            cfg.frame_rate_hz,
+            sim.physics_dt_s,
+            rng,
+            jitter_s=cfg.jitter_s,
+            latency_jitter_s=cfg.latency_jitter_s,
+            drop_prob=cfg.frame_drop_prob,
+            always_draw_drops=self.always_draw_drops,
+        )
+        self.noise_rng, calibration_rng = rng.spawn(2)
+        self.errors = [draw_calibration_error(cfg, calibration_rng) for _ in self.nominal]
+        self.cameras = [
+            Camera(sim, e.true_intrinsics(i), self.near_m, self.far_m)
+            for e, i in zip(self.errors, self.nominal, strict=True)
+        ]
+        self.pending = []
+        self.latest = [None] * self.num_cameras
+
+    def default_timings(self) -> list[CameraTiming]:
+        cfg = self.config
+        return [CameraTiming(cfg.frame_phase_s, cfg.latency_s) for _ in self.nominal]
+
+    def captures_pending_at(self, tick: int) -> bool:
+        """Whether a camera will capture at ``tick`` (its frame may still be dropped)."""
+        return self.clock.capture_scheduled_at(tick)
+
+    def due(self, tick: int) -> list[int]:
+        """The cameras that capture a kept frame at ``tick`` (drawing jitters and drops)."""
+        return self.clock.captures_at(tick)
+
+    def capture(
+        self,
+        cameras: Sequence[int],
+        tick: int,
+        poses: Callable[[int], np.ndarray],
+        measure: Measure | None,
+    ) -> None:
+        """Capture a frame with each of ``cameras`` from the world as it is now.
+
+        Args:
+            poses: camera id -> its nominal ``T_world_cam`` now.
+            measure: (camera id, true K, true T_world_cam) -> the perfect measurement
+                (used in ``obs_mode="measurements"``).
+        """
+        mode = self.config.obs_mode
+        for c in cameras:
+            T_nominal = poses(c)
+            T_true = self.errors[c].true_pose(T_nominal)
+            camera = self.cameras[c]
+            payload = None
+            if mode == "rgb":
+                payload = self._noisy(camera.render(T_true))
+            elif mode == "measurements":
+                payload = measure(c, camera.K, T_true)
+            frame = Frame(
+                c,
+                tick,
+                self.clock.delivery_tick(c, tick),
+                self.nominal[c].K,
+                T_nominal.copy(),
+                camera.K,
+                T_true,
+                payload,
+            )
+            self.pending.append(frame)
+
+    def _noisy(self, image: np.ndarray) -> np.ndarray:
+        std = self.config.image_noise_std
+        if std <= 0.0:
+            return image
+        noise = self.noise_rng.normal(0.0, std, image.shape)
+        return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+    def deliver(self, tick: int) -> list[Frame]:
+        """The frames due by ``tick``, in capture-time order; each camera's newest
+        delivered frame is kept in :attr:`latest`."""
+        due = [f for f in self.pending if f.delivery_tick <= tick]
+        if not due:
+            return []
+        self.pending = [f for f in self.pending if f.delivery_tick > tick]
+        due.sort(key=lambda f: (f.capture_tick, f.camera_id))
+        for f in due:
+            newest = self.latest[f.camera_id]
+            if newest is None or f.capture_tick >= newest.capture_tick:
+                self.latest[f.camera_id] = f
+        return due
+
+    def render_view(self, T_world_cam: np.ndarray, camera_id: int = 0) -> np.ndarray:
+        """A noiseless image of the world now through camera ``camera_id``'s real optics."""
+        return self.cameras[camera_id].render(T_world_cam)

@@ -1,0 +1,310 @@
+"""The base of every observer-gym env: one owner of the world, the cameras and the API.
+
+:class:`CameraEnv` owns the :class:`~observer_gym.envs.sim.Simulation` (one DIRECT client
+per env), the :class:`~observer_gym.envs.camera_rig.CameraRig` (the sensor model of every
+camera), the observation spaces per ``obs_mode``, and Gymnasium's ``reset``, ``step``,
+``render`` and ``close``. A system supplies only its hooks: building its scene, starting
+an episode, applying an action, advancing the physics, its ground truth, reward and
+termination, its cameras' poses and its perfect measurement. A concrete env is the
+wiring of those hooks (envs/ball_table/env.py, envs/ball_catcher/env.py,
+envs/target_follower/env.py).
+
+One env step, in this order (the random draws of the world come from ``np_random`` in
+this order in every obs_mode, so a seed gives the same world whatever the agent observes):
+
+1. ``_apply_action(action)`` (the action already checked and clipped);
+2. ``_advance(on_tick)``: the physics of one step, calling ``on_tick()`` after every
+   physics tick; cameras whose frames fall on an inner tick capture there;
+3. the frames of the step's last tick are decided (drops drawn), then
+   ``_after_physics()`` updates what changes once a step (occluders, ground truth), then
+   those frames are captured;
+4. frames due by the end of the step are delivered; the observation is the newest
+   delivered frame of each camera (a copy), ``info["frames"]`` lists the delivered ones.
+
+Copies: ``pickle`` and ``copy.deepcopy`` give an independent env with its own client,
+rebuilt from the config and replayed from the current episode's start (the generator's
+state at that reset, its options and the actions since), so it steps on exactly as the
+original does. ``reset`` after ``close`` builds a new world.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.error import ResetNeeded
+
+from observer_gym.envs.actions import checked_action
+from observer_gym.envs.camera import PinholeIntrinsics
+from observer_gym.envs.camera_rig import CameraRig, CameraTiming, Frame
+from observer_gym.envs.config import check_render_mode
+from observer_gym.envs.observations import copy_observation
+from observer_gym.envs.sensor import SensorConfig
+from observer_gym.envs.sim import Simulation
+
+
+class CameraEnv(gym.Env):
+    """A PyBullet world watched by cameras (see the module docstring).
+
+    Subclasses set ``config_class`` and call ``super().__init__`` with their cameras.
+
+    Args:
+        render_mode: None or "rgb_array".
+        options: the fields of ``config_class``.
+    """
+
+    config_class: type[SensorConfig] = SensorConfig
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012
+    # Draw a uniform for every frame's drop even when frame_drop_prob is 0.
+    always_draw_drops: bool = False
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        self.config = self.config_class.from_kwargs(**options)
+        check_render_mode(render_mode, self.metadata)
+        self.render_mode = render_mode
+        # (np_random before the episode's first draw, reset options): what a copy replays.
+        self._episode: tuple[np.random.Generator, dict] | None = None
+        self._actions: list[np.ndarray] = []
+        self._tick: int | None = None  # None until the first reset
+        self.sim = Simulation(self.tick_s)
+        self.rig = CameraRig(
+            self.sim,
+            self.camera_intrinsics(),
+            self.config,
+            *self.clipping_planes_m,
+            always_draw_drops=self.always_draw_drops,
+        )
+        self.action_space = self._make_action_space()
+        self.state_space = self._make_state_space()
+        self.observation_space = self._make_observation_space()
+        self._build_world(self.sim)  # builds once now, so a broken setup fails here
+
+    # --- what a system defines ------------------------------------------------------------
+    tick_s: float  # the physics step
+    ticks_per_step: int
+    clipping_planes_m: tuple[float, float] = (0.05, 5.0)
+
+    def camera_intrinsics(self) -> list[PinholeIntrinsics]:
+        """Each camera's nominal calibration."""
+        raise NotImplementedError
+
+    def _make_action_space(self) -> spaces.Box:
+        raise NotImplementedError
+
+    def _make_state_space(self) -> spaces.Box:
+        raise NotImplementedError
+
+    def _measurement_space(self) -> spaces.Space:
+        """The observation space of ``obs_mode="measurements"`` (one camera)."""
+        raise NotImplementedError
+
+    def _empty_measurement(self) -> Any:
+        """The measurements observation before any frame has arrived."""
+        raise NotImplementedError
+
+    def _build_world(self, sim: Simulation) -> None:
+        """Build the scene in the empty world ``sim``."""
+        raise NotImplementedError
+
+    def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
+        """Place the world for a new episode (options already checked for unknown keys)."""
+        raise NotImplementedError
+
+    def _reset_options(self) -> tuple[str, ...]:
+        """The keys ``reset(options=...)`` takes."""
+        return ()
+
+    def _camera_timings(self, rng: np.random.Generator) -> list[CameraTiming]:
+        """Each camera's phase and latency for the episode."""
+        return self.rig.default_timings()
+
+    def _apply_action(self, action: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _advance(self, on_tick: Callable[[], None]) -> None:
+        """The physics of one env step; ``on_tick()`` after each of ``ticks_per_step`` ticks."""
+        for _ in range(self.ticks_per_step):
+            self.sim.step()
+            on_tick()
+
+    def _after_physics(self) -> None:
+        """What changes once per step, before the step's last frames are captured (and
+        at reset, before the first)."""
+
+    def camera_pose(self, camera_id: int) -> np.ndarray:
+        """Camera ``camera_id``'s nominal ``T_world_cam`` now."""
+        raise NotImplementedError
+
+    def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> Any:
+        """The perfect detector's report of the world now through the camera (K,
+        T_world_cam), noise from ``self.rig.noise_rng``."""
+        raise NotImplementedError
+
+    def _ground_truth_state(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _reward(self, action: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def _terminated(self) -> bool:
+        raise NotImplementedError
+
+    def _info(self) -> dict[str, Any]:
+        """The system's own ``info`` entries (``state`` and the frames are added)."""
+        return {}
+
+    def _frame_info(self, frame: Frame) -> dict[str, Any]:
+        """The system's own entries of a delivered frame's info."""
+        return {}
+
+    # --- time -----------------------------------------------------------------------------
+    @property
+    def dt_s(self) -> float:
+        return self.tick_s * self.ticks_per_step
+
+    @property
+    def time_s(self) -> float:
+        return (self._tick or 0) * self.tick_s
+
+    # --- spaces and observations ----------------------------------------------------------
+    def _make_observation_space(self) -> spaces.Space:
+        mode = self.config.obs_mode
+        if mode == "state":
+            return self.state_space
+        if mode == "rgb":
+            w, h = self.rig.image_size_px
+            return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
+        return self._measurement_space()
+
+    def _observation(self) -> Any:
+        """The newest delivered frame (a copy), or the clipped ground truth."""
+        mode = self.config.obs_mode
+        if mode == "state":
+            space = self.state_space
+            return np.clip(self._ground_truth_state(), space.low, space.high).astype(np.float32)
+        latest = self.rig.latest[0]
+        if latest is not None:
+            return copy_observation(latest.payload)
+        if mode == "rgb":
+            return np.zeros(self.observation_space.shape, np.uint8)
+        return self._empty_measurement()
+
+    # --- Gymnasium API --------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = sorted(set(options) - set(self._reset_options()))
+        if unknown:
+            allowed = ", ".join(self._reset_options()) or "none"
+            raise ValueError(f"unknown reset options {unknown}; allowed: {allowed}")
+        generator = copy.deepcopy(self.np_random)  # before this episode's first draw
+        self._begin_episode(options)
+        self._episode = (generator, copy.deepcopy(options))
+        self._actions = []
+        delivered = self.rig.deliver(0)
+        return self._observation(), self._step_info(delivered)
+
+    def _begin_episode(self, options: dict) -> None:
+        rng = self.np_random
+        if not self.sim.is_connected:  # reset after close: a new world
+            self.sim = Simulation(self.tick_s)
+        self.sim.clear()
+        self._build_world(self.sim)
+        self._start_episode(rng, options)
+        self.rig.reset(self.sim, rng, self._camera_timings(rng))
+        self._tick = 0
+        due = self.rig.due(0)
+        self._after_physics()
+        self._capture(due)
+
+    def step(self, action):
+        if self._tick is None:
+            raise ResetNeeded("call reset() before step()")
+        action = checked_action(action, self.action_space)
+        self._actions.append(action)
+        self._apply_action(action)
+        last = self._tick + self.ticks_per_step
+        self._advance(lambda: self._on_tick(last))
+        due = self.rig.due(self._tick)
+        self._after_physics()
+        self._capture(due)
+        reward = float(self._reward(action))
+        terminated = bool(self._terminated())
+        delivered = self.rig.deliver(self._tick)
+        return self._observation(), reward, terminated, False, self._step_info(delivered)
+
+    def _on_tick(self, last_tick: int) -> None:
+        self._tick += 1
+        if self._tick < last_tick:
+            self._capture(self.rig.due(self._tick))
+
+    def _capture(self, cameras: list[int]) -> None:
+        if cameras:
+            self.rig.capture(cameras, self._tick, self.camera_pose, self._measure)
+
+    def _step_info(self, delivered: list[Frame]) -> dict[str, Any]:
+        frames, truth = [], []
+        for f in delivered:
+            info = {
+                "camera_id": f.camera_id,
+                "capture_time_s": f.capture_tick * self.tick_s,
+                "delivery_time_s": self.time_s,
+                "K": f.K.copy(),
+                "T_world_cam": f.T_world_cam.copy(),
+                "image_size_px": self.rig.image_size_px,
+                **self._frame_info(f),
+            }
+            frames.append(info)
+            truth.append(
+                {"camera_id": f.camera_id, "K": f.K_true.copy(), "T_world_cam": f.T_world_cam_true}
+            )
+        return {
+            "state": self._ground_truth_state().copy(),
+            "time_s": self.time_s,
+            **self._info(),
+            "frames": frames,
+            "truth": {"frames": truth},
+        }
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        latest = self.rig.latest[0]
+        if self.config.obs_mode == "rgb" and latest is not None:
+            return latest.payload.copy()  # drawing on it leaves the observation as it was
+        return self._render_view()
+
+    def _render_view(self) -> np.ndarray:
+        """What ``render()`` shows when it does not repeat the last frame."""
+        return self.rig.render_view(self.rig.errors[0].true_pose(self.camera_pose(0)))
+
+    def close(self) -> None:
+        if hasattr(self, "sim"):
+            self.sim.close()
+
+    # --- copies ---------------------------------------------------------------------------
+    def __getstate__(self) -> dict[str, Any]:
+        return {
+            "render_mode": self.render_mode,
+            "config": dataclasses.asdict(self.config),
+            "episode": copy.deepcopy(self._episode),
+            "actions": [a.copy() for a in self._actions],
+            "spec": self.spec,
+        }
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(render_mode=state["render_mode"], **state["config"])
+        self.spec = state["spec"]
+        if state["episode"] is None:
+            return
+        generator, options = state["episode"]
+        self.np_random = copy.deepcopy(generator)
+        self._begin_episode(copy.deepcopy(options))
+        self._episode = state["episode"]
+        for action in state["actions"]:
+            self.step(action)
