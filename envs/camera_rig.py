@@ -312,7 +312,7 @@ class CameraRig:
         if std <= 0.0:
             return image
         noise = self.noise_rng.normal(0.0, std, image.shape)
-        return np.clip(image + noise, 0, 255).astype(np.uint8)
+        return np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)  # rounded: unbiased
 
     def deliver(self, tick: int) -> list[Frame]:
         """The frames due by ``tick``, in capture-time order; each camera's newest

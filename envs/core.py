@@ -294,6 +294,7 @@ class CameraEnv(gym.Env):
             "config": dataclasses.asdict(self.config),
             "episode": copy.deepcopy(self._episode),
             "actions": [a.copy() for a in self._actions],
+            "np_random": copy.deepcopy(self.np_random),  # made now if never used
             "spec": self.spec,
         }
 
@@ -301,7 +302,10 @@ class CameraEnv(gym.Env):
         self.__init__(render_mode=state["render_mode"], **state["config"])
         self.spec = state["spec"]
         if state["episode"] is None:
+            self.np_random = state["np_random"]
             return
+        # The replay leaves np_random where the original's is, and the world's parts
+        # that keep a reference to it (TargetFollower's target motion) hold this one.
         generator, options = state["episode"]
         self.np_random = copy.deepcopy(generator)
         self._begin_episode(copy.deepcopy(options))

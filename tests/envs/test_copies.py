@@ -1,0 +1,113 @@
+"""Copies and closed envs: a pickled or deep-copied env is an independent env with its own
+PyBullet client that steps on exactly as the original; ``reset`` after ``close`` works
+(SB3's ``check_env`` with the render check does that)."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import data_equivalence
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import observer_gym.envs
+
+ENV_IDS = observer_gym.envs.ENV_IDS
+OBS_MODES = ("rgb", "state", "measurements")
+CASES = [(env_id, mode) for env_id in ENV_IDS for mode in OBS_MODES]
+SMALL = {"image_width_px": 80, "image_height_px": 60}
+# Disturbances on, so that a copy must also carry the generators' states.
+DISTURBED = {
+    "observer_gym/BallTable-v0": {"push_rate_hz": 2.0, "measurement_noise_px": 0.5},
+    "observer_gym/BallCatcher-v0": {"camera_preset": "random_offsets", "jitter_s": 0.002},
+    "observer_gym/TargetFollower-v0": {"push_rate_hz": 2.0, "occluder_rate_hz": 0.2},
+}
+
+
+def _actions(env, n: int, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    space = env.action_space
+    return [rng.uniform(space.low, space.high).astype(np.float32) * 0.3 for _ in range(n)]
+
+
+def _client(env) -> int:
+    return env.unwrapped.sim.client_id
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode"), CASES)
+def test_pickle_env(make_env, env_id, obs_mode):
+    # Gymnasium's own test_pickle_env, on a fresh (never reset) env.
+    env = make_env(env_id, obs_mode=obs_mode, **SMALL)
+    pickled_env = pickle.loads(pickle.dumps(env))
+    try:
+        assert data_equivalence(env.reset(), pickled_env.reset())
+        action = env.action_space.sample()
+        assert data_equivalence(env.step(action), pickled_env.step(action))
+    finally:
+        env.close()
+        pickled_env.close()
+
+
+@pytest.mark.parametrize("copier", [copy.deepcopy, lambda e: pickle.loads(pickle.dumps(e))])
+@pytest.mark.parametrize(("env_id", "obs_mode"), CASES)
+def test_a_copy_mid_episode_steps_on_like_the_original_and_a_fresh_env(
+    make_env, env_id, obs_mode, copier
+):
+    options = {"obs_mode": obs_mode, **SMALL, **DISTURBED[env_id]}
+    env = make_env(env_id, **options)
+    fresh = make_env(env_id, **options)
+    actions = _actions(env, 8)
+    env.reset(seed=4)
+    fresh.reset(seed=4)
+    for a in actions[:4]:
+        env.step(a)
+        fresh.step(a)
+    twin = copier(env)
+    try:
+        assert _client(twin) != _client(env)
+        for a in actions[4:]:
+            expected = fresh.step(a)
+            assert data_equivalence(env.step(a), expected)
+            assert data_equivalence(twin.step(a), expected)
+        # Closing the copy leaves the original running, and the other way round.
+        twin.close()
+        assert data_equivalence(env.step(actions[0]), fresh.step(actions[0]))
+    finally:
+        twin.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_reset_after_close_builds_a_new_world(make_env, env_id):
+    env = make_env(env_id, obs_mode="measurements")
+    fresh = make_env(env_id, obs_mode="measurements")
+    env.reset(seed=1)
+    env.step(env.action_space.sample())
+    env.close()
+    assert data_equivalence(env.reset(seed=2), fresh.reset(seed=2))
+    action = _actions(env, 1)[0]
+    assert data_equivalence(env.step(action), fresh.step(action))
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode"), CASES)
+def test_sb3_check_env_with_the_render_check(make_env, env_id, obs_mode):
+    env = make_env(env_id, obs_mode=obs_mode, render_mode="rgb_array", **SMALL)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*symmetric and normalized Box action")
+        sb3_check_env(env.unwrapped, skip_render_check=False)
+    env.reset(seed=0)  # usable after check_env closed it
+
+
+def test_step_before_reset_is_refused():
+    from gymnasium.error import ResetNeeded
+
+    from observer_gym.envs.ball_table import BallTableEnv
+
+    env = BallTableEnv(obs_mode="state")
+    try:
+        with pytest.raises(ResetNeeded, match="reset"):
+            env.step(np.zeros(2, np.float32))
+    finally:
+        env.close()
