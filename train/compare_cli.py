@@ -1,7 +1,9 @@
 """The ``observer-gym compare`` command's arguments and action (the library function is
 :func:`observer_gym.train.compare.run_comparison`).
 
-Parsing imports nothing heavy: PyBullet, the controllers and Ray load inside :func:`run`.
+The help texts list every system's observers and controllers
+(:mod:`observer_gym.train.systems`, imported when the arguments are added); the library
+and Ray load inside :func:`run`, which prints what the comparison returns.
 """
 
 from __future__ import annotations
