@@ -2,8 +2,10 @@
 (BallTable), the intercept planner (BallCatcher), the visual tracking controller
 (TargetFollower).
 
-``make_controller(name, env, **options)`` designs one for an env from the nominal model in
-observer_gym.estimation; ``evaluate_policy(controller, env)`` scores it like an SB3 agent.
+``make_controller(name, env, **options)`` designs one of the env's system's controllers
+(``controllers_for(env_id)``: the ``CONTROLLERS`` of ``observer_gym.controllers.<system>``)
+from the nominal model in observer_gym.estimation; ``evaluate_policy(controller, env)``
+scores it like an SB3 agent.
 """
 
 from observer_gym.controllers.ball_catcher.intercept import InterceptController
@@ -14,16 +16,22 @@ from observer_gym.controllers.base import Controller, StateFeedbackController
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.controllers.mpc import MPCController
 from observer_gym.controllers.pid import PIDController
-from observer_gym.controllers.registry import CONTROLLERS, make_controller
+from observer_gym.controllers.registry import (
+    ControllerDesign,
+    check_controller_fits,
+    controllers_for,
+    controllers_of,
+    make_controller,
+)
 from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
 from observer_gym.controllers.target_follower.vtc import VisualTrackingController
 from observer_gym.controllers.weights import check_weights
 
 __all__ = [
-    "CONTROLLERS",
     "BallCatcherPlant",
     "BallTablePlant",
     "Controller",
+    "ControllerDesign",
     "InterceptController",
     "LQRController",
     "MPCController",
@@ -32,6 +40,9 @@ __all__ = [
     "TargetFollowerPlant",
     "VisualTrackingController",
     "ball_table_weights",
+    "check_controller_fits",
     "check_weights",
+    "controllers_for",
+    "controllers_of",
     "make_controller",
 ]

@@ -1,43 +1,74 @@
-"""``make_controller(name, env, **options)``: a controller designed for an env, by name."""
+"""Controllers by name, per system: ``make_controller(name, env, **options)``.
+
+Each system's controllers are the ``CONTROLLERS`` of its package
+``observer_gym.controllers.<system>`` (name -> :class:`ControllerDesign`), found by the
+system's name (:data:`observer_gym.envs.SYSTEMS`). A name that belongs to another system
+is refused naming the controllers that fit the env.
+"""
 
 from __future__ import annotations
 
+import importlib
 import inspect
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 
-from observer_gym.controllers.ball_catcher.intercept import InterceptController
-from observer_gym.controllers.ball_catcher.plant import BallCatcherPlant
-from observer_gym.controllers.ball_table.plant import BallTablePlant
 from observer_gym.controllers.base import Controller
-from observer_gym.controllers.lqr import LQRController
-from observer_gym.controllers.mpc import MPCController
-from observer_gym.controllers.pid import PIDController
-from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
-from observer_gym.controllers.target_follower.vtc import VisualTrackingController
+from observer_gym.envs import SYSTEMS, System, system_for_id, system_of
 
-__all__ = ["CONTROLLERS", "make_controller"]
+__all__ = [
+    "ControllerDesign",
+    "check_controller_fits",
+    "controllers_for",
+    "controllers_of",
+    "make_controller",
+]
 
-# name -> (controller class, the function that builds its first argument, the design
-# input, from an env; it raises ValueError for an env the controller is not made for).
-CONTROLLERS: dict[str, tuple[type[Controller], Callable[[gym.Env], Any]]] = {
-    "lqr": (LQRController, BallTablePlant.from_env),
-    "mpc": (MPCController, BallTablePlant.from_env),
-    "pid": (PIDController, BallTablePlant.from_env),
-    "intercept": (InterceptController, BallCatcherPlant.from_env),
-    "vtc": (VisualTrackingController, TargetFollowerPlant.from_env),
-}
+
+class ControllerDesign(NamedTuple):
+    """How a controller is made: ``controller(design_input(env), **options)``."""
+
+    controller: type[Controller]
+    # builds the controller's first argument (its plant) from an env; raises ValueError
+    # for an env the controller is not made for
+    design_input: Callable[[gym.Env], Any]
+
+
+def controllers_of(system: System) -> Mapping[str, ControllerDesign]:
+    """The controllers of ``system``: the ``CONTROLLERS`` of its package."""
+    return importlib.import_module(f"{__package__}.{system.name}").CONTROLLERS
+
+
+def controllers_for(env_id: str) -> Mapping[str, ControllerDesign]:
+    """The controllers of the system registered as ``env_id`` (with or without the
+    ``observer_gym/`` namespace)."""
+    return controllers_of(system_for_id(env_id))
+
+
+def check_controller_fits(name: str, system: System, others: str = "") -> ControllerDesign:
+    """The design of controller ``name`` of ``system``. ValueError otherwise: for another
+    system's controller, naming the system it is made for and those that fit; for an
+    unknown name, listing those that fit (followed by ``others``, e.g. ", or ...")."""
+    own = controllers_of(system)
+    if name in own:
+        return own[name]
+    fits = ", ".join(own)
+    for other in SYSTEMS:
+        if other != system and name in controllers_of(other):
+            raise ValueError(
+                f"controller {name!r} does not fit {system.short_id}: it is made for a "
+                f"{other.short_id} env; {system.short_id} takes: {fits}{others}"
+            )
+    raise ValueError(f"unknown controller {name!r}; allowed: {fits}{others}")
 
 
 def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
-    """The controller ``name`` (one of :data:`CONTROLLERS`) designed from ``env``'s nominal
-    model; ``options`` go to its constructor. Unknown names and options raise ValueError
-    listing the allowed ones."""
-    if name not in CONTROLLERS:
-        raise ValueError(f"unknown controller {name!r}; allowed: {', '.join(CONTROLLERS)}")
-    cls, design_input = CONTROLLERS[name]
+    """The controller ``name`` of ``env``'s system designed from ``env``'s nominal model;
+    ``options`` go to its constructor. A controller of another system, an unknown name or
+    an unknown option raise ValueError naming what is allowed."""
+    cls, design_input = check_controller_fits(name, system_of(env))
     allowed = list(inspect.signature(cls).parameters)[1:]
     unknown = sorted(set(options) - set(allowed))
     if unknown:

@@ -7,17 +7,22 @@ unchanged on the oracle state or on the estimate. ``info["estimate"]`` carries t
 the covariance, whether a measurement was used this step, and the raw measurement.
 
 What turns frames into estimates is a *pipeline* (detector + filters) chosen for the env
-by :func:`default_pipeline`; pass ``pipeline=`` to use another.
+by :func:`default_pipeline` from the ``OBSERVERS`` of the env's system
+(``observer_gym.estimation.<system>``), by name with ``observer=``; pass ``pipeline=`` to
+use another.
 """
 
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
+
+from observer_gym.envs import System, system_of
 
 
 @dataclass(frozen=True)
@@ -50,25 +55,34 @@ class ObserverPipeline(Protocol):
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate: ...
 
 
-# env class name -> "module:class" of its default pipeline, built as cls(env, **options).
-PIPELINES: dict[str, str] = {
-    "BallTableEnv": "observer_gym.estimation.ball_table.observer:BallTableObserver",
-    "BallCatcherEnv": "observer_gym.estimation.ball_catcher.observer:BallCatcherObserver",
-    "TargetFollowerEnv": "observer_gym.estimation.target_follower.observer:TargetFollowerObserver",
-}
+# Builds a pipeline for a system's (unwrapped) env: factory(env, **options).
+PipelineFactory = Callable[..., ObserverPipeline]
 
 
-def default_pipeline(env: gym.Env, **options: Any) -> ObserverPipeline:
-    """The pipeline made for ``env``'s system (see :data:`PIPELINES`)."""
-    base = env.unwrapped
-    target = PIPELINES.get(type(base).__name__)
-    if target is None:
+def observers_of_system(system: System) -> Mapping[str, PipelineFactory]:
+    """The observers of ``system``: the ``OBSERVERS`` of its package
+    ``observer_gym.estimation.<system>`` (observer name -> pipeline factory; the first is
+    the default)."""
+    return importlib.import_module(f"{__package__}.{system.name}").OBSERVERS
+
+
+def observers_of(env: gym.Env) -> Mapping[str, PipelineFactory]:
+    """The observers of ``env``'s system (see :func:`observers_of_system`)."""
+    return observers_of_system(system_of(env))
+
+
+def default_pipeline(env: gym.Env, observer: str | None = None, **options: Any) -> ObserverPipeline:
+    """The pipeline of the observer ``observer`` of ``env``'s system (default: its
+    first), built on the unwrapped env with ``options``. ValueError for an env of no known
+    system or a name the system does not have, listing its observers."""
+    observers = observers_of(env)
+    name = next(iter(observers)) if observer is None else observer
+    if name not in observers:
         raise ValueError(
-            f"no default observer pipeline for {type(base).__name__} (known: "
-            f"{', '.join(PIPELINES)}); pass pipeline="
+            f"unknown observer {name!r} for {system_of(env).short_id}; allowed: "
+            f"{', '.join(observers)}"
         )
-    module_name, class_name = target.split(":")
-    return getattr(importlib.import_module(module_name), class_name)(base, **options)
+    return observers[name](env.unwrapped, **options)
 
 
 class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -77,13 +91,23 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Args:
         env: an observer-gym env made with ``obs_mode="rgb"`` or ``"measurements"``.
         pipeline: the detector + filters to use; default :func:`default_pipeline`.
-        **options: passed to the default pipeline (ignored when ``pipeline`` is given).
+        observer: the name of one of the system's observers (default: its first);
+            not with ``pipeline``.
+        **options: passed to the observer's pipeline (not with ``pipeline``).
     """
 
-    def __init__(self, env: gym.Env, pipeline: ObserverPipeline | None = None, **options: Any):
+    def __init__(
+        self,
+        env: gym.Env,
+        pipeline: ObserverPipeline | None = None,
+        observer: str | None = None,
+        **options: Any,
+    ):
         # Recorded so that gymnasium can re-create the wrapped env from its spec (a given
         # pipeline instance would then be shared; the default one is built afresh).
-        gym.utils.RecordConstructorArgs.__init__(self, pipeline=pipeline, **options)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, pipeline=pipeline, observer=observer, **options
+        )
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         obs_mode = getattr(getattr(base, "config", None), "obs_mode", None)
@@ -92,9 +116,12 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"VisionObserver needs an env made with obs_mode='rgb' or 'measurements', "
                 f"got obs_mode={obs_mode!r}"
             )
-        if pipeline is not None and options:
-            raise ValueError(f"options {sorted(options)} apply to the default pipeline only")
-        self.pipeline = pipeline if pipeline is not None else default_pipeline(env, **options)
+        if pipeline is not None and (options or observer is not None):
+            given = sorted(options) + (["observer"] if observer is not None else [])
+            raise ValueError(f"options {given} apply to the default pipeline only")
+        if pipeline is None:
+            pipeline = default_pipeline(env, observer, **options)
+        self.pipeline = pipeline
         self.observation_space = base.state_space
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -31,6 +31,9 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import FrameStackObservation, RescaleAction
 
+from observer_gym.train.observer_env import make_env
+from observer_gym.train.tasks import task_for
+
 OBS_TYPES = ("state", "estimate", "rgb")
 ESTIMATE_SOURCES = ("measurements", "rgb")
 
@@ -61,8 +64,6 @@ class ImageOptions:
 
 def observer_for(env_id: str, obs: str, estimate_from: str = "measurements") -> str:
     """The ``observer-gym run`` observer that feeds an agent trained with ``obs``."""
-    from observer_gym.train.tasks import task_for
-
     if obs not in OBS_TYPES:
         raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(OBS_TYPES)}")
     if estimate_from not in ESTIMATE_SOURCES:
@@ -130,12 +131,10 @@ def make_agent_env(
     image: Mapping[str, Any] | None = None,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from)``'s env
-    (``observer_gym.train.run.make_env``), for ``rgb`` with :func:`wrap_images` (``image``:
+    (``observer_gym.train.observer_env.make_env``), for ``rgb`` with :func:`wrap_images` (``image``:
     :class:`ImageOptions` fields), and the action space rescaled to [-1, 1]. A top-level
     function of plain arguments, so ``functools.partial`` of it pickles into spawned
     SubprocVecEnv workers."""
-    from observer_gym.train.run import make_env
-
     env = make_env(env_id, observer_for(env_id, obs, estimate_from), env_kwargs)
     try:
         if obs == "rgb":

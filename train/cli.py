@@ -7,12 +7,25 @@ one, write its ``add_arguments`` and ``run`` functions and list it in ``COMMANDS
 from __future__ import annotations
 
 import argparse
-import ast
-import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+
+from observer_gym.train import compare_cli
+from observer_gym.train.cli_args import (
+    add_output_arguments,
+    controller_name,
+    env_name,
+    env_option,
+    hyperparam_option,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    recorded_args,
+)
+from observer_gym.train.hyperparams import ALGOS
 
 
 @dataclass(frozen=True)
@@ -23,51 +36,6 @@ class Command:
     description: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
     run: Callable[[argparse.Namespace], int]
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _int_at_least(minimum: int, text: str) -> int:
-    """An integer >= ``minimum`` parsed from ``text``, or argparse's type error."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < minimum:
-        raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text}")
-    return value
-
-
-def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
-    """``--out DIR`` (default ``default_out_dir(command)``'s pattern) and ``--no-progress``,
-    the two options every command that writes results takes."""
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help=f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    return _int_at_least(1, text)
-
-
-def nonnegative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    return _int_at_least(0, text)
 
 
 # --- demo ------------------------------------------------------------------------------
@@ -90,73 +58,27 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _demo_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.demo import run_demo  # deferred: imports PyBullet and OpenCV
+    from observer_gym.train import demo  # deferred: imports PyBullet and OpenCV
+    from observer_gym.train.outputs import default_out_dir
 
-    run_demo(
-        out_dir=args.out,
+    out_dir = args.out if args.out is not None else default_out_dir("demo")
+    print(demo.INTRODUCTION)
+    summary = demo.run_demo(
+        out_dir=out_dir,
         seconds=args.seconds,
         seed=args.seed,
         frame_every=args.frame_every,
         progress=not args.no_progress,
     )
+    print(demo.summary_text(summary))
+    print(f"output: {out_dir}")
     return 0
 
 
 # --- run -------------------------------------------------------------------------------
-# The choices are listed here so that parsing needs no heavy import; run_experiment checks
-# them against observer_gym.train.run.OBSERVERS and observer_gym.controllers.CONTROLLERS.
-RUN_OBSERVERS = ("oracle", "kf", "kf-measurements", "stkf", "stkf-measurements", "pixels")
-RUN_CONTROLLERS = ("lqr", "mpc", "pid", "intercept", "vtc")
-AGENT_ALGOS = ("ppo", "sac", "td3")  # observer_gym.train.hyperparams.ALGOS, without torch
-
-
-def controller_name(text: str) -> str:
-    """argparse type: a baseline controller's name or a trained agent ``ALGO:DIR``."""
-    algo, sep, run_dir = text.partition(":")
-    if text in RUN_CONTROLLERS or (sep and algo in AGENT_ALGOS and run_dir):
-        return text
-    raise argparse.ArgumentTypeError(
-        f"{text!r} is neither a controller ({', '.join(RUN_CONTROLLERS)}) nor a trained agent "
-        f"ALGO:DIR with ALGO one of {', '.join(AGENT_ALGOS)}"
-    )
-
-
-def env_name(text: str) -> str:
-    """argparse type: a registered env id, with or without its ``observer_gym/`` prefix."""
-    from observer_gym.train.run import resolve_env_id  # deferred: imports the envs
-
-    try:
-        return resolve_env_id(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _literal(value: str) -> object:
-    """``value`` read as a Python literal (number, True, 'text'), else kept as text."""
-    try:
-        return ast.literal_eval(value)
-    except (ValueError, SyntaxError):
-        return value
-
-
-def env_option(text: str) -> tuple[str, object]:
-    """argparse type: ``KEY=VALUE``, the value read as a Python literal (number, True,
-    'text') or else kept as text: ``camera_preset=single``, ``latency_s=0.02``."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    return key, _literal(value)
-
-
-def recorded_args(args: argparse.Namespace) -> dict[str, object]:
-    """The parsed command line as results record it: paths as text, without the
-    command's handler."""
-    recorded = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-    recorded.pop("run", None)
-    return recorded
-
-
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
+    from observer_gym.train.systems import observer_choices, per_env  # deferred: the systems
+
     parser.add_argument(
         "--env",
         type=env_name,
@@ -165,12 +87,12 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--observer",
-        choices=RUN_OBSERVERS,
+        choices=observer_choices(),
         required=True,
         help=(
             "what the controller sees: oracle (the true state), kf (Kalman-filter estimate "
             "from camera pixels), kf-measurements (the same from perfect-detector pixel "
-            "measurements, no rendering)"
+            "measurements, no rendering); per env: " + per_env("observers")
         ),
     )
     parser.add_argument(
@@ -179,9 +101,9 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="CONTROLLER",
         help=(
-            "BallTable: lqr (python-control's dlqr), mpc (OSQP, constrained) or pid (per "
-            "axis); BallCatcher: intercept (moves the hole to the predicted crossing); "
-            "TargetFollower: vtc; any env: a trained agent as ALGO:DIR (ppo:runs/x)"
+            "the env's controller, per env: "
+            + per_env("controllers")
+            + "; any env: a trained agent as ALGO:DIR (ppo:runs/x)"
         ),
     )
     parser.add_argument(
@@ -230,10 +152,15 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _run_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run import run_experiment  # deferred: PyBullet
+    from observer_gym.train.run import check_pair, results_text, run_experiment  # deferred
 
+    try:
+        check_pair(args.env, args.observer, args.controller)
+    except ValueError as exc:  # an observer or controller the env does not take
+        print(f"observer-gym run: error: {exc}", file=sys.stderr)
+        return 2
     cli_args = recorded_args(args)
-    run_experiment(
+    results = run_experiment(
         env_id=args.env,
         observer=args.observer,
         controller=args.controller,
@@ -246,22 +173,8 @@ def _run_run(args: argparse.Namespace) -> int:
         env_kwargs=dict(args.env_option),
         cli_args=cli_args,
     )
+    print(results_text(results))
     return 0
-
-
-# --- compare ---------------------------------------------------------------------------
-# compare_cli imports this module for its argparse types, so it is imported on use: at
-# the top it would make a cycle when this file runs as __main__ (python -m ...cli).
-def _compare_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train import compare_cli
-
-    compare_cli.add_arguments(parser)
-
-
-def _compare_run(args: argparse.Namespace) -> int:
-    from observer_gym.train import compare_cli
-
-    return compare_cli.run(args)
 
 
 # --- train -----------------------------------------------------------------------------
@@ -269,21 +182,11 @@ def _compare_run(args: argparse.Namespace) -> int:
 TRAIN_OBS = ("state", "estimate", "rgb")
 
 
-def hyperparam_option(text: str) -> tuple[str, object]:
-    """argparse type: ``KEY=VALUE`` with a dotted key for nested values
-    (``learning_rate=1e-4``, ``normalize.norm_reward=False``); the value is read as a
-    Python literal, else kept as text."""
-    key, sep, value = text.partition("=")
-    if not sep or not all(part.isidentifier() for part in key.split(".")):
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (KEY may be dotted), got {text!r}")
-    return key, _literal(value)
-
-
 def _train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
     )
-    parser.add_argument("--algo", choices=AGENT_ALGOS, help="stable-baselines3 algorithm")
+    parser.add_argument("--algo", choices=ALGOS, help="stable-baselines3 algorithm")
     parser.add_argument(
         "--obs",
         choices=TRAIN_OBS,
@@ -355,7 +258,11 @@ _TRAIN_RUN_OPTIONS = ("algo", "obs", "n_envs", "vec_env", "hyperparam", "env_opt
 
 def _train_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.training import resume_training, train_agent  # deferred: torch
+    from observer_gym.train.training import (  # deferred: torch
+        resume_training,
+        train_agent,
+        training_text,
+    )
 
     if args.resume is not None:
         given = [f"--{k.replace('_', '-')}" for k in _TRAIN_RUN_OPTIONS if getattr(args, k)]
@@ -364,7 +271,8 @@ def _train_run(args: argparse.Namespace) -> int:
                 f"observer-gym train: error: --resume continues a run with its own settings; "
                 f"drop {', '.join(given)}"
             )
-        state = resume_training(args.resume, args.timesteps, progress=not args.no_progress)
+        run_dir = args.resume
+        state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
     else:
         missing = [f"--{k}" for k in ("algo", "obs") if getattr(args, k) is None]
         if missing:
@@ -372,11 +280,12 @@ def _train_run(args: argparse.Namespace) -> int:
                 f"observer-gym train: error: {' and '.join(missing)} required (or --resume DIR)"
             )
         cli_args = recorded_args(args)
+        run_dir = args.out if args.out is not None else default_out_dir("train")
         state = train_agent(
             env_id=args.env,
             algo=args.algo,
             obs=args.obs,
-            out_dir=args.out if args.out is not None else default_out_dir("train"),
+            out_dir=run_dir,
             timesteps=args.timesteps,
             seed=args.seed,
             estimate_from=args.estimate_from,
@@ -388,11 +297,14 @@ def _train_run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             cli_args=cli_args,
         )
+    print(training_text(run_dir, state))
     return 130 if state["status"] == "interrupted" else 0
 
 
 # --- evaluate --------------------------------------------------------------------------
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
+    from observer_gym.train.systems import observer_choices  # deferred: the systems
+
     parser.add_argument(
         "--model",
         type=Path,
@@ -411,7 +323,7 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--observer",
-        choices=RUN_OBSERVERS,
+        choices=observer_choices(),
         default=None,
         help="what the agent reads (default: what it was trained on)",
     )
@@ -427,9 +339,10 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 def _evaluate_run(args: argparse.Namespace) -> int:
     from observer_gym.train.evaluate import evaluate_agent  # deferred: torch, PyBullet
     from observer_gym.train.outputs import default_out_dir
+    from observer_gym.train.run import results_text
 
     cli_args = recorded_args(args)
-    evaluate_agent(
+    results = evaluate_agent(
         args.model,
         episodes=args.episodes,
         out_dir=args.out if args.out is not None else default_out_dir("evaluate"),
@@ -440,6 +353,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         cli_args=cli_args,
     )
+    print(results_text(results))
     return 0
 
 
@@ -486,10 +400,9 @@ COMMANDS: dict[str, Command] = {
             "acts on the true state (--observer oracle) or on the Kalman-filter estimate from "
             "the cameras (kf) or from perfect-detector measurements (kf-measurements). "
             "Episode i resets with seed + i and runs until the env ends it. Writes "
-            "results.json (config, versions, per-episode metrics, summary) and the env's "
-            "plots (BallTable: path.png, error.png; BallCatcher: plane.png; with an observer "
-            "also estimate.png) into the output folder, and prints a table of the summary "
-            "(BallCatcher: catch rate with its 95 % interval)."
+            "results.json (config, versions, per-episode metrics, summary) and the plots of "
+            "the env's task (with an observer also estimate.png) into the output folder, and "
+            "prints a table of the task's summary."
         ),
         add_arguments=_run_arguments,
         run=_run_run,
@@ -507,8 +420,8 @@ COMMANDS: dict[str, Command] = {
             "each pair's plots under pairs/ and results.json into the output folder, and "
             "prints the table."
         ),
-        add_arguments=_compare_arguments,
-        run=_compare_run,
+        add_arguments=compare_cli.add_arguments,
+        run=compare_cli.run,
     ),
     "train": Command(
         help="train a stable-baselines3 agent (PPO, SAC, TD3) on the state, an estimate or pixels",

@@ -1,7 +1,9 @@
 """The ``observer-gym compare`` command's arguments and action (the library function is
 :func:`observer_gym.train.compare.run_comparison`).
 
-Parsing imports nothing heavy: PyBullet, the controllers and Ray load inside :func:`run`.
+The help texts list every system's observers and controllers
+(:mod:`observer_gym.train.systems`, imported when the arguments are added); the library
+and Ray load inside :func:`run`, which prints what the comparison returns.
 """
 
 from __future__ import annotations
@@ -9,8 +11,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-# The module, not its names (cli.py imports this module on use, inside its functions).
-from observer_gym.train import cli
+from observer_gym.train.cli_args import (
+    add_output_arguments,
+    env_name,
+    env_option,
+    nonnegative_int,
+    positive_int,
+    recorded_args,
+)
 
 DEFAULT_EPISODES = 10
 DEFAULT_SEED = 0
@@ -47,9 +55,11 @@ def seed_list(text: str) -> list[int]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``observer-gym compare``."""
+    from observer_gym.train.systems import per_env  # deferred: the systems
+
     parser.add_argument(
         "--env",
-        type=cli.env_name,
+        type=env_name,
         default="BallTable-v0",
         help="environment (default: %(default)s)",
     )
@@ -61,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated observers: oracle (the true state), kf (Kalman filter on the "
             "camera pixels), kf-measurements (the same on perfect-detector measurements); "
-            "TargetFollower also stkf, stkf-measurements (self-tuning filter)"
+            "per env: " + per_env("observers")
         ),
     )
     parser.add_argument(
@@ -70,20 +80,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="LIST",
         help=(
-            "comma-separated controllers: BallTable lqr, mpc, pid; BallCatcher intercept; "
-            "TargetFollower vtc; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable)"
+            "comma-separated controllers of the env, per env: "
+            + per_env("controllers")
+            + "; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable)"
         ),
     )
     parser.add_argument(
         "--episodes",
-        type=cli.positive_int,
+        type=positive_int,
         default=None,
         metavar="N",
         help=f"episodes per pair (default: {DEFAULT_EPISODES})",
     )
     parser.add_argument(
         "--seed",
-        type=cli.nonnegative_int,
+        type=nonnegative_int,
         default=None,
         metavar="S",
         help=f"episode i of every pair resets with S + i (default: {DEFAULT_SEED})",
@@ -97,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--workers",
-        type=cli.positive_int,
+        type=positive_int,
         default=1,
         metavar="W",
         help="local backend: run episodes in W processes; results are identical (default: 1)",
@@ -122,20 +133,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--steps",
-        type=cli.positive_int,
+        type=positive_int,
         default=None,
         metavar="K",
         help="cap each episode at K steps (default: the env's time limit)",
     )
     parser.add_argument(
         "--env-option",
-        type=cli.env_option,
+        type=env_option,
         action="append",
         default=[],
         metavar="KEY=VALUE",
         help="a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)",
     )
-    cli.add_output_arguments(parser, "compare")
+    add_output_arguments(parser, "compare")
 
 
 def _error(message: str) -> int:
@@ -156,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
 
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.compare import check_comparison, run_comparison
+    from observer_gym.train.compare_report import comparison_text
     from observer_gym.train.outputs import default_out_dir
 
     options = {
@@ -173,11 +185,12 @@ def run(args: argparse.Namespace) -> int:
         check_comparison(**options)
     except ValueError as exc:
         return _error(str(exc))
-    cli_args = cli.recorded_args(args)
-    run_comparison(
+    cli_args = recorded_args(args)
+    results = run_comparison(
         **options,
         out_dir=args.out if args.out is not None else default_out_dir("compare"),
         progress=not args.no_progress,
         cli_args=cli_args,
     )
+    print(comparison_text(results))
     return 0

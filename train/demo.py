@@ -30,6 +30,11 @@ ENV_ID = "observer_gym/BallTable-v0"
 CONTROLLER = "lqr"
 START_DISTANCE_M = 0.1
 START_DIRECTION_RAD = np.deg2rad(135.0)  # towards the camera's left, away from it
+# what ``observer-gym demo`` prints before the episode
+INTRODUCTION = (
+    f"observer-gym demo: {ENV_ID} from camera frames; pixel observer + "
+    f"{CONTROLLER.upper()}, ball starting {START_DISTANCE_M} m from the centre"
+)
 
 
 def run_demo(
@@ -50,7 +55,7 @@ def run_demo(
     ``frames/frame_XXXX.png`` (the camera frame every ``frame_every`` steps, XXXX the step),
     ``trajectory.png`` (ball path, distance from the centre, estimate vs truth) and
     ``summary.json`` (written atomically). Shows a tqdm progress bar when ``progress`` is
-    set and prints the results and the output folder.
+    set; ``observer-gym demo`` prints :data:`INTRODUCTION` and :func:`summary_text`.
 
     Args:
         out_dir: the output folder.
@@ -83,10 +88,6 @@ def run_demo(
     )
     try:
         controller = make_controller(CONTROLLER, env)
-        print(
-            f"observer-gym demo: {ENV_ID} from camera frames; pixel observer + "
-            f"{CONTROLLER.upper()}, ball starting {START_DISTANCE_M} m from the centre"
-        )
         record = _run_episode(
             env, controller, steps_wanted, seed, frame_every, frames_dir, progress
         )
@@ -129,8 +130,13 @@ def run_demo(
         },
     }
     write_json_atomic(out_dir / "summary.json", summary)
+    return summary
+
+
+def summary_text(summary: dict[str, Any]) -> str:
+    """What ``observer-gym demo`` prints of :func:`run_demo`'s summary."""
     settled = summary["settling_time_s"]
-    print(
+    return (
         f"steps {summary['steps']}: within {TOLERANCE_M * 100:.0f} cm of the centre from "
         + (f"{settled:.2f} s on" if settled is not None else "never (not settled)")
         + f"; mean distance {summary['mean_ball_distance_m'] * 1000:.1f} mm, final "
@@ -138,8 +144,6 @@ def run_demo(
         f"{summary['ball_pos_rmse_m'] * 1000:.2f} mm, "
         f"{summary['ball_vel_rmse_mps'] * 1000:.1f} mm/s; terminated {summary['terminated']}"
     )
-    print(f"output: {out_dir}")
-    return summary
 
 
 def _run_episode(

@@ -23,16 +23,17 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-import observer_gym.envs
-from observer_gym.controllers import CONTROLLERS, make_controller
-from observer_gym.estimation import VisionObserver
+from observer_gym.controllers import check_controller_fits, make_controller
+from observer_gym.envs import system_for_id
 from observer_gym.train.agent import Agent, parse_agent_spec, read_config
+from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
     package_versions,
     to_jsonable,
     write_json_atomic,
 )
+from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
 
 # Controller attributes recorded in results.json when present (the MPC's Q, R, K are its
@@ -60,18 +61,6 @@ CONTROLLER_ATTRIBUTES = (
 )
 
 
-def resolve_env_id(name: str) -> str:
-    """The registered id for ``name``: a registered id or its name without the
-    ``observer_gym/`` namespace. Anything else raises ``ValueError`` listing them."""
-    for env_id in observer_gym.envs.ENV_IDS:
-        if name in (env_id, env_id.split("/", 1)[-1]):
-            return env_id
-    allowed = ", ".join(
-        f"{env_id.split('/', 1)[-1]} (or {env_id})" for env_id in observer_gym.envs.ENV_IDS
-    )
-    raise ValueError(f"unknown env {name!r}; allowed: {allowed}")
-
-
 @dataclasses.dataclass(frozen=True)
 class EpisodeSpec:
     """Everything one episode needs; picklable, so a worker process can run it."""
@@ -85,30 +74,10 @@ class EpisodeSpec:
     reset_options: Mapping[str, Any] | None = None
 
 
-def make_env(env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None = None) -> gym.Env:
-    """The env for ``observer`` (one of the env's task's ``OBSERVERS``): the state env for
-    "oracle", the camera frames for an observer without a pipeline ("pixels"), else the
-    env in the observer's obs_mode wrapped in :class:`VisionObserver` with the observer's
-    pipeline options. ``env_kwargs`` go to ``gym.make``."""
-    observers = task_for(env_id).OBSERVERS
-    if observer not in observers:
-        raise ValueError(
-            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
-        )
-    obs_mode, pipeline_options = observers[observer]
-    env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
-    if observer == "oracle" or pipeline_options is None:
-        return env
-    try:
-        return VisionObserver(env, **dict(pipeline_options))
-    except BaseException:
-        env.close()
-        raise
-
-
 def check_controller(controller: str, env_id: str, observer: str) -> None:
     """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
-    ``env_id``: a name of :data:`CONTROLLERS` or a trained agent ``ALGO:DIR`` (see
+    ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
+    system's is refused naming those that fit) or a trained agent ``ALGO:DIR`` (see
     :func:`observer_gym.train.agent.parse_agent_spec`). Controllers and agents trained on
     the state or an estimate read the state layout (any observer but "pixels"); an agent
     trained on rgb reads only "pixels"."""
@@ -116,11 +85,11 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
     reads_pixels = pipeline is None and obs_mode != "state"
     agent_spec = parse_agent_spec(controller)
     if agent_spec is None:
-        if controller not in CONTROLLERS:
-            raise ValueError(
-                f"unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}, or a "
-                "trained agent as ALGO:DIR (ppo:runs/ppo-balltable)"
-            )
+        check_controller_fits(
+            controller,
+            system_for_id(env_id),
+            others=", or a trained agent as ALGO:DIR (ppo:runs/ppo-balltable)",
+        )
         if reads_pixels:
             raise ValueError(
                 f"controller {controller!r} acts on the state layout; observer {observer!r} "
@@ -136,6 +105,20 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
             f"agent {controller!r} was trained with --obs {agent['obs']}: it needs {wants}, "
             f"got {observer!r}"
         )
+
+
+def check_pair(env_id: str, observer: str, controller: str) -> str:
+    """The registered id of ``env_id`` after checking that ``observer`` is one of its
+    task's ``OBSERVERS`` and ``controller`` acts on it (:func:`check_controller`);
+    ValueError naming what is allowed otherwise. Builds no env."""
+    env_id = resolve_env_id(env_id)
+    observers = task_for(env_id).OBSERVERS
+    if observer not in observers:
+        raise ValueError(
+            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
+        )
+    check_controller(controller, env_id, observer)
+    return env_id
 
 
 def build_controller(controller: str, env: gym.Env) -> Any:
@@ -235,7 +218,7 @@ def run_experiment(
     reset_options: Mapping[str, Any] | None = None,
     cli_args: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run ``episodes`` closed-loop episodes; write results and plots; print a table.
+    """Run ``episodes`` closed-loop episodes; write results and plots.
 
     Episode i resets with ``seed + i`` (and ``reset_options``, e.g. a fixed start) and
     runs to the env's end (termination or its time limit) or ``steps`` steps. With
@@ -251,8 +234,8 @@ def run_experiment(
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
         observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-measurements,
             pixels).
-        controller: one of ``observer_gym.controllers.CONTROLLERS`` or a trained agent
-            ``ALGO:DIR`` (``ppo:runs/ppo-balltable``).
+        controller: one of the env's ``observer_gym.controllers.controllers_for(env_id)``
+            or a trained agent ``ALGO:DIR`` (``ppo:runs/ppo-balltable``).
         episodes: number of episodes (>= 1).
         seed: seed of episode 0.
         out_dir: the output folder.
@@ -269,13 +252,8 @@ def run_experiment(
     Raises:
         ValueError: an unknown env, observer or controller, a count < 1 or a negative seed.
     """
-    env_id = resolve_env_id(env_id)
+    env_id = check_pair(env_id, observer, controller)
     task = task_for(env_id)
-    if observer not in task.OBSERVERS:
-        raise ValueError(
-            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(task.OBSERVERS)}"
-        )
-    check_controller(controller, env_id, observer)
     for name, value in (("episodes", episodes), ("workers", workers), ("steps", steps)):
         if value is not None and (int(value) != value or value < 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -331,13 +309,24 @@ def run_experiment(
         }
     )
     write_json_atomic(out_dir / "results.json", results)
-    print(
-        f"observer-gym run: {env_id}, observer {observer}, controller {controller}, "
-        f"{episodes} episode(s), seeds {seed}..{seed + episodes - 1}, {wall_time_s:.1f} s"
-    )
-    print(summary_table(summary, task.SUMMARY_ROWS))
-    print(f"output: {out_dir}")
     return results
+
+
+def results_text(results: Mapping[str, Any]) -> str:
+    """What ``observer-gym run`` and ``evaluate`` print of :func:`run_experiment`'s
+    results: what ran, the task's summary table and the output folder."""
+    config = results["config"]
+    first, episodes = config["seed"], config["episodes"]
+    last = first + episodes - 1
+    return "\n".join(
+        [
+            f"observer-gym run: {config['env_id']}, observer {config['observer']}, controller "
+            f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
+            f"{results['wall_time_s']:.1f} s",
+            summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
+            f"output: {config['out_dir']}",
+        ]
+    )
 
 
 def run_episodes(

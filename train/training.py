@@ -88,7 +88,7 @@ def train_agent(
         ValueError: any bad argument or hyperparameter, before anything is written.
     """
     from observer_gym.train.hyperparams import load_hyperparams
-    from observer_gym.train.run import resolve_env_id
+    from observer_gym.train.systems import resolve_env_id
 
     env_id = resolve_env_id(env_id)
     observer = observer_for(env_id, obs, estimate_from)
@@ -313,7 +313,6 @@ def _learn(
         write_json_atomic(run_dir / "state.json", state)
         if (run_dir / "eval.csv").exists():
             plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
-        _report(run_dir, state)
         return state
     finally:
         for env in (venv, eval_env):
@@ -332,17 +331,20 @@ def _default_policy(space: Any) -> str:
     return "CnnPolicy" if is_image_space(space) else "MlpPolicy"
 
 
-def _report(run_dir: Path, state: Mapping[str, Any]) -> None:
-    print(
+def training_text(run_dir: Path, state: Mapping[str, Any]) -> str:
+    """What ``observer-gym train`` prints of a run's final ``state``: how far it got, its
+    speed, the output folder and, when interrupted, how to resume."""
+    text = (
         f"observer-gym train: {state['status']} at {state['timesteps']} of "
         f"{state['target_timesteps']} steps, {state['train_steps_per_s']:.0f} env steps/s "
         f"while training; output: {run_dir}"
     )
     if state["status"] == "interrupted":
-        print(
-            f"last checkpoint: {state['last_checkpoint_timesteps']} steps; continue with "
+        text += (
+            f"\nlast checkpoint: {state['last_checkpoint_timesteps']} steps; continue with "
             f"'observer-gym train --resume {run_dir}'"
         )
+    return text
 
 
 class EvalCurveCallback(EveryStepsCallback):

@@ -1,7 +1,20 @@
-"""BallTable's controller design input (the plant) and default weights; the generic LQR,
-MPC and PID in observer_gym.controllers are designed from it."""
+"""BallTable's controller design input (the plant) and default weights, and its
+controllers: the generic LQR, MPC and PID of observer_gym.controllers designed from it.
+
+``CONTROLLERS``: name -> design, read by :func:`observer_gym.controllers.make_controller`.
+"""
 
 from observer_gym.controllers.ball_table.plant import BallTablePlant
 from observer_gym.controllers.ball_table.weights import ball_table_weights
+from observer_gym.controllers.lqr import LQRController
+from observer_gym.controllers.mpc import MPCController
+from observer_gym.controllers.pid import PIDController
+from observer_gym.controllers.registry import ControllerDesign
 
-__all__ = ["BallTablePlant", "ball_table_weights"]
+CONTROLLERS = {
+    "lqr": ControllerDesign(LQRController, BallTablePlant.from_env),
+    "mpc": ControllerDesign(MPCController, BallTablePlant.from_env),
+    "pid": ControllerDesign(PIDController, BallTablePlant.from_env),
+}
+
+__all__ = ["CONTROLLERS", "BallTablePlant", "ball_table_weights"]

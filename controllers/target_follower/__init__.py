@@ -1,6 +1,12 @@
-"""TargetFollower's plant and its visual tracking controller (docs/spec/follower.md (13))."""
+"""TargetFollower's plant and its visual tracking controller (docs/spec/follower.md (13)).
 
+``CONTROLLERS``: name -> design, read by :func:`observer_gym.controllers.make_controller`.
+"""
+
+from observer_gym.controllers.registry import ControllerDesign
 from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
 from observer_gym.controllers.target_follower.vtc import VisualTrackingController
 
-__all__ = ["TargetFollowerPlant", "VisualTrackingController"]
+CONTROLLERS = {"vtc": ControllerDesign(VisualTrackingController, TargetFollowerPlant.from_env)}
+
+__all__ = ["CONTROLLERS", "TargetFollowerPlant", "VisualTrackingController"]

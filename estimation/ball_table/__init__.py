@@ -1,6 +1,12 @@
 """BallTable's observers: the detector (OpenCV image stage + PnP geometry stage), the
-process and control models, and the observer pipeline (docs/spec/table_ball.md)."""
+process and control models, and the observer pipeline (docs/spec/table_ball.md).
+
+``OBSERVERS``: observer name -> pipeline factory, read by
+:func:`observer_gym.estimation.default_pipeline`; the first is the default.
+"""
 
 from observer_gym.estimation.ball_table.observer import BallTableObserver, BallTableObserverParams
 
-__all__ = ["BallTableObserver", "BallTableObserverParams"]
+OBSERVERS = {"kf": BallTableObserver}
+
+__all__ = ["OBSERVERS", "BallTableObserver", "BallTableObserverParams"]

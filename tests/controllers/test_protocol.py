@@ -9,7 +9,8 @@ import pytest
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from observer_gym.controllers import CONTROLLERS, Controller, make_controller
+from observer_gym.controllers import Controller, controllers_for, make_controller
+from observer_gym.envs import ENV_IDS
 
 ENV_ID = "observer_gym/BallTable-v0"
 # controller -> (the env it is made for, the return it must beat doing nothing by over
@@ -23,8 +24,13 @@ CONTROLLER_ENVS = {
 }
 
 
+# every system's controllers, each with the env it belongs to
+CONTROLLERS = {name: env_id for env_id in ENV_IDS for name in controllers_for(env_id)}
+
+
 def test_every_controller_is_checked():
     assert set(CONTROLLER_ENVS) == set(CONTROLLERS)
+    assert all(CONTROLLER_ENVS[name][0] == env_id for name, env_id in CONTROLLERS.items())
 
 
 @pytest.mark.parametrize("name", list(CONTROLLERS))

@@ -17,17 +17,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from observer_gym.train import cli, compare, compare_cli, ray_backend
-from observer_gym.train.compare import (
-    command_line,
-    format_seeds,
+from observer_gym.train import cli_args, compare, compare_cli, compare_report, ray_backend
+from observer_gym.train.compare import command_line, run_comparison
+from observer_gym.train.compare_report import format_seeds, pair_folders, safe_name
+from observer_gym.train.compare_stats import (
     mean_interval,
     metric_statistics,
-    pair_folders,
     paired_difference,
     rate_interval,
-    run_comparison,
-    safe_name,
 )
 from observer_gym.train.run import run_experiment
 from observer_gym.train.tasks import ball_table
@@ -175,7 +172,7 @@ def test_the_oracle_column_is_the_paired_difference(compared):
 @pytest.fixture
 def no_plots(monkeypatch):
     """Skip drawing (most of a short comparison's time); the first test checks the plots."""
-    monkeypatch.setattr(compare, "plot_bars", lambda *args, **kwargs: None)
+    monkeypatch.setattr(compare_report, "plot_bars", lambda *args, **kwargs: None)
     monkeypatch.setattr(ball_table, "plot", lambda records, observer, out_dir: [])
 
 
@@ -321,7 +318,9 @@ def test_the_command_line_reads_back_its_env_options():
     line = command_line("observer_gym/BallCatcher-v0", ["oracle"], ["intercept"], [0], None, 1,
                         "local", None, env_kwargs)  # fmt: skip
     words = shlex.split(line)
-    options = [cli.env_option(words[i + 1]) for i, w in enumerate(words) if w == "--env-option"]
+    options = [
+        cli_args.env_option(words[i + 1]) for i, w in enumerate(words) if w == "--env-option"
+    ]
     assert dict(options) == env_kwargs
 
 
@@ -370,6 +369,9 @@ def test_cli_episodes_and_seed_make_consecutive_seeds(tmp_path, monkeypatch):
     seen = {}
     monkeypatch.setattr(
         "observer_gym.train.compare.run_comparison", lambda **kwargs: seen.update(kwargs)
+    )
+    monkeypatch.setattr(
+        "observer_gym.train.compare_report.comparison_text", lambda results: "(not run)"
     )
     argv = ["--observers", "oracle", "--controllers", "pid", "--episodes", "3", "--seed", "7"]
     assert compare_cli.run(parser().parse_args([*argv, "--out", str(tmp_path)])) == 0

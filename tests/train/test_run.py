@@ -10,7 +10,8 @@ import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.outputs import VERSIONED_PACKAGES
-from observer_gym.train.run import EpisodeSpec, resolve_env_id, run_episodes, run_experiment
+from observer_gym.train.run import EpisodeSpec, run_episodes, run_experiment
+from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks.ball_table import SUMMARY_ROWS
 
 ENV_ID = "observer_gym/BallTable-v0"

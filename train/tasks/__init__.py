@@ -1,9 +1,9 @@
 """Per-env pieces of ``observer-gym run``: observers, metrics, summary rows and plots.
 
 ``observer_gym.train.run`` runs episodes of any registered env the same way; what is
-measured and drawn depends on the task, so each env id maps in :data:`TASKS` to a module
-of this package that provides the :class:`Task` interface (``ball_table.py`` is the
-reference). Adding an env to ``observer-gym run`` is one module and one line here.
+measured and drawn depends on the task: each system of :data:`observer_gym.envs.SYSTEMS`
+has the module of this package named after it (``ball_table.py`` is the reference), which
+provides the :class:`Task` interface.
 """
 
 from __future__ import annotations
@@ -14,12 +14,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, Protocol
 
-# registered env id -> module implementing Task
-TASKS: dict[str, str] = {
-    "observer_gym/BallTable-v0": "observer_gym.train.tasks.ball_table",
-    "observer_gym/BallCatcher-v0": "observer_gym.train.tasks.ball_catcher",
-    "observer_gym/TargetFollower-v0": "observer_gym.train.tasks.target_follower",
-}
+from observer_gym.envs import System, system_for_id
 
 
 class Task(Protocol):
@@ -58,10 +53,12 @@ class Task(Protocol):
     ) -> list[str]: ...
 
 
+def task_of(system: System) -> ModuleType:
+    """The task module of ``system``: ``observer_gym.train.tasks.<system name>``."""
+    return importlib.import_module(f"{__name__}.{system.name}")
+
+
 def task_for(env_id: str) -> ModuleType:
-    """The task module of the registered ``env_id``; ValueError if it has none."""
-    if env_id not in TASKS:
-        raise ValueError(
-            f"observer-gym run does not know {env_id!r} yet; known: {', '.join(TASKS)}"
-        )
-    return importlib.import_module(TASKS[env_id])
+    """The task module of the system registered as ``env_id`` (with or without the
+    ``observer_gym/`` namespace); ValueError listing the known envs otherwise."""
+    return task_of(system_for_id(env_id))

@@ -1,0 +1,137 @@
+"""One record per system: every layer has its part of every system of SYSTEMS, the
+command line offers what the layers hold, and a subclass of an env finds its system."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+import gymnasium as gym
+import pytest
+
+from observer_gym.controllers import ControllerDesign, controllers_for, make_controller
+from observer_gym.envs import SYSTEMS, system_for_id, system_named, system_of
+from observer_gym.estimation import VisionObserver, observers_of
+from observer_gym.train import cli, compare_cli
+from observer_gym.train.cli_args import controller_name
+from observer_gym.train.systems import (
+    controller_choices,
+    observer_choices,
+    system_entries,
+)
+from observer_gym.train.tasks import task_for
+
+LAYERS = ("envs", "estimation", "controllers")
+
+
+@pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
+def test_every_layer_holds_its_part_of_the_system(system):
+    for layer in LAYERS:
+        importlib.import_module(f"observer_gym.{layer}.{system.name}")
+    spec = gym.spec(system.env_id)
+    assert spec.entry_point == system.entry_point
+    assert spec.max_episode_steps == system.max_episode_steps
+    assert system.env_class().__module__.startswith(f"observer_gym.envs.{system.name}")
+
+    estimation = importlib.import_module(f"observer_gym.estimation.{system.name}")
+    assert estimation.OBSERVERS and all(map(callable, estimation.OBSERVERS.values()))
+    controllers = importlib.import_module(f"observer_gym.controllers.{system.name}").CONTROLLERS
+    assert controllers and all(isinstance(c, ControllerDesign) for c in controllers.values())
+    assert controllers_for(system.env_id) is controllers
+
+    task = task_for(system.env_id)
+    assert task.__name__ == f"observer_gym.train.tasks.{system.name}"
+    assert task.OBSERVERS["oracle"] == ("state", {})
+    assert set(task.ESTIMATE_OBSERVERS.values()) <= set(task.OBSERVERS)
+    for name in ("SUMMARY_ROWS", "COMPARE_METRICS", "CONFIG"):
+        assert getattr(task, name) is not None
+    for name in ("episode_metrics", "summarize", "plot"):
+        assert callable(getattr(task, name))
+
+
+@pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
+def test_every_observer_of_the_task_builds_its_pipeline(system):
+    for observer, (obs_mode, options) in task_for(system.env_id).OBSERVERS.items():
+        if options is None or observer == "oracle":
+            continue
+        env = VisionObserver(gym.make(system.env_id, obs_mode=obs_mode), **options)
+        env.close()
+
+
+def test_the_look_ups_find_each_system():
+    for system in SYSTEMS:
+        assert system_named(system.name) is system
+        assert system_for_id(system.env_id) is system_for_id(system.short_id) is system
+    with pytest.raises(ValueError, match="unknown env 'BallPool-v0'; allowed: BallTable-v0"):
+        system_for_id("BallPool-v0")
+    with pytest.raises(ValueError, match="unknown system 'ball_pool'; known: ball_table"):
+        system_named("ball_pool")
+    cartpole = gym.make("CartPole-v1")
+    with pytest.raises(ValueError, match=r"CartPoleEnv is not an env of a known system.*BallTable"):
+        system_of(cartpole)
+    cartpole.close()
+
+
+@pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
+def test_a_subclass_of_an_env_finds_its_system_observers_and_controllers(system):
+    cls = system.env_class()
+    subclass = type(f"My{cls.__name__}", (cls,), {})
+    env = subclass(obs_mode="measurements")
+    try:
+        assert system_of(env) is system
+        assert system_of(gym.wrappers.RecordEpisodeStatistics(env)) is system
+        observers = importlib.import_module(f"observer_gym.estimation.{system.name}").OBSERVERS
+        assert observers_of(env) is observers
+        for name in observers:
+            wrapped = VisionObserver(env, observer=name)
+            assert wrapped.observation_space == env.state_space
+        with pytest.raises(ValueError, match=f"allowed: {', '.join(observers)}"):
+            VisionObserver(env, observer="no-such-observer")
+        for name in controllers_for(system.env_id):
+            make_controller(name, env)
+        for other in SYSTEMS:
+            if other is system:
+                continue
+            for name in controllers_for(other.env_id):
+                fits = ", ".join(controllers_for(system.env_id))
+                with pytest.raises(ValueError, match=f"{system.short_id} takes: {fits}"):
+                    make_controller(name, env)
+    finally:
+        env.close()
+
+
+def _option(parser: argparse.ArgumentParser, command: str, dest: str) -> argparse.Action:
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    (action,) = [a for a in sub.choices[command]._actions if a.dest == dest]
+    return action
+
+
+def test_the_command_line_offers_what_the_layers_hold():
+    entries = system_entries()
+    observers = {o for entry in entries for o in entry.observers}
+    controllers = {c for entry in entries for c in entry.controllers}
+    assert set(observer_choices()) == observers and set(controller_choices()) == controllers
+    parser = cli.build_parser()
+    assert set(_option(parser, "run", "observer").choices) == observers
+    assert set(_option(parser, "evaluate", "observer").choices) == observers
+    for name in controllers:
+        assert controller_name(name) == name
+    with pytest.raises(argparse.ArgumentTypeError):
+        controller_name("lqg")
+    compare_parser = argparse.ArgumentParser()
+    compare_cli.add_arguments(compare_parser)
+    helps = [
+        _option(parser, "run", "controller").help,
+        _option(parser, "run", "observer").help,
+        *(a.help for a in compare_parser._actions if a.dest in ("observers", "controllers")),
+    ]
+    for entry in entries:
+        for field in ("controllers", "observers"):
+            listed = f"{entry.system.short_id}: {', '.join(getattr(entry, field))}"
+            assert sum(listed in text for text in helps) == 2, listed
+
+
+def test_run_says_which_controllers_fit_the_env(capsys):
+    argv = ["run", "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "lqr"]
+    assert cli.main(argv) == 2
+    assert "BallCatcher-v0 takes: intercept" in capsys.readouterr().err

@@ -1,0 +1,119 @@
+"""The argparse types and shared options of the ``observer-gym`` subcommands.
+
+Parsing imports nothing heavy at module level: the types that need the systems (env ids,
+controller names) import them when called.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import math
+from pathlib import Path
+
+from observer_gym.train.hyperparams import ALGOS
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _int_at_least(minimum: int, text: str) -> int:
+    """An integer >= ``minimum`` parsed from ``text``, or argparse's type error."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    return _int_at_least(1, text)
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    return _int_at_least(0, text)
+
+
+def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
+    """``--out DIR`` (default ``default_out_dir(command)``'s pattern) and ``--no-progress``,
+    the two options every command that writes results takes."""
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help=f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def controller_name(text: str) -> str:
+    """argparse type: a controller of some system or a trained agent ``ALGO:DIR``
+    (whether it fits the env is checked with the env)."""
+    from observer_gym.train.systems import controller_choices  # deferred: the controllers
+
+    controllers = controller_choices()
+    algo, sep, run_dir = text.partition(":")
+    if text in controllers or (sep and algo in ALGOS and run_dir):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r} is neither a controller ({', '.join(controllers)}) nor a trained agent "
+        f"ALGO:DIR with ALGO one of {', '.join(ALGOS)}"
+    )
+
+
+def env_name(text: str) -> str:
+    """argparse type: a registered env id, with or without its ``observer_gym/`` prefix."""
+    from observer_gym.envs import system_for_id  # deferred: registers the envs
+
+    try:
+        return system_for_id(text).env_id
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def literal(value: str) -> object:
+    """``value`` read as a Python literal (number, True, 'text'), else kept as text."""
+    try:
+        return ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return value
+
+
+def env_option(text: str) -> tuple[str, object]:
+    """argparse type: ``KEY=VALUE``, the value read as a Python literal (number, True,
+    'text') or else kept as text: ``camera_preset=single``, ``latency_s=0.02``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, literal(value)
+
+
+def hyperparam_option(text: str) -> tuple[str, object]:
+    """argparse type: ``KEY=VALUE`` with a dotted key for nested values
+    (``learning_rate=1e-4``, ``normalize.norm_reward=False``); the value is read as a
+    Python literal, else kept as text."""
+    key, sep, value = text.partition("=")
+    if not sep or not all(part.isidentifier() for part in key.split(".")):
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (KEY may be dotted), got {text!r}")
+    return key, literal(value)
+
+
+def recorded_args(args: argparse.Namespace) -> dict[str, object]:
+    """The parsed command line as results record it: paths as text, without the
+    command's handler."""
+    recorded = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    recorded.pop("run", None)
+    return recorded
