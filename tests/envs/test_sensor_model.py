@@ -198,7 +198,7 @@ def test_image_noise_reaches_every_envs_pixels(make_env, env_id):
 
 
 def test_frame_phase_must_stay_within_a_frame_period(make_env):
-    with pytest.raises(ValueError, match="frame_phase_s=0.02 must be below one frame period"):
+    with pytest.raises(ValueError, match=r"frame_phase_s=0\.02 must be below one frame period"):
         make_env("observer_gym/BallTable-v0", frame_phase_s=0.02)
 
 
