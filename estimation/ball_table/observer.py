@@ -41,7 +41,8 @@ from observer_gym.estimation.ball_table.models import (
     RollingBallParams,
     TiltLagModel,
 )
-from observer_gym.estimation.filters import ChiSquareGate, KalmanFilter
+from observer_gym.estimation.filters import KalmanFilter
+from observer_gym.estimation.gating import ChiSquareGate
 from observer_gym.estimation.observer import Estimate
 
 
