@@ -1,5 +1,6 @@
 """The time-varying linear Kalman filter: time-varying C, variable measurement size, missed
-measurements, Joseph-form updates and the cross-covariance R12.
+measurements (``update(None, ...)``, as in filterpy), Joseph-form updates and the
+cross-covariance R12.
 
 Notation follows docs/spec/catcher.md (Linderoth et al., ICRA 2010); equation numbers in
 brackets are that paper's:
