@@ -34,8 +34,44 @@ import gymnasium as gym
 import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.estimation.ball_table.detector import ball_table as bt
+from observer_gym.estimation.ball_table.ball_image import CUT, ball_circle
+from observer_gym.estimation.ball_table.corners import (
+    check_corners,
+    coarse_corners,
+    find_corners,
+    image_axes,
+    outline_beside_red_top,
+    refine_corners,
+)
+from observer_gym.estimation.ball_table.features import BORDER_OUTLINE, RED_TOP, BallTableFeatures
+from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector, model_corners_table
+from observer_gym.estimation.ball_table.image_stage import (
+    RegionFeatures,
+    assemble_features,
+    extract_features,
+)
+from observer_gym.estimation.ball_table.masks import (
+    BLUR_KSIZE,
+    RED_HIGH,
+    RED_LOW,
+    blur,
+    clean_mask,
+    dark_mask,
+    table_outlines,
+    to_hls,
+)
 from observer_gym.estimation.ball_table.observer import BallTableObserver
+from observer_gym.estimation.ball_table.region import (
+    WHOLE_FRAME,
+    Located,
+    ball_window_near,
+    coarse_image,
+    locate_ball,
+    locate_table,
+    rect_inside,
+    trackable,
+)
+from observer_gym.estimation.ball_table.tracker import TRACK_INSIDE_PX, tracked_boxes
 
 REPORT_MS = 2.9  # docs/spec/table_ball.md, "Results to beat" (detection + filter, i7-8750H)
 TARGET_RATIO = 1.3
@@ -101,81 +137,79 @@ class Stopwatch:
 
 
 def staged_region(
-    frame: Frame, located: bt.Located, inside_px: int | None, watch: Stopwatch
-) -> bt.RegionFeatures | None:
-    """ball_table.features_in_region step by step, with a lap after each stage."""
+    frame: Frame, located: Located, inside_px: int | None, watch: Stopwatch
+) -> RegionFeatures | None:
+    """image_stage.features_in_region step by step, with a lap after each stage."""
     rgb, K, T_world_cam = frame.rgb, frame.K, frame.T_world_cam
     height, width = rgb.shape[:2]
     image_size = (width, height)
     x0, y0, x1, y1 = located.table or (0, 0, width, height)
     offset = (x0, y0)
-    blurred = bt.blur(rgb[y0:y1, x0:x1])
+    blurred = blur(rgb[y0:y1, x0:x1])
     watch.lap("blur")
     if located.red_top is None:
-        red_offset, red_hls = offset, bt.to_hls(blurred)
+        red_offset, red_hls = offset, to_hls(blurred)
         hls = red_hls
     else:
         rx0, ry0, rx1, ry1 = located.red_top
         red_offset, hls = (rx0, ry0), None
-        red_hls = bt.to_hls(blurred[ry0 - y0 : ry1 - y0, rx0 - x0 : rx1 - x0])
+        red_hls = to_hls(blurred[ry0 - y0 : ry1 - y0, rx0 - x0 : rx1 - x0])
     watch.lap("HLS")
-    red, dark = cv2.inRange(red_hls, bt.RED_LOW, bt.RED_HIGH), bt.dark_mask(blurred)
+    red, dark = cv2.inRange(red_hls, RED_LOW, RED_HIGH), dark_mask(blurred)
     watch.lap("inRange")
-    red = bt.clean_mask(red)
+    red = clean_mask(red)
     watch.lap("open/close")
-    red_contour, outline_contour = bt.table_outlines(red, dark, offset, red_offset)
+    red_contour, outline_contour = table_outlines(red, dark, offset, red_offset)
     outline_rect = None if outline_contour is None else cv2.boundingRect(outline_contour)
     red_rect = None if red_contour is None else cv2.boundingRect(red_contour)
     watch.lap("findContours")
     if inside_px is not None and not (
-        bt.rect_inside(outline_rect, located.table, inside_px)
-        and bt.rect_inside(red_rect, located.red_top or located.table, inside_px)
+        rect_inside(outline_rect, located.table, inside_px)
+        and rect_inside(red_rect, located.red_top or located.table, inside_px)
     ):
         return None
-    ball_px, ball_failure = bt.ball_circle(rgb, located.ball, hls, offset)
-    if ball_failure is bt._CUT:
-        hls = bt.to_hls(blurred)
-        ball_px, ball_failure = bt.ball_circle(rgb, None, hls, offset)
+    ball_px, ball_failure = ball_circle(rgb, located.ball, hls, offset)
+    if ball_failure is CUT:
+        hls = to_hls(blurred)
+        ball_px, ball_failure = ball_circle(rgb, None, hls, offset)
     watch.lap("ball circle")
-    quad, failure = bt.coarse_corners(red_contour, image_size, ball_px)
+    quad, failure = coarse_corners(red_contour, image_size, ball_px)
     watch.lap("red top: hull+approx+corners")
     corners = None
     if quad is not None:
-        corners, failure = bt.refine_corners(red_contour, quad, ball_px)
+        corners, failure = refine_corners(red_contour, quad, ball_px)
     watch.lap("red top: refinement")
-    axes = bt.image_axes(K, T_world_cam)
+    axes = image_axes(K, T_world_cam)
     if corners is not None:
-        corners, failure = bt.check_corners(corners, red_hls, red_offset, ball_px, axes, bt.RED_TOP)
+        corners, failure = check_corners(corners, red_hls, red_offset, ball_px, axes, RED_TOP)
     red_top = (corners, failure)
     watch.lap("red top: order+border check")
     if corners is not None:
-        outline = bt.outline_beside_red_top(outline_contour, corners, image_size, ball_px)
+        outline = outline_beside_red_top(outline_contour, corners, image_size, ball_px)
     else:
-        hls = bt.to_hls(blurred) if hls is None else hls
-        outline = bt.find_corners(
-            bt.BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
+        hls = to_hls(blurred) if hls is None else hls
+        outline = find_corners(
+            BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
         )
-    features = bt.assemble_features(
-        {bt.RED_TOP: red_top, bt.BORDER_OUTLINE: outline}, ball_px, ball_failure
-    )
+    features = assemble_features({RED_TOP: red_top, BORDER_OUTLINE: outline}, ball_px, ball_failure)
     watch.lap("border outline")
-    if inside_px is not None and not bt.trackable(features):
+    if inside_px is not None and not trackable(features):
         return None
-    return bt.RegionFeatures(features, outline_rect, red_rect)
+    return RegionFeatures(features, outline_rect, red_rect)
 
 
 class StagedPipeline:
-    """ball_table.TableTracker.extract_features + detect, step by step, with a lap after
+    """tracker.TableTracker.extract_features + detect, step by step, with a lap after
     each stage; its own tracked region (``reset`` per episode, as the observer's)."""
 
-    def __init__(self, detector: bt.BallTableDetector, watch: Stopwatch) -> None:
+    def __init__(self, detector: BallTableDetector, watch: Stopwatch) -> None:
         self.detector, self.watch = detector, watch
         self.boxes = None
 
     def reset(self) -> None:
         self.boxes = None
 
-    def __call__(self, frame: Frame) -> bt.BallTableFeatures:
+    def __call__(self, frame: Frame) -> BallTableFeatures:
         """The frame's features (checked against extract_features)."""
         rgb, K, watch = frame.rgb, frame.K, self.watch
         height, width = rgb.shape[:2]
@@ -183,27 +217,26 @@ class StagedPipeline:
         watch.start()
         small = ball_window = None
         if self.boxes is not None:
-            ball_window = bt.ball_window_near(rgb, self.boxes[0])
-            if ball_window is bt.WHOLE_FRAME:
-                small = bt.coarse_image(rgb)
-                ball_window = bt.locate_ball(small, image_size)
+            ball_window = ball_window_near(rgb, self.boxes[0])
+            if ball_window is WHOLE_FRAME:
+                small = coarse_image(rgb)
+                ball_window = locate_ball(small, image_size)
         watch.lap("coarse look: ball window")
         found = None
         if self.boxes is not None:
-            located = bt.Located(self.boxes[0], ball_window, self.boxes[1])
-            found = staged_region(frame, located, bt.TRACK_INSIDE_PX, watch)
+            located = Located(self.boxes[0], ball_window, self.boxes[1])
+            found = staged_region(frame, located, TRACK_INSIDE_PX, watch)
         if found is None:
             if small is None:
-                small = bt.coarse_image(rgb)
-                ball_window = bt.locate_ball(small, image_size)
-            located = bt.Located(bt.locate_table(small, image_size), ball_window)
+                small = coarse_image(rgb)
+                ball_window = locate_ball(small, image_size)
+            located = Located(locate_table(small, image_size), ball_window)
             watch.lap("coarse look: searched")
             found = staged_region(frame, located, None, watch)
         else:
             watch.lap("coarse look: searched")
         features = found.features
-        trackable = bt.trackable(features)
-        self.boxes = bt.tracked_boxes(found, image_size) if trackable else None
+        self.boxes = tracked_boxes(found, image_size) if trackable(features) else None
         detector = self.detector
         pose = detector.table_pose(features, K) if features.corners_px is not None else None
         watch.lap("PnP")
@@ -229,9 +262,9 @@ class TimedDetect:
 
 def bare_pass(rgb, K, object_points, image_points, kernel) -> None:
     """The fewest OpenCV calls a pipeline of the spec's shape makes, on the whole frame."""
-    blurred = cv2.GaussianBlur(rgb, bt.BLUR_KSIZE, 0)
+    blurred = cv2.GaussianBlur(rgb, BLUR_KSIZE, 0)
     hls = cv2.cvtColor(blurred, cv2.COLOR_BGR2HLS)
-    mask = cv2.inRange(hls, bt.RED_LOW, bt.RED_HIGH)
+    mask = cv2.inRange(hls, RED_LOW, RED_HIGH)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -253,7 +286,7 @@ def main() -> None:
     timed_detect = observer.detect = TimedDetect(observer.detect)
     watch = Stopwatch()
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
-    square = bt.model_corners_table(bt.RED_TOP)[[1, 0, 3, 2]]
+    square = model_corners_table(RED_TOP)[[1, 0, 3, 2]]
 
     staged = StagedPipeline(detector, watch)
     image_points = {}  # the bare pass's PnP gets the frame's detected corners
@@ -262,7 +295,7 @@ def main() -> None:
         staged.reset()  # the tracked region gives the full search's features
         for frame in episode:
             features = staged(frame)
-            reference = bt.extract_features(frame.rgb, frame.K, frame.T_world_cam)
+            reference = extract_features(frame.rgb, frame.K, frame.T_world_cam)
             assert features == reference, (features, reference)
             corners = reference.corners_px
             if corners is None:

@@ -23,7 +23,8 @@ from filterpy.kalman import KalmanFilter as FilterpyKalmanFilter
 
 from observer_gym.envs.ball_table.geometry import up_in_table
 from observer_gym.estimation.ball_table.models import RollingBallModel
-from observer_gym.estimation.filters import KalmanFilter, SteadyStateKalmanFilter
+from observer_gym.estimation.filters import KalmanFilter
+from observer_gym.estimation.steady_state import SteadyStateKalmanFilter
 
 DT_S = 0.02
 RATIO_TARGET = 0.7

@@ -1,5 +1,6 @@
-"""Kalman-filter core: time-varying C, variable measurement size, missed measurements,
-Joseph-form updates, cross-covariance R12, outlier gates and the steady-state gain.
+"""The time-varying linear Kalman filter: time-varying C, variable measurement size, missed
+measurements (``update(None, ...)``, as in filterpy), Joseph-form updates and the
+cross-covariance R12.
 
 Notation follows docs/spec/catcher.md (Linderoth et al., ICRA 2010); equation numbers in
 brackets are that paper's:
@@ -8,7 +9,11 @@ brackets are that paper's:
     E[v v^T] = R1 (here ``Q``), E[e e^T] = R2 (here ``R``), E[v e^T] = R12     (3)
 
 Filter form (5)-(7) lives in :class:`KalmanFilter`, the one-step predictor form (8)-(10)
-in :func:`predictor_step`, the outlier test (27)-(30) in :class:`PSigmaGate`.
+in :func:`predictor_step`. Around them: the outlier gates, (27)-(30) among them, in
+:mod:`~observer_gym.estimation.gating`; the filter's converged-gain path in
+:mod:`~observer_gym.estimation.converged_gain`; the stationary gain and the fixed-gain
+filter in :mod:`~observer_gym.estimation.steady_state`; symmetrising and repairing
+covariances in :mod:`~observer_gym.estimation.covariance`.
 
 Innovation covariances S are Cholesky-factored and solved, never inverted, except for
 m = 1 and m = 2 (one camera point), which use the closed forms 1/s and adj(S)/det(S):
@@ -21,79 +26,23 @@ not symmetrise P or keep it positive definite, and is slower here
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
 
-import control
 import numpy as np
 import scipy.linalg
-import scipy.stats
 from scipy.linalg.lapack import dpotrf
 
-__all__ = [
-    "ChiSquareGate",
-    "Gate",
-    "KalmanFilter",
-    "PSigmaGate",
-    "SteadyStateKalmanFilter",
-    "UpdateResult",
-    "predictor_step",
-    "steady_state_gain",
-]
+from observer_gym.estimation.converged_gain import ConvergedGain, FixedPoint
+from observer_gym.estimation.covariance import (
+    HALF,
+    SYRK_IS_SYMMETRIC,
+    is_positive_definite,
+    repaired,
+    right_divide,
+    symmetrised,
+)
+from observer_gym.estimation.gating import Gate, nis
 
-
-class Gate(Protocol):
-    """Decides, before a measurement is used, whether it is an outlier."""
-
-    def accepts(
-        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
-    ) -> bool:
-        """``innovation`` d = y - C x (m,), ``S`` = R + C P C^T, ``R`` = R2, ``CPCt``."""
-        ...
-
-
-class PSigmaGate:
-    """The paper's outlier test, docs/spec/catcher.md (27)-(30).
-
-    With d = y - C x (27) and R = R2 + C P C^T (28), sigma^2 = d^T R d / d^T d is the
-    variance along d (29); the measurement is an outlier if ||d|| > p sigma (30).
-    """
-
-    def __init__(self, p: float) -> None:
-        if not p > 0.0:
-            raise ValueError(f"PSigmaGate: p = {p!r}, must be > 0")
-        self.p = float(p)
-
-    def accepts(
-        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
-    ) -> bool:
-        d = np.asarray(innovation, dtype=float)
-        dd = float(d @ d)
-        if dd == 0.0:
-            return True
-        sigma2 = float(d @ S @ d) / dd  # (29), S = R2 + R_yhat (28)
-        return dd <= self.p * self.p * sigma2  # not an outlier: ||d|| <= p sigma (30)
-
-
-class ChiSquareGate:
-    """Accept when the NIS d^T S^-1 d is below the chi-square(m) ``probability`` quantile."""
-
-    def __init__(self, probability: float = 0.997) -> None:
-        if not 0.0 < probability < 1.0:
-            raise ValueError(f"ChiSquareGate: probability = {probability!r}, must be in (0, 1)")
-        self.probability = float(probability)
-        self._threshold: dict[int, float] = {}
-
-    def threshold(self, m: int) -> float:
-        """The NIS bound for an m-dimensional measurement (cached per m)."""
-        if m not in self._threshold:
-            self._threshold[m] = float(scipy.stats.chi2.ppf(self.probability, m))
-        return self._threshold[m]
-
-    def accepts(
-        self, innovation: np.ndarray, S: np.ndarray, R: np.ndarray, CPCt: np.ndarray
-    ) -> bool:
-        d = np.asarray(innovation, dtype=float)
-        return _nis(S, d) <= self.threshold(d.shape[0])
+__all__ = ["KalmanFilter", "UpdateResult", "predictor_step"]
 
 
 @dataclass(slots=True)
@@ -116,72 +65,6 @@ class UpdateResult:
         return self.innovation is None
 
 
-_HALF = np.array(0.5)  # a 0-d array multiplies faster than the Python float
-
-
-def _symmetrised(P: np.ndarray) -> np.ndarray:
-    """(P + P^T) / 2 as a new array."""
-    P = P + P.T
-    P *= _HALF
-    return P
-
-
-def _syrk_is_symmetric() -> bool:
-    """Whether numpy returns U^T U exactly symmetric (it calls BLAS syrk for a product with
-    its own transpose); checked once, so the filter never relies on it blindly."""
-    U = np.triu(np.arange(1.0, 37.0).reshape(6, 6) ** 0.5)
-    product = U.T.dot(U)
-    return bool(np.array_equal(product, product.T))
-
-
-_SYRK_IS_SYMMETRIC = _syrk_is_symmetric()
-
-
-def _is_positive_definite(P: np.ndarray) -> bool:
-    """Whether a Cholesky factorisation of P succeeds (LAPACK dpotrf, ~0.4 us at n = 6)."""
-    return dpotrf(P)[1] == 0
-
-
-def _repaired(P: np.ndarray) -> np.ndarray:
-    """The nearest symmetric positive-definite matrix at the precision floor of P's scale.
-
-    Rounding resolves a matrix only to about n eps ||P||; a covariance whose true
-    eigenvalues span more than that (e.g. P0 = 1e12 I updated with R = 1e-12 I: 24 orders
-    of magnitude) comes out of any covariance-form update with eigenvalues of either sign
-    at the n eps ||P|| level. Raise the eigenvalues to that floor (x10 until a Cholesky
-    factorisation succeeds): P grows by no more than the precision it could not resolve.
-    """
-    lam, V = np.linalg.eigh(P)
-    if not np.all(np.isfinite(lam)):
-        raise FloatingPointError("covariance is not finite")
-    floor = P.shape[0] * np.finfo(float).eps * max(float(np.abs(lam).max()), 1e-300)
-    for _ in range(16):
-        repaired = _symmetrised((V * np.maximum(lam, floor)) @ V.T)
-        if _is_positive_definite(repaired):
-            return repaired
-        floor *= 10.0
-    raise np.linalg.LinAlgError("could not restore a positive-definite covariance")
-
-
-def _right_divide(B: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """B S^-1 for SPD S, by a Cholesky solve (raises LinAlgError if S is not PD)."""
-    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), B.T).T
-
-
-def _nis(S: np.ndarray, d: np.ndarray) -> float:
-    """d^T S^-1 d: in closed form for one image point (m <= 2), else by a solve. (SciPy's
-    Cholesky wrappers cost ~40 us per call at this size: most of a gated update.)"""
-    m = d.shape[0]
-    if m == 1:
-        return float(d[0] * d[0] / S[0, 0])
-    if m == 2:
-        (a, b), (b2, c) = S.tolist()
-        d0, d1 = d.tolist()
-        b = 0.5 * (b + b2)
-        return (c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1) / (a * c - b * b)
-    return float(d @ np.linalg.solve(S, d))
-
-
 class KalmanFilter:
     """Linear Kalman filter, filter form (5)-(7) with a Joseph-form covariance update.
 
@@ -193,30 +76,26 @@ class KalmanFilter:
     at this size) and reuses private scratch buffers (benchmarks/bench_filters.py).
 
     ``gate`` is None or an object with ``accepts(innovation, S, R, CPCt) -> bool``
-    (:class:`PSigmaGate`, :class:`ChiSquareGate`); a rejected measurement leaves x and P
+    (:class:`~observer_gym.estimation.gating.PSigmaGate`,
+    :class:`~observer_gym.estimation.gating.ChiSquareGate`); a rejected measurement leaves x and P
     unchanged and increments ``rejected_count``; used ones increment ``accepted_count``.
 
     P is symmetrised after every step: (P + P^T) / 2 after predict; after update (the step
     that subtracts) P = U^T U with U the Cholesky factor (LAPACK dpotrf) of the Joseph
     product's upper triangle, which symmetrises it exactly and proves it positive definite
     in one factorisation, cheaper than averaging and checking apart. If rounding has made
-    it indefinite (only when its eigenvalues span more than double
-    precision resolves, e.g. P0 = 1e12 I updated with R = 1e-12 I), it is repaired at the
-    precision floor (:func:`_repaired`) and ``pd_repairs`` counts it. predict adds Q >= 0
-    to the congruence Phi P Phi^T, which stays positive definite unless Q is below P's
-    rounding level; an update that meets an indefinite S repairs P first.
+    it indefinite (only when its eigenvalues span more than double precision resolves,
+    e.g. P0 = 1e12 I updated with R = 1e-12 I), it is repaired at the precision floor
+    (:func:`~observer_gym.estimation.covariance.repaired`) and ``pd_repairs`` counts it.
+    predict adds Q >= 0 to the congruence Phi P Phi^T, which stays positive definite unless
+    Q is below P's rounding level; an update that meets an indefinite S repairs P first.
 
-    ``converged_rtol`` (off by default) switches on the converged-gain path. When a
-    predict + update cycle with the same ``Phi``, ``Q``, ``C`` and ``R`` objects (the
-    cached, read-only matrices a :class:`~observer_gym.estimation.models.LinearModel`
-    hands out) changes P(k|k) by at most ``converged_rtol`` times its largest entry, the
-    Riccati recursion has reached its fixed point: the filter keeps that cycle's
-    P(k|k-1), P(k|k), S and K_f, and the next cycles only propagate x, (1) and (5) with
-    the stored K_f, gated with the stored S, as the steady-state filter would. Any other
-    cycle leaves this path and runs the full recursion until it converges again: a missed
-    or rejected measurement, other matrices, an R12, or a P assigned from outside (each
-    is noticed because P is then not the stored array). ``steady_cycles`` counts the
-    cycles taken on this path.
+    ``converged_rtol`` (off by default) switches on the converged-gain path
+    (:class:`~observer_gym.estimation.converged_gain.ConvergedGain`): once a predict +
+    update cycle with the same ``Phi``, ``Q``, ``C`` and ``R`` objects changes P(k|k) by at
+    most ``converged_rtol`` times its largest entry, the next such cycles only propagate x,
+    (1) and (5) with that cycle's K_f, gated with its S, and keep its covariances.
+    ``steady_cycles`` counts the cycles taken on this path.
     """
 
     def __init__(
@@ -238,17 +117,10 @@ class KalmanFilter:
                 f"KalmanFilter: converged_rtol = {converged_rtol!r}, must be None or in (0, 1)"
             )
         self.x = x
-        self.P = _symmetrised(P)
+        self.P = symmetrised(P)
         self.gate = gate
         self.converged_rtol = converged_rtol
-        self.steady_cycles = 0
-        # Converged-gain path: (Phi, Q, C, R, P_pred, P_filt, S, CPCt, K^T) once converged;
-        # the last full cycle's (Phi, Q, C, R, P_filt) for the convergence test; the
-        # (Phi, Q) of the last full predict; whether the last predict was a steady one.
-        self._steady: tuple[np.ndarray, ...] | None = None
-        self._last_cycle: tuple[np.ndarray, ...] | None = None
-        self._last_predict: tuple[np.ndarray, np.ndarray] | None = None
-        self._steady_predicted = False
+        self._converged = None if converged_rtol is None else ConvergedGain(converged_rtol)
         self.accepted_count = 0
         self.rejected_count = 0
         self.pd_repairs = 0
@@ -266,6 +138,11 @@ class KalmanFilter:
     @property
     def dim_x(self) -> int:
         return self._n
+
+    @property
+    def steady_cycles(self) -> int:
+        """Cycles taken on the converged-gain path (0 without ``converged_rtol``)."""
+        return 0 if self._converged is None else self._converged.cycles
 
     def predict(
         self,
@@ -285,21 +162,13 @@ class KalmanFilter:
         x = Phi.dot(self.x)
         if Gamma is not None:
             x += Gamma.dot(u)  # (1): Phi x + Gamma u
-        steady = self._steady
-        if (
-            steady is not None
-            and Phi is steady[0]
-            and Q is steady[1]
-            and self.P is steady[5]
-            and self._pending is None
-        ):
-            self.x = x
-            self.P = steady[4]  # P(k+1|k) at the Riccati fixed point
-            self._steady_predicted = True
-            return
-        self._steady = None
-        self._steady_predicted = False
-        self._last_predict = (Phi, Q)
+        converged = self._converged
+        if converged is not None:
+            P_fixed = converged.predicted_covariance(Phi, Q, self.P, self._pending is None)
+            if P_fixed is not None:
+                self.x = x
+                self.P = P_fixed  # P(k+1|k) at the Riccati fixed point
+                return
         P = Phi.dot(self.P, self._Phi_P).dot(Phi.T, self._P_unsym)
         P += Q  # (1): Phi P Phi^T + R1
         if self._pending is not None:
@@ -312,7 +181,7 @@ class KalmanFilter:
             self._pending = None
         self.x = x
         P_sym = P + P.T  # symmetrised, inline: this is the hot path
-        P_sym *= _HALF
+        P_sym *= HALF
         self.P = P_sym
 
     def update(
@@ -335,14 +204,15 @@ class KalmanFilter:
         (``_retried`` is that internal flag); if S is still indefinite (e.g. R is),
         ``numpy.linalg.LinAlgError`` is raised.
         """
+        converged = self._converged
         if y is None:
-            self._last_cycle = None  # a cycle without an update is no Riccati step
+            if converged is not None:
+                converged.no_riccati_step()
             return UpdateResult(False, None, None, float("nan"), None)
-        if self._steady_predicted:
-            self._steady_predicted = False
-            steady = self._steady
-            if C is steady[2] and R is steady[3] and R12 is None and self.P is steady[4]:
-                return self._steady_update(y, steady)
+        if converged is not None:
+            fixed = converged.fixed_point_for(C, R, R12, self.P)
+            if fixed is not None:
+                return self._fixed_gain_update(y, fixed)
         x, P = self.x, self.P
         n, m = self._n, C.shape[0]
         if R.shape != (m, m):
@@ -356,8 +226,9 @@ class KalmanFilter:
         S = CPCt + R  # R2 + C P C^T, (6) and (28)
         if self.gate is not None and not self.gate.accepts(d, S, R, CPCt):
             self.rejected_count += 1
-            self._last_cycle = None
-            return UpdateResult(False, d, S, _nis(S, d), None)
+            if converged is not None:
+                converged.no_riccati_step()
+            return UpdateResult(False, d, S, nis(S, d), None)
         # W = [A^T; K^T] with A = I - K C, so that the Joseph form is one block product.
         W = np.empty((n + m, n))
         Kt = W[n:]
@@ -372,12 +243,12 @@ class KalmanFilter:
                 S_inv[0, 1] = S_inv[1, 0] = -b / det
                 S_inv.dot(CP, Kt)
                 d0, d1 = d.tolist()
-                nis = (c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1) / det
+                nis_value = (c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1) / det
             else:
-                nis = None
+                nis_value = None
         else:
-            nis = self._gain_transposed(S, CP, d, Kt)
-        if nis is None:  # S not positive definite: P lost definiteness to rounding
+            nis_value = self._gain_transposed(S, CP, d, Kt)
+        if nis_value is None:  # S not positive definite: P lost definiteness to rounding
             if _retried:
                 raise np.linalg.LinAlgError("S = C P C^T + R is not positive definite")
             self.P = self._repair(P)
@@ -394,51 +265,37 @@ class KalmanFilter:
         # Symmetrise and check positive definiteness with one factorisation: dpotrf reads
         # the upper triangle, and P = U^T U is exactly symmetric (BLAS syrk).
         U, info = dpotrf(P_unsym)
-        if info == 0 and _SYRK_IS_SYMMETRIC:
+        if info == 0 and SYRK_IS_SYMMETRIC:
             self.P = U.T.dot(U)
         else:
-            P_sym = _symmetrised(P_unsym)
-            self.P = P_sym if _is_positive_definite(P_sym) else self._repair(P_sym)
+            P_sym = symmetrised(P_unsym)
+            self.P = P_sym if is_positive_definite(P_sym) else self._repair(P_sym)
         self.accepted_count += 1
-        if self.converged_rtol is not None:
-            self._check_converged(C, R, P, S, CPCt, Kt, R12)
-        return UpdateResult(True, d, S, nis, K)
+        if converged is not None:
+            plain = R12 is None and self._pending is None
+            converged.full_update_done(C, R, P, self.P, S, CPCt, Kt, plain)
+        return UpdateResult(True, d, S, nis_value, K)
 
-    def _check_converged(self, C, R, P_pred, S, CPCt, Kt, R12) -> None:
-        """After a full update: enter the converged-gain path if this cycle repeated the
-        last one's matrices and moved P(k|k) by at most ``converged_rtol``."""
-        last, predicted = self._last_cycle, self._last_predict
-        self._last_predict = None
-        if predicted is None or R12 is not None or self._pending is not None:
-            self._last_cycle = None  # not a plain predict + update cycle
-            return
-        Phi, Q = predicted
-        P = self.P
-        self._last_cycle = (Phi, Q, C, R, P)
-        if last is None or not (last[0] is Phi and last[1] is Q and last[2] is C and last[3] is R):
-            return
-        change = np.abs(P - last[4]).max()
-        if change <= self.converged_rtol * np.abs(P).max():
-            self._steady = (Phi, Q, C, R, P_pred, P, S.copy(), CPCt.copy(), Kt.copy())
-
-    def _steady_update(self, y: np.ndarray, steady: tuple[np.ndarray, ...]) -> UpdateResult:
-        """(5) with the stored K_f; a rejected measurement leaves the path."""
-        C, R, S, CPCt, Kt = steady[2], steady[3], steady[6], steady[7], steady[8]
+    def _fixed_gain_update(self, y: np.ndarray, fixed: FixedPoint) -> UpdateResult:
+        """(5) with the fixed point's K_f, gated with its S; a rejected measurement leaves
+        the converged-gain path."""
+        C, S, Kt = fixed.C, fixed.S, fixed.Kt
         d = y - C.dot(self.x)
-        if self.gate is not None and not self.gate.accepts(d, S, R, CPCt):
+        if self.gate is not None and not self.gate.accepts(d, S, fixed.R, fixed.CPCt):
             self.rejected_count += 1
-            self._steady = self._last_cycle = None
-            return UpdateResult(False, d, S, _nis(S, d), None)
+            self._converged.leave()
+            return UpdateResult(False, d, S, nis(S, d), None)
         self.x = self.x + d.dot(Kt)  # (5): x + K_f (y - C x)
-        self.P = steady[5]
+        self.P = fixed.P_filt
         self.accepted_count += 1
-        self.steady_cycles += 1
-        return UpdateResult(True, d, S, _nis(S, d), Kt.T)
+        self._converged.cycles += 1
+        return UpdateResult(True, d, S, nis(S, d), Kt.T)
 
     def _repair(self, P: np.ndarray) -> np.ndarray:
-        """P made positive definite by :func:`_repaired`, counted in ``pd_repairs``."""
+        """P made positive definite by :func:`~observer_gym.estimation.covariance.repaired`,
+        counted in ``pd_repairs``."""
         self.pd_repairs += 1
-        return _repaired(P)
+        return repaired(P)
 
     def _make_scratch(self, m: int) -> tuple[np.ndarray, ...]:
         n = self._n
@@ -488,7 +345,7 @@ class KalmanFilter:
         N = np.dot(M.T, C.T)
         if R12 is not None:
             N = N + np.asarray(R12, dtype=float).reshape(n, m)
-        L = _right_divide(N, S)
+        L = right_divide(N, S)
         self._pending = (v_mean + np.dot(L, d), v_red + np.dot(L, N.T), M - np.dot(K, N.T))
 
 
@@ -523,105 +380,16 @@ def predictor_step(
     if Gamma is not None:
         x_next = x_next + np.dot(Gamma, u)
     if y is None:
-        P_next = _symmetrised(np.dot(np.dot(Phi, P_pred), Phi.T) + Q)
-        return x_next, P_next if _is_positive_definite(P_next) else _repaired(P_next)
+        P_next = symmetrised(np.dot(np.dot(Phi, P_pred), Phi.T) + Q)
+        return x_next, P_next if is_positive_definite(P_next) else repaired(P_next)
     n, m = x_pred.shape[0], C.shape[0]
     R12 = np.zeros((n, m)) if R12 is None else np.asarray(R12, dtype=float).reshape(n, m)
     N = np.dot(np.dot(Phi, P_pred), C.T) + R12  # Phi P C^T + R12
     S = np.dot(np.dot(C, P_pred), C.T) + R  # R2 + C P C^T
-    K = _right_divide(N, S)  # (9)
+    K = right_divide(N, S)  # (9)
     x_next = x_next + np.dot(K, np.asarray(y, dtype=float) - np.dot(C, x_pred))  # (8)
     A = Phi - np.dot(K, C)
     KR12t = np.dot(K, R12.T)
     P_next = np.dot(np.dot(A, P_pred), A.T) + Q + np.dot(np.dot(K, R), K.T) - KR12t - KR12t.T
-    P_next = _symmetrised(P_next)  # (10)
-    return x_next, P_next if _is_positive_definite(P_next) else _repaired(P_next)
-
-
-def steady_state_gain(
-    Phi: np.ndarray,
-    C: np.ndarray,
-    Q: np.ndarray,
-    R: np.ndarray,
-    R12: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Stationary filter gain K_f (n, m) and prediction covariance P = P(k+1|k) (n, n).
-
-    P solves the filter DARE, the stationary form of (10):
-
-        Phi P Phi^T - P - (Phi P C^T + R12) (C P C^T + R)^-1 (C P Phi^T + R12^T) + Q = 0,
-
-    which is python-control's ``dare(A, B, Q, R, S)`` (A^T X A - X - (A^T X B + S)
-    (B^T X B + R)^-1 (B^T X A + S^T) + Q = 0) for the dual system A = Phi^T, B = C^T,
-    S = R12. The filter gain is K_f = P C^T (C P C^T + R)^-1 (6); the predictor gain (9)
-    is Phi K_f + R12 (C P C^T + R)^-1.
-    """
-    Phi, C = np.asarray(Phi, dtype=float), np.asarray(C, dtype=float)
-    Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
-    S = None if R12 is None else np.asarray(R12, dtype=float)
-    P, _, _ = control.dare(Phi.T, C.T, Q, R, S, method="scipy")
-    P = _symmetrised(np.asarray(P, dtype=float))
-    K = _right_divide(np.dot(P, C.T), np.dot(np.dot(C, P), C.T) + R)  # (6)
-    return K, P
-
-
-class SteadyStateKalmanFilter:
-    """Fixed-gain Kalman filter for an LTI model: (1) and (5) with a constant K_f.
-
-    Preallocated buffers, in-place updates: ``x`` is modified in place at every step
-    (copy it to keep it). ``P_pred`` and ``P_filt`` are the stationary covariances, valid
-    while a measurement arrives every step.
-    """
-
-    def __init__(
-        self,
-        x0: np.ndarray,
-        gain: np.ndarray,
-        C: np.ndarray,
-        P_pred: np.ndarray | None = None,
-    ) -> None:
-        self.x = np.array(x0, dtype=float).reshape(-1)
-        self.gain = np.array(gain, dtype=float)
-        self.C = np.array(C, dtype=float)
-        n, m = self.x.shape[0], self.C.shape[0]
-        if self.gain.shape != (n, m) or self.C.shape != (m, n):
-            raise ValueError(
-                f"SteadyStateKalmanFilter: gain {self.gain.shape} and C {self.C.shape} "
-                f"must be {(n, m)} and {(m, n)}"
-            )
-        self.P_pred = P_pred
-        self.P_filt = None
-        if P_pred is not None:
-            A = np.eye(n) - np.dot(self.gain, self.C)
-            self.P_filt = _symmetrised(np.dot(A, P_pred))  # (7)
-        self._x_spare = np.empty(n)  # predict() writes here, then swaps it with x
-        self._x_step = np.empty(n)
-        self._gamma_u = np.empty(n)
-        self._innovation = np.empty(m)
-
-    @classmethod
-    def from_model(
-        cls, x0: np.ndarray, Phi: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
-    ) -> SteadyStateKalmanFilter:
-        """Gain from :func:`steady_state_gain` for the model (Phi, C, Q, R)."""
-        K, P_pred = steady_state_gain(Phi, C, Q, R)
-        return cls(x0, K, C, P_pred)
-
-    def predict(
-        self, Phi: np.ndarray, Gamma: np.ndarray | None = None, u: np.ndarray | None = None
-    ) -> None:
-        """x <- Phi x + Gamma u (1)."""
-        x_next = self._x_spare
-        Phi.dot(self.x, x_next)
-        if Gamma is not None:
-            x_next += Gamma.dot(u, self._gamma_u)
-        self._x_spare = self.x
-        self.x = x_next
-
-    def update(self, y: np.ndarray | None) -> None:
-        """x <- x + K_f (y - C x) (5); y None (missed) leaves x unchanged."""
-        if y is None:
-            return
-        d = self._innovation
-        np.subtract(y, self.C.dot(self.x, d), out=d)
-        self.x += self.gain.dot(d, self._x_step)
+    P_next = symmetrised(P_next)  # (10)
+    return x_next, P_next if is_positive_definite(P_next) else repaired(P_next)

@@ -25,7 +25,8 @@ import numpy as np
 
 from observer_gym.estimation.ball_catcher.models import BallisticModel
 from observer_gym.estimation.camera_geometry import projection_matrix
-from observer_gym.estimation.filters import KalmanFilter, PSigmaGate, UpdateResult
+from observer_gym.estimation.filters import KalmanFilter, UpdateResult
+from observer_gym.estimation.gating import PSigmaGate
 from observer_gym.estimation.viewline import (
     CameraFrame,
     viewline_noise_std,

@@ -31,17 +31,16 @@ import numpy as np
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.geometry import up_in_table
-from observer_gym.estimation.ball_table.detector import (
-    BallTableDetector,
-    TableTracker,
-    features_from_measurement,
-)
+from observer_gym.estimation.ball_table.features import features_from_measurement
+from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
 from observer_gym.estimation.ball_table.models import (
     RollingBallModel,
     RollingBallParams,
     TiltLagModel,
 )
-from observer_gym.estimation.filters import ChiSquareGate, KalmanFilter
+from observer_gym.estimation.ball_table.tracker import TableTracker
+from observer_gym.estimation.filters import KalmanFilter
+from observer_gym.estimation.gating import ChiSquareGate
 from observer_gym.estimation.observer import Estimate
 
 

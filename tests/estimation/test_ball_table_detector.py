@@ -20,14 +20,14 @@ import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
 from observer_gym.envs.camera import project_points, sphere_image
-from observer_gym.estimation.ball_table.detector import (
+from observer_gym.estimation.ball_table.features import (
     BORDER_OUTLINE,
     RED_TOP,
-    BallTableDetector,
-    TableTracker,
-    extract_features,
     features_from_measurement,
 )
+from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
+from observer_gym.estimation.ball_table.image_stage import extract_features
+from observer_gym.estimation.ball_table.tracker import TableTracker
 from observer_gym.estimation.camera_geometry import pixel_ray, ray_plane_intersection
 
 # Default detector (IPPE_SQUARE + joint 8-corner pose with the borders' outline), 155

@@ -10,14 +10,9 @@ import pytest
 import scipy.stats
 
 from observer_gym.estimation.ball_table.models import RollingBallModel
-from observer_gym.estimation.filters import (
-    ChiSquareGate,
-    KalmanFilter,
-    PSigmaGate,
-    SteadyStateKalmanFilter,
-    predictor_step,
-    steady_state_gain,
-)
+from observer_gym.estimation.filters import KalmanFilter, predictor_step
+from observer_gym.estimation.gating import ChiSquareGate, PSigmaGate
+from observer_gym.estimation.steady_state import SteadyStateKalmanFilter, steady_state_gain
 
 DT_S = 0.02
 

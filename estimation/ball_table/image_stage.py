@@ -1,0 +1,139 @@
+"""The BallTable detector's image stage on one frame (pixels -> :class:`BallTableFeatures`):
+the red top's four corners (table steps 1-4 and the ordering of step 5) and the ball's
+image circle (ball step 1), docs/spec/table_ball.md, "Vision pipeline".
+
+The outer outline of the red top plus the black borders (the borders' outer top edges) is
+found too: it stands in when the red top gives no corners (the features say which model
+the corners are), and beside the red top it sharpens the pose. :func:`extract_features`
+finds the region of interest by the coarse look
+(:func:`~observer_gym.estimation.ball_table.region.locate`); :func:`features_in_region`
+works in a given one, which is how
+:class:`~observer_gym.estimation.ball_table.tracker.TableTracker` reuses the previous
+frame's. The steps themselves live in masks.py, ball_image.py and corners.py.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from observer_gym.estimation.ball_table.ball_image import CUT, ball_circle
+from observer_gym.estimation.ball_table.corners import (
+    find_corners,
+    image_axes,
+    outline_beside_red_top,
+)
+from observer_gym.estimation.ball_table.features import BORDER_OUTLINE, RED_TOP, BallTableFeatures
+from observer_gym.estimation.ball_table.masks import (
+    blur,
+    dark_mask,
+    red_mask,
+    table_outlines,
+    to_hls,
+)
+from observer_gym.estimation.ball_table.region import Located, locate, rect_inside, trackable
+
+
+def extract_features(rgb: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> BallTableFeatures:
+    """The image stage on one RGB frame (uint8, HxWx3) with its calibration.
+
+    ``T_world_cam`` only serves to name the corners (:func:`order_corners`). The pixel work
+    is done on a region of interest around the table, found by a coarse look
+    (:func:`locate`), which also finds the ball's window. For a sequence of frames,
+    :class:`TableTracker` gives the same features, cheaper.
+    """
+    return features_in_region(rgb, K, T_world_cam, locate(rgb)).features
+
+
+class RegionFeatures(NamedTuple):
+    """:func:`features_in_region`'s result."""
+
+    features: BallTableFeatures
+    # (x, y, w, h) of the outline of red top + borders, full-size pixels; None if no red top
+    outline_rect: tuple[int, int, int, int] | None
+    red_rect: tuple[int, int, int, int] | None  # (x, y, w, h) of the red top's outline
+
+
+def features_in_region(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    located: Located,
+    inside_px: int | None = None,
+) -> RegionFeatures | None:
+    """The image stage in ``located``'s region of interest (the whole frame when it has
+    none) and ball window; HLS and the red mask only in its ``red_top`` box, if given
+    (else in the whole region; the ball's and the outline's fallbacks convert the whole
+    region when they need it).
+
+    With ``inside_px`` (regions tracked from the previous frame, :class:`TableTracker`):
+    None, unless the outline of red top + borders and the red top's own outline each lie
+    at least ``inside_px`` inside their region on every side, and the table's corners were
+    found (a flagged frame is left to the full search). The regions then hold the table
+    with at least the room around it that the coarse look's region leaves (ROI_MARGIN_PX
+    less a coarse pixel's reach): the masks the outlines rest on are computed from true
+    neighbours (3x3 blur; the open/close only ever meets non-red pixels there), the border
+    probes (BORDER_PROBE_PX outside the red top) fall inside the red top's box, and the
+    features are the full search's.
+    """
+    height, width = rgb.shape[:2]
+    image_size = (width, height)
+    x0, y0, x1, y1 = located.table or (0, 0, width, height)
+    offset = (x0, y0)
+    blurred = blur(rgb[y0:y1, x0:x1])  # table step 1
+    if located.red_top is None:
+        red_offset, red_hls = offset, to_hls(blurred)
+        hls = red_hls  # the whole region's, for the ball's and the outline's fallbacks
+    else:
+        rx0, ry0, rx1, ry1 = located.red_top
+        red_offset, hls = (rx0, ry0), None  # converted when a fallback needs it
+        red_hls = to_hls(blurred[ry0 - y0 : ry1 - y0, rx0 - x0 : rx1 - x0])
+    red_contour, outline_contour = table_outlines(  # table step 2
+        red_mask(red_hls), dark_mask(blurred), offset, red_offset
+    )
+    outline_rect = None if outline_contour is None else cv2.boundingRect(outline_contour)
+    red_rect = None if red_contour is None else cv2.boundingRect(red_contour)
+    if inside_px is not None and not (
+        rect_inside(outline_rect, located.table, inside_px)
+        and rect_inside(red_rect, located.red_top or located.table, inside_px)
+    ):
+        return None
+    ball_px, ball_failure = ball_circle(rgb, located.ball, hls, offset)  # ball step 1
+    if ball_failure is CUT:
+        hls = to_hls(blurred)
+        ball_px, ball_failure = ball_circle(rgb, None, hls, offset)
+    axes = image_axes(K, T_world_cam)
+    red = find_corners(RED_TOP, red_contour, image_size, ball_px, red_hls, red_offset, axes)
+    if red[0] is not None:
+        outline = outline_beside_red_top(outline_contour, red[0], image_size, ball_px)
+    else:
+        hls = to_hls(blurred) if hls is None else hls
+        outline = find_corners(
+            BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
+        )
+    features = assemble_features({RED_TOP: red, BORDER_OUTLINE: outline}, ball_px, ball_failure)
+    if inside_px is not None and not trackable(features):
+        return None
+    return RegionFeatures(features, outline_rect, red_rect)
+
+
+def assemble_features(
+    found: dict[str, tuple[np.ndarray | None, str | None]],
+    ball_px: np.ndarray | None,
+    ball_failure: str | None,
+) -> BallTableFeatures:
+    """The features from each model's (corners, failure): the red top's corners when
+    found, else the outline's."""
+    red_corners, red_failure = found[RED_TOP]
+    outline_corners, outline_failure = found[BORDER_OUTLINE]
+    if red_corners is not None:
+        return BallTableFeatures(red_corners, ball_px, RED_TOP, outline_corners, None, ball_failure)
+    failure = f"{RED_TOP}: {red_failure}"
+    if outline_corners is not None:
+        return BallTableFeatures(
+            outline_corners, ball_px, BORDER_OUTLINE, outline_corners, failure, ball_failure
+        )
+    failure += f"; {BORDER_OUTLINE}: {outline_failure}"
+    return BallTableFeatures(None, ball_px, None, None, failure, ball_failure)
