@@ -33,7 +33,7 @@ from observer_gym.envs.target_follower.layout import (
 from observer_gym.envs.target_follower.measurements import fully_hidden, in_image
 from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
 
-TARGET_URDF_WIDTH_M = 0.12  # follower_target.urdf's sphere diameter; scaled to W
+TARGET_URDF_WIDTH_M = 0.12  # target_follower_target.urdf's sphere diameter; scaled to W
 
 
 def _yaw_quaternion(yaw_rad: float) -> list[float]:
@@ -92,16 +92,16 @@ class TargetFollowerScene:
         self.tilt_range_rad = tilt_range_rad
         self.limits = limits
         client = sim.client
-        self.robot = client.loadURDF(asset_path("follower_robot.urdf"), useFixedBase=True)
+        self.robot = client.loadURDF(asset_path("target_follower_robot.urdf"), useFixedBase=True)
         self.target = client.loadURDF(
-            asset_path("follower_target.urdf"),
+            asset_path("target_follower_target.urdf"),
             [0.0, 0.0, -10.0],
             globalScaling=target_width_m / TARGET_URDF_WIDTH_M,
         )
         self.occluder = None
         if with_occluder:
             self.occluder = client.loadURDF(
-                asset_path("follower_occluder.urdf"), list(OCCLUDER_PARKED_WORLD)
+                asset_path("target_follower_occluder.urdf"), list(OCCLUDER_PARKED_WORLD)
             )
         self.occluder_pose: tuple[np.ndarray, float] | None = None
         # Kinematic state.
