@@ -1,6 +1,7 @@
 """The TargetFollower detector: the orange target's image state from a camera frame (OpenCV).
 
-The target is the only saturated orange thing in the world (envs/assets/target_follower_target.urdf).
+The target is the only saturated orange thing in the world
+(envs/assets/target_follower_target.urdf).
 Pixels whose HSV colour is orange are segmented, the largest connected blob is taken, and
 
 - its centroid (image moments) gives (u, v), hence x_i = u - c_x, y_i = c_y - v;
