@@ -1,6 +1,6 @@
 # Two commands do all set-up on a fresh machine:
 #   make demo   # creates .venv, installs observer-gym, runs `observer-gym demo`
-#   make test   # creates .venv, installs observer-gym with its dev extras, runs the tests
+#   make test   # creates .venv, adds the dev extras (pytest, xdist, ruff, ...), runs the tests
 # PyTorch (needed by stable-baselines3) is pinned first so pip does not pick another build.
 PYTHON ?= python3
 VENV ?= .venv
@@ -9,22 +9,28 @@ BIN := $(VENV)/bin
 
 .PHONY: demo test bench lint
 
+# The package and what it needs to run (the demo's install).
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet "$(TORCH)"
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+# Plus the tests' and linters' extras.
+$(BIN)/.installed-dev: $(BIN)/.installed
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $@
 
 demo: $(BIN)/.installed
 	$(BIN)/observer-gym demo
 
-test: $(BIN)/.installed
-	$(BIN)/python -m pytest
+test: $(BIN)/.installed-dev
+	$(BIN)/python -m pytest --durations=15
 
 bench: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_envs.py
 
-lint: $(BIN)/.installed
+lint: $(BIN)/.installed-dev
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .

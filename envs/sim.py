@@ -13,10 +13,6 @@ import os
 import sys
 from importlib import resources
 
-import pybullet
-import pybullet_data
-from pybullet_utils.bullet_client import BulletClient
-
 GRAVITY_MPS2 = 9.81
 
 
@@ -29,21 +25,29 @@ def asset_path(name: str) -> str:
 
 
 @contextlib.contextmanager
-def _stdout_silenced():
-    """Silence C-level writes to stdout (file descriptor 1) inside the block."""
+def _silenced(fd: int):
+    """Silence C-level writes to file descriptor ``fd`` (1: stdout, 2: stderr) inside the
+    block."""
+    stream = sys.stdout if fd == 1 else sys.stderr
     try:
-        sys.stdout.flush()
-        saved = os.dup(1)
-    except (OSError, ValueError):  # no real stdout (embedded interpreters): nothing to hide
+        stream.flush()
+        saved = os.dup(fd)
+    except (OSError, ValueError, AttributeError):  # no real stream: nothing to hide
         yield
         return
     try:
         with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 1)
+            os.dup2(devnull.fileno(), fd)
             yield
     finally:
-        os.dup2(saved, 1)
+        os.dup2(saved, fd)
         os.close(saved)
+
+
+with _silenced(2):  # pybullet writes a "pybullet build time" line to stderr on import
+    import pybullet
+import pybullet_data  # noqa: E402
+from pybullet_utils.bullet_client import BulletClient  # noqa: E402
 
 
 class Simulation:
@@ -57,7 +61,7 @@ class Simulation:
         if not physics_dt_s > 0:
             raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
         self.physics_dt_s = float(physics_dt_s)
-        with _stdout_silenced():  # PyBullet prints "argv[0]=" on every connection
+        with _silenced(1):  # PyBullet prints "argv[0]=" on every connection
             self.client = BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
         self._configure()
