@@ -26,7 +26,8 @@ class StateIndex(IntEnum):
     BOX_VZ = 11
 
 
-STATE_NAMES = tuple(i.name.lower() for i in StateIndex)
+# Names with their units, as the other envs' layouts: "ball_x_m", "ball_vx_mps", ...
+STATE_NAMES = tuple(f"{i.name.lower()}_{'mps' if '_V' in i.name else 'm'}" for i in StateIndex)
 STATE_DIM = len(STATE_NAMES)
 BALL_POS = slice(0, 3)
 BALL_VEL = slice(3, 6)
