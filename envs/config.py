@@ -11,7 +11,10 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import reprlib
 from typing import Any
+
+import numpy as np
 
 
 def config_field(default: Any, doc: str, *, low=None, high=None, choices=None):
@@ -21,27 +24,87 @@ def config_field(default: Any, doc: str, *, low=None, high=None, choices=None):
     )
 
 
-def _check_value(name: str, value: Any, default: Any, meta: dict) -> None:
+def _short(value: Any) -> str:
+    """``repr(value)``, shortened for an error message (a 400-digit int, a long list)."""
+    return reprlib.repr(value)
+
+
+def _is_real(value: Any) -> bool:
+    """A real number: Python's or NumPy's int or float (not bool, complex or str)."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
+def real_number(name: str, value: Any, low: float | None, high: float | None) -> float:
+    """``value`` as a float, or ValueError naming ``name``, the value and the range."""
+    allowed = f"allowed: [{low}, {high}]"
+    if not _is_real(value):
+        raise ValueError(f"{name}={_short(value)} must be a number; {allowed}")
+    try:
+        number = float(value)
+    except OverflowError:
+        raise ValueError(f"{name}={_short(value)} must be finite; {allowed}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{name}={_short(value)} must be finite; {allowed}")
+    if (low is not None and number < low) or (high is not None and number > high):
+        raise ValueError(f"{name}={_short(value)} is out of range; {allowed}")
+    return number
+
+
+def real_array(name: str, value: Any, shape: tuple[int, ...], bound: float) -> np.ndarray:
+    """``value`` as a float array of ``shape`` with every entry finite and within
+    +-``bound``, or ValueError naming ``name``, the value and what is allowed."""
+    count = " x ".join(str(n) for n in shape)
+    error = ValueError(
+        f"{name} must be {count} finite numbers within +-{bound:g}, got {_short(value)}"
+    )
+    if isinstance(value, np.ma.MaskedArray):
+        raise error
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError):  # ragged sequences
+        raise error from None
+    if raw.dtype.kind not in "iuf" or raw.shape != shape:
+        raise error
+    array = raw.astype(np.float64)
+    if not np.all(np.isfinite(array)) or np.any(np.abs(array) > bound):
+        raise error
+    return array
+
+
+def _checked_value(name: str, value: Any, default: Any, meta: dict) -> Any:
+    """``value`` in its field's Python type (NumPy scalars become int, float or bool), or
+    ValueError naming the field, the value and what is allowed."""
     choices = meta["choices"]
     if choices is not None:
-        if value not in choices:
-            raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(choices)}")
-        return
+        try:
+            allowed = value in choices
+        except TypeError:  # e.g. an array compared with strings
+            allowed = False
+        if not allowed:
+            raise ValueError(
+                f"{name}={_short(value)} is not allowed; choose one of {list(choices)}"
+            )
+        return value
     if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ValueError(f"{name}={value!r} must be True or False")
-        return
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name}={_short(value)} must be True or False")
+        return bool(value)
     if isinstance(default, (int, float)):
         low, high = meta["low"], meta["high"]
-        allowed = f"allowed: [{low}, {high}]"
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{name}={value!r} must be a number; {allowed}")
-        if isinstance(default, int) and not isinstance(value, int):
-            raise ValueError(f"{name}={value!r} must be an integer; {allowed}")
-        if not math.isfinite(value):
-            raise ValueError(f"{name}={value!r} must be finite; {allowed}")
-        if (low is not None and value < low) or (high is not None and value > high):
-            raise ValueError(f"{name}={value!r} is out of range; {allowed}")
+        if isinstance(default, int):
+            if not isinstance(value, (int, np.integer)) or isinstance(value, (bool, np.bool_)):
+                raise ValueError(
+                    f"{name}={_short(value)} must be an integer; allowed: [{low}, {high}]"
+                )
+            if (low is not None and value < low) or (high is not None and value > high):
+                raise ValueError(
+                    f"{name}={_short(value)} is out of range; allowed: [{low}, {high}]"
+                )
+            return int(value)
+        return real_number(name, value, low, high)
+    return value
 
 
 def check_render_mode(render_mode: str | None, metadata: dict) -> None:
@@ -57,7 +120,8 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            _check_value(f.name, getattr(self, f.name), f.default, f.metadata)
+            value = _checked_value(f.name, getattr(self, f.name), f.default, f.metadata)
+            object.__setattr__(self, f.name, value)  # frozen: NumPy scalars made Python
 
     @classmethod
     def from_kwargs(cls, **kwargs: Any):

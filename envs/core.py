@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -197,6 +197,11 @@ class CameraEnv(gym.Env):
     # --- Gymnasium API --------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        if options is not None and not isinstance(options, Mapping):
+            raise ValueError(
+                f"reset options must be a dict (or None), got {type(options).__name__}: "
+                f"{options!r}; allowed keys: {', '.join(self._reset_options()) or 'none'}"
+            )
         options = dict(options or {})
         unknown = sorted(set(options) - set(self._reset_options()))
         if unknown:
@@ -236,7 +241,8 @@ class CameraEnv(gym.Env):
         reward = float(self._reward(action))
         terminated = bool(self._terminated())
         delivered = self.rig.deliver(self._tick)
-        return self._observation(), reward, terminated, False, self._step_info(delivered)
+        info = self._step_info(delivered, action)
+        return self._observation(), reward, terminated, False, info
 
     def _on_tick(self, last_tick: int) -> None:
         self._tick += 1
@@ -247,7 +253,9 @@ class CameraEnv(gym.Env):
         if cameras:
             self.rig.capture(cameras, self._tick, self.camera_pose, self._measure)
 
-    def _step_info(self, delivered: list[Frame]) -> dict[str, Any]:
+    def _step_info(
+        self, delivered: list[Frame], applied: np.ndarray | None = None
+    ) -> dict[str, Any]:
         frames, truth = [], []
         for f in delivered:
             info = {
@@ -266,6 +274,9 @@ class CameraEnv(gym.Env):
         return {
             "state": self._ground_truth_state().copy(),
             "time_s": self.time_s,
+            # The action this step applied, after clipping (None after a reset); an
+            # observer reads it here, so wrappers that rescale actions cannot fool it.
+            "applied_action": None if applied is None else applied.copy(),
             **self._info(),
             "frames": frames,
             "truth": {"frames": truth},

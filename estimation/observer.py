@@ -47,8 +47,8 @@ class Estimate:
 
 class ObserverPipeline(Protocol):
     """Detector + filters for one env. ``observe`` is called after every reset and step
-    with what the env returned and the action (clipped, as the env applied it) that led
-    there; None after a reset."""
+    with what the env returned and the action the env applied to get there
+    (``info["applied_action"]``); None after a reset."""
 
     def reset(self) -> None: ...
 
@@ -131,9 +131,15 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        space = self.action_space
-        applied = np.clip(np.asarray(action, dtype=np.float64), space.low, space.high)
-        estimate_obs, info = self._estimate(obs, info, applied)
+        # What the env applied, in its own units: a wrapper between this one and the env
+        # (RescaleAction, ...) may have changed the action this wrapper was given.
+        applied = info.get("applied_action")
+        if applied is None:
+            raise ValueError(
+                "VisionObserver needs info['applied_action'] from the env's step (every "
+                "observer-gym env gives it): the action the env applied"
+            )
+        estimate_obs, info = self._estimate(obs, info, np.asarray(applied, dtype=np.float64))
         return estimate_obs, reward, terminated, truncated, info
 
     def _estimate(self, obs, info: dict, action):

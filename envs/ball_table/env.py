@@ -20,6 +20,7 @@ from observer_gym.envs.ball_table.layout import (
 from observer_gym.envs.ball_table.measurements import empty_measurement, perfect_measurement
 from observer_gym.envs.ball_table.scene import BallTableScene
 from observer_gym.envs.camera import PinholeIntrinsics
+from observer_gym.envs.config import real_array
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
 
@@ -177,8 +178,8 @@ class BallTableEnv(CameraEnv):
             speed = rng.uniform(0.0, cfg.start_speed_mps)
             angle = rng.uniform(0.0, 2.0 * np.pi)
             ball_vel = speed * np.array([np.cos(angle), np.sin(angle)])
-        ball_pos = self._checked_option("ball_pos_table_m", ball_pos, geo.BALL_TRAVEL_M)
-        ball_vel = self._checked_option("ball_vel_table_mps", ball_vel, 2.0)
+        ball_pos = real_array("reset option ball_pos_table_m", ball_pos, (2,), geo.BALL_TRAVEL_M)
+        ball_vel = real_array("reset option ball_vel_table_mps", ball_vel, (2,), 2.0)
         self.scene.place_ball(ball_pos, ball_vel)
         self.disturbances.reset(rng)
         self._push_impulse = None
@@ -242,12 +243,3 @@ class BallTableEnv(CameraEnv):
             },
             "push_impulse_ns": self._push_impulse,
         }
-
-    @staticmethod
-    def _checked_option(name: str, value, bound: float) -> np.ndarray:
-        v = np.asarray(value, dtype=float)
-        if v.shape != (2,) or not np.all(np.isfinite(v)) or np.any(np.abs(v) > bound):
-            raise ValueError(
-                f"reset option {name} must be 2 finite numbers within +-{bound}, got {value!r}"
-            )
-        return v

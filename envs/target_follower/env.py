@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from observer_gym.envs.camera import PinholeIntrinsics
+from observer_gym.envs.config import real_array, real_number
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.target_follower import geometry as geo
@@ -28,6 +29,8 @@ from observer_gym.envs.target_follower.scene import TargetFollowerScene
 
 FAR_PLANE_M = 8.0  # the renderer's far plane: the target stays within a few metres
 RESET_OPTIONS = ("target_pos_world_m", "tilt_rad", "occlusions_s")
+TARGET_BOUND_M = 50.0  # reset's target_pos_world_m: every coordinate within +- this
+OCCLUSION_START_MAX_S = 3600.0
 
 
 class TargetFollowerEnv(CameraEnv):
@@ -217,12 +220,13 @@ class TargetFollowerEnv(CameraEnv):
 
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
-        tilt = float(options.get("tilt_rad", 0.0))
-        if not cfg.tilt_min_rad <= tilt <= cfg.tilt_max_rad:
-            raise ValueError(
-                f"reset option tilt_rad={tilt!r} is outside [{cfg.tilt_min_rad}, "
-                f"{cfg.tilt_max_rad}]"
-            )
+        tilt = real_number(
+            "reset option tilt_rad",
+            options.get("tilt_rad", 0.0),
+            cfg.tilt_min_rad,
+            cfg.tilt_max_rad,
+        )
+        occlusions = np.sort(self._checked_occlusions(options.get("occlusions_s", ())))
         distance = rng.uniform(cfg.start_distance_min_m, cfg.start_distance_max_m)
         bearing = rng.uniform(-cfg.start_bearing_max_rad, cfg.start_bearing_max_rad)
         height = rng.uniform(cfg.start_height_min_m, cfg.start_height_max_m)
@@ -234,12 +238,7 @@ class TargetFollowerEnv(CameraEnv):
                 eye[1] + distance * math.sin(bearing),
                 height,
             ]
-        target = np.asarray(target, dtype=float)
-        if target.shape != (3,) or not np.all(np.isfinite(target)):
-            raise ValueError(
-                f"reset option target_pos_world_m must be 3 finite numbers, got {target!r}"
-            )
-        occlusions = tuple(float(t) for t in options.get("occlusions_s", ()))
+        target = real_array("reset option target_pos_world_m", target, (3,), TARGET_BOUND_M)
         motion = TargetMotion(
             cfg.target_motion,
             target,
@@ -250,8 +249,21 @@ class TargetFollowerEnv(CameraEnv):
             turn_rate_radps=cfg.profile_turn_rate_radps,
         )
         self.scene.start(tilt, motion)
-        self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz, occlusions)
+        self.occluder_walk = OccluderWalk(
+            cfg.occluder_hold_s, cfg.occluder_rate_hz, tuple(occlusions.tolist())
+        )
         self._lost_s = 0.0
+
+    @staticmethod
+    def _checked_occlusions(value) -> np.ndarray:
+        """Occlusion start times: finite seconds in [0, OCCLUSION_START_MAX_S]."""
+        name = "reset option occlusions_s"
+        if np.ndim(value) != 1:
+            raise ValueError(f"{name} must be a sequence of start times in seconds, got {value!r}")
+        times = real_array(name, value, (len(value),), OCCLUSION_START_MAX_S)
+        if np.any(times < 0.0):
+            raise ValueError(f"{name} must be times >= 0 s, got {value!r}")
+        return times
 
     def _apply_action(self, action: np.ndarray) -> None:
         self._command = action
