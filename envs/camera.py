@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import pybullet
 
@@ -185,4 +186,4 @@ class Camera:
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
             shadow=0,
         )
-        return np.ascontiguousarray(np.reshape(rgba, (h, w, 4))[:, :, :3])
+        return cv2.cvtColor(np.reshape(rgba, (h, w, 4)), cv2.COLOR_RGBA2RGB)  # a new array

@@ -64,6 +64,15 @@ class CalibrationError:
             cy_px=nominal.cy_px + dy,
         )
 
+    @property
+    def is_exact(self) -> bool:
+        """The real camera is the nominal one."""
+        return (
+            self.focal_scale == 1.0
+            and self.principal_point_offset_px == (0.0, 0.0)
+            and np.array_equal(self.T_nominal_true, np.eye(4))
+        )
+
     def true_pose(self, T_world_cam_nominal: np.ndarray) -> np.ndarray:
         return T_world_cam_nominal @ self.T_nominal_true
 
@@ -179,9 +188,9 @@ class FrameClock:
             cameras.append(camera_id)
         return cameras
 
-    def capture_scheduled_at(self, tick: int) -> bool:
-        """Whether some camera's next capture falls on ``tick``."""
-        return any(s.next_tick == tick for s in self.schedules)
+    def next_capture_tick(self) -> int:
+        """The earliest tick at which some camera captures next (its frame may be lost)."""
+        return min(s.next_tick for s in self.schedules)
 
     def delivery_tick(self, camera_id: int, capture_tick: int) -> int:
         """When a frame of ``camera_id`` captured at ``capture_tick`` arrives."""
@@ -222,7 +231,11 @@ class CameraRig:
         self.always_draw_drops = always_draw_drops
         self.num_cameras = len(self.nominal)
         self.image_size_px = (config.image_width_px, config.image_height_px)
+        self._K_nominal = [i.K for i in self.nominal]  # frames share them: read-only
+        for K in self._K_nominal:
+            K.flags.writeable = False
         self.errors = [CalibrationError() for _ in self.nominal]
+        self._exact = [True] * self.num_cameras
         self.cameras = [Camera(sim, i, near_m, far_m) for i in self.nominal]
         self.clock: FrameClock | None = None
         self.noise_rng: np.random.Generator | None = None
@@ -231,7 +244,7 @@ class CameraRig:
 
     @property
     def K_nominal(self) -> list[np.ndarray]:
-        return [i.K for i in self.nominal]
+        return self._K_nominal
 
     def reset(
         self, sim: Simulation, rng: np.random.Generator, timings: Sequence[CameraTiming]
@@ -252,6 +265,7 @@ class CameraRig:
         )
         self.noise_rng, calibration_rng = rng.spawn(2)
         self.errors = [draw_calibration_error(cfg, calibration_rng) for _ in self.nominal]
+        self._exact = [e.is_exact for e in self.errors]
         self.cameras = [
             Camera(sim, e.true_intrinsics(i), self.near_m, self.far_m)
             for e, i in zip(self.errors, self.nominal, strict=True)
@@ -263,9 +277,9 @@ class CameraRig:
         cfg = self.config
         return [CameraTiming(cfg.frame_phase_s, cfg.latency_s) for _ in self.nominal]
 
-    def captures_pending_at(self, tick: int) -> bool:
-        """Whether a camera will capture at ``tick`` (its frame may still be dropped)."""
-        return self.clock.capture_scheduled_at(tick)
+    def next_capture_tick(self) -> int:
+        """The earliest tick at which some camera captures next (its frame may be lost)."""
+        return self.clock.next_capture_tick()
 
     def due(self, tick: int) -> list[int]:
         """The cameras that capture a kept frame at ``tick`` (drawing jitters and drops)."""
@@ -287,8 +301,8 @@ class CameraRig:
         """
         mode = self.config.obs_mode
         for c in cameras:
-            T_nominal = poses(c)
-            T_true = self.errors[c].true_pose(T_nominal)
+            T_nominal = poses(c).copy()
+            T_true = T_nominal if self._exact[c] else self.errors[c].true_pose(T_nominal)
             camera = self.cameras[c]
             payload = None
             if mode == "rgb":
@@ -299,8 +313,8 @@ class CameraRig:
                 c,
                 tick,
                 self.clock.delivery_tick(c, tick),
-                self.nominal[c].K,
-                T_nominal.copy(),
+                self._K_nominal[c],
+                T_nominal,
                 camera.K,
                 T_true,
                 payload,

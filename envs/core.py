@@ -13,8 +13,8 @@ One env step, in this order (the random draws of the world come from ``np_random
 this order in every obs_mode, so a seed gives the same world whatever the agent observes):
 
 1. ``_apply_action(action)`` (the action already checked and clipped);
-2. ``_advance(on_tick)``: the physics of one step, calling ``on_tick()`` after every
-   physics tick; cameras whose frames fall on an inner tick capture there;
+2. ``_advance(end_tick)``: the physics of one step, stopping at every inner tick where a
+   camera captures (``_next_stop``, ``_reach``) and running the ticks between in one go;
 3. the frames of the step's last tick are decided (drops drawn), then
    ``_after_physics()`` updates what changes once a step (occluders, ground truth), then
    those frames are captured;
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -126,11 +126,13 @@ class CameraEnv(gym.Env):
     def _apply_action(self, action: np.ndarray) -> None:
         raise NotImplementedError
 
-    def _advance(self, on_tick: Callable[[], None]) -> None:
-        """The physics of one env step; ``on_tick()`` after each of ``ticks_per_step`` ticks."""
-        for _ in range(self.ticks_per_step):
-            self.sim.step()
-            on_tick()
+    def _advance(self, end_tick: int) -> None:
+        """The physics of one env step, up to ``end_tick``: run the ticks up to each
+        :meth:`_next_stop` and call :meth:`_reach` there (captures on inner ticks)."""
+        while self._tick < end_tick:
+            stop = self._next_stop(end_tick)
+            self.sim.step(stop - self._tick)
+            self._reach(stop, end_tick)
 
     def _after_physics(self) -> None:
         """What changes once per step, before the step's last frames are captured (and
@@ -233,8 +235,8 @@ class CameraEnv(gym.Env):
         action = checked_action(action, self.action_space)
         self._actions.append(action)
         self._apply_action(action)
-        last = self._tick + self.ticks_per_step
-        self._advance(lambda: self._on_tick(last))
+        end_tick = self._tick + self.ticks_per_step
+        self._advance(end_tick)
         due = self.rig.due(self._tick)
         self._after_physics()
         self._capture(due)
@@ -244,10 +246,18 @@ class CameraEnv(gym.Env):
         info = self._step_info(delivered, action)
         return self._observation(), reward, terminated, False, info
 
-    def _on_tick(self, last_tick: int) -> None:
-        self._tick += 1
-        if self._tick < last_tick:
-            self._capture(self.rig.due(self._tick))
+    def _next_stop(self, end_tick: int) -> int:
+        """The next tick the physics must stop at: a camera's capture before
+        ``end_tick``, else ``end_tick``."""
+        capture = self.rig.next_capture_tick()
+        return capture if self._tick < capture < end_tick else end_tick
+
+    def _reach(self, tick: int, end_tick: int) -> None:
+        """The world has reached ``tick``: capture the frames due there (the step's last
+        tick captures after :meth:`_after_physics`)."""
+        self._tick = tick
+        if tick < end_tick:
+            self._capture(self.rig.due(tick))
 
     def _capture(self, cameras: list[int]) -> None:
         if cameras:

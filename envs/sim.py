@@ -93,9 +93,9 @@ class Simulation:
         )
 
     def step(self, substeps: int = 1) -> None:
-        step = self.client.stepSimulation
+        step, client_id = pybullet.stepSimulation, self.client._client
         for _ in range(substeps):
-            step()
+            step(physicsClientId=client_id)
 
     def close(self) -> None:
         """Disconnect the client. Safe to call more than once."""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -199,13 +198,17 @@ class BallCatcherEnv(CameraEnv):
     def _apply_action(self, action: np.ndarray) -> None:
         self._command_box(action)
 
-    def _advance(self, on_tick: Callable[[], None]) -> None:
+    def _advance(self, end_tick: int) -> None:
         drag = self.config.air_drag
-        for _ in range(self.ticks_per_step):
-            if drag:
-                self.scene.apply_drag()
-            self.sim.step()
-            on_tick()
+        while self._tick < end_tick:
+            stop = self._next_stop(end_tick)
+            if drag:  # the drag force is applied anew before every physics step
+                for _ in range(stop - self._tick):
+                    self.scene.apply_drag()
+                    self.sim.step()
+            else:
+                self.sim.step(stop - self._tick)
+            self._reach(stop, end_tick)
 
     def _after_physics(self) -> None:
         self._truth = self.scene.ground_truth()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -268,15 +267,19 @@ class TargetFollowerEnv(CameraEnv):
     def _apply_action(self, action: np.ndarray) -> None:
         self._command = action
 
-    def _advance(self, on_tick: Callable[[], None]) -> None:
-        first = self._tick + 1
-        self.scene.advance(
-            self._command,
-            self.config.dt_s,
-            self.ticks_per_step,
-            on_substep=on_tick,
-            placed_at=lambda k: self.rig.captures_pending_at(first + k),
-        )
+    def _advance(self, end_tick: int) -> None:
+        start = self._tick
+        if self._next_stop(end_tick) == end_tick:  # no camera captures inside the step
+            self.scene.advance(self._command, self.config.dt_s, self.ticks_per_step)
+        else:
+            self.scene.advance(
+                self._command,
+                self.config.dt_s,
+                self.ticks_per_step,
+                stops=lambda k: start + k + 1 == self._next_stop(end_tick),
+                on_stop=lambda k: self._reach(start + k + 1, end_tick),
+            )
+        self._reach(end_tick, end_tick)
 
     def _after_physics(self) -> None:
         cfg, scene = self.config, self.scene
@@ -335,7 +338,7 @@ class TargetFollowerEnv(CameraEnv):
         return {
             "camera": {
                 "K": self.intrinsics.K,
-                "T_world_cam": scene.camera_pose(),
+                "T_world_cam": scene.camera_pose().copy(),
                 "image_size_px": self.rig.image_size_px,
             },
             "calibration": self.calibration,

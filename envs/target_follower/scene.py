@@ -128,13 +128,13 @@ class TargetFollowerScene:
         command: np.ndarray,
         dt_s: float,
         substeps: int,
-        on_substep: Callable[[], None] | None = None,
-        placed_at: Callable[[int], bool] | None = None,
+        stops: Callable[[int], bool] | None = None,
+        on_stop: Callable[[int], None] | None = None,
     ) -> None:
         """Drive for ``dt_s`` with the command (v, omega, omega_t) and move the target in
-        ``substeps`` steps, calling ``on_substep()`` after each. The bodies are placed in
-        the world at the end, and after substep k (0-based) when ``placed_at(k)``: the
-        robot at its exact arc there, the target where its integration is."""
+        ``substeps`` steps. The bodies are placed in the world at the end, and after
+        substep k (0-based, not the last) where ``stops(k)``: the robot at its exact arc
+        there, the target where its integration is; then ``on_stop(k)`` is called."""
         self.wheels_mps = applied_wheel_speeds(
             float(command[0]), float(command[1]), self.wheels_mps, dt_s, self.limits
         )
@@ -146,24 +146,25 @@ class TargetFollowerScene:
         start = (*self.robot_xy_m, self.yaw_rad)
         self.applied = np.array([v, omega, omega_t])
 
-        def at_substep(k: int) -> None:
-            if k == substeps - 1:
-                x, y, yaw = integrate_unicycle(*start, v, omega, dt_s)
-                self.robot_xy_m = np.array([x, y])
-                self.yaw_rad = wrap_angle(yaw)
-                self.tilt_rad = tilt_end
-                self._place()
-            elif placed_at is not None and placed_at(k):
-                t_s = (k + 1) * dt_s / substeps
-                x, y, yaw = integrate_unicycle(*start, v, omega, t_s)
-                self.robot_xy_m = np.array([x, y])
-                self.yaw_rad = wrap_angle(yaw)
-                self.tilt_rad = tilt_start + omega_t * t_s
-                self._place()
-            if on_substep is not None:
-                on_substep()
+        def place_robot(t_s: float, tilt_rad: float) -> None:
+            x, y, yaw = integrate_unicycle(*start, v, omega, t_s)
+            self.robot_xy_m = np.array([x, y])
+            self.yaw_rad = wrap_angle(yaw)
+            self.tilt_rad = tilt_rad
 
-        self.motion.advance(dt_s, substeps, at_substep)
+        after_substep = None
+        if stops is not None:
+
+            def after_substep(k: int) -> None:
+                if k < substeps - 1 and stops(k):
+                    t_s = (k + 1) * dt_s / substeps
+                    place_robot(t_s, tilt_start + omega_t * t_s)
+                    self._place()
+                    on_stop(k)
+
+        self.motion.advance(dt_s, substeps, after_substep)
+        place_robot(dt_s, tilt_end)
+        self._place()
 
     def place_occluder(self, pose: tuple[np.ndarray, float] | None) -> None:
         """``pose`` (centre_world, yaw_rad), or None to park it out of sight."""
@@ -176,6 +177,9 @@ class TargetFollowerScene:
         )
 
     def _place(self) -> None:
+        self._T_world_cam = geo.camera_pose(
+            self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m
+        )
         client = self.sim.client
         x, y = self.robot_xy_m
         client.resetBasePositionAndOrientation(
@@ -194,8 +198,9 @@ class TargetFollowerScene:
         self.T_nominal_true = T_nominal_true
 
     def camera_pose(self) -> np.ndarray:
-        """The nominal ``T_world_cam``: where the calibration says the camera is."""
-        return geo.camera_pose(self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m)
+        """The nominal ``T_world_cam``: where the calibration says the camera is (computed
+        when the robot was last placed; do not modify)."""
+        return self._T_world_cam
 
     def ground_truth(self) -> GroundTruth:
         T = self.camera_pose()
