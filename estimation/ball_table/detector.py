@@ -35,12 +35,8 @@ outline, an implausible pose (tilt > 0.35 rad, yaw > 0.1 rad), a ball cut in par
 filling its circle badly, or whose image size does not fit its distance: each gives "not
 found" with a reason (``BallTableFeatures.table_failure``, ``BallTableDetection.failure``).
 
-Cost (``python benchmarks/bench_detector.py``, one core): ~0.39 ms per frame, ~0.45 ms
-with the observer's filters: 1.26-1.35x a bare OpenCV pass over the whole frame over nine
-runs on a shared machine (medians of three 1.28-1.32; 1.5x before the tracked region).
-Under heavier load on the same machine the same code measured 1.44-1.67x (0.66-0.74 ms
-against 0.41-0.49 ms): the ~35 small calls per frame slow down more than the bare pass's
-few whole-frame ones.
+Cost: ``python benchmarks/bench_detector.py`` times it against a bare OpenCV pass over the
+whole frame (figures in the README).
 """
 
 from __future__ import annotations

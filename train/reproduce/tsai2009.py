@@ -154,7 +154,7 @@ def run_study(
 
 
 def check_targets(sigmas: list[float], mse: dict) -> dict:
-    """The issue's targets: at sigma_n = 10, STKF < KF for all six and our ratio within
+    """The reproduction's targets: at sigma_n = 10, STKF < KF for all six and our ratio within
     1.25x the paper's; at sigma_n = 0, both filters' position MSE <= 0.1 px^2."""
     out = {}
     if 10 in sigmas:
