@@ -225,6 +225,13 @@ class Floor:
         log: list = []
         real = sim.client
         sim.client = _RecordingClient(real, log)
+        real_step = sim.step  # Simulation.step calls pybullet directly, not the client
+
+        def step(substeps: int = 1) -> None:
+            log.extend([("stepSimulation", (), {})] * substeps)
+            real_step(substeps)
+
+        sim.step = step
         self.episodes: list[list[list]] = []
 
         def hook(kind: str) -> None:
@@ -236,6 +243,7 @@ class Floor:
 
         timed_steps(recorder, steps, seed, hook)
         sim.client = real
+        del sim.step
         recorder.close()
         self.episodes = [e for e in self.episodes if e]
         counts = Counter(name for e in self.episodes for s in e for name, _, _ in s)

@@ -26,7 +26,7 @@ def checked_action(action, space: spaces.Box) -> np.ndarray:
             f"action must be real numbers with shape {space.shape}, got dtype {raw.dtype} "
             f"({reprlib.repr(action)})"
         )
-    a = raw.astype(np.float64)
+    a = np.asarray(raw, dtype=np.float64)
     if a.shape != space.shape:
         raise ValueError(f"action must have shape {space.shape}, got shape {a.shape}")
     if not np.all(np.isfinite(a)):

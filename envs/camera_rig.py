@@ -77,6 +77,11 @@ class CalibrationError:
         return T_world_cam_nominal @ self.T_nominal_true
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
 def _rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """Rodrigues' formula: the rotation by ``angle_rad`` about the unit vector ``axis``."""
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
@@ -110,7 +115,8 @@ def draw_calibration_error(cfg: SensorConfig, rng: np.random.Generator) -> Calib
 
 @dataclass
 class Frame:
-    """A captured frame: when, through which calibration, and what it holds."""
+    """A captured frame: when, through which calibration, and what it holds (the
+    calibration arrays are read-only: frames and ``info`` share them)."""
 
     camera_id: int
     capture_tick: int
@@ -231,9 +237,7 @@ class CameraRig:
         self.always_draw_drops = always_draw_drops
         self.num_cameras = len(self.nominal)
         self.image_size_px = (config.image_width_px, config.image_height_px)
-        self._K_nominal = [i.K for i in self.nominal]  # frames share them: read-only
-        for K in self._K_nominal:
-            K.flags.writeable = False
+        self._K_nominal = [_readonly(i.K) for i in self.nominal]  # every frame shares them
         self.errors = [CalibrationError() for _ in self.nominal]
         self._exact = [True] * self.num_cameras
         self.cameras = [Camera(sim, i, near_m, far_m) for i in self.nominal]
@@ -270,6 +274,8 @@ class CameraRig:
             Camera(sim, e.true_intrinsics(i), self.near_m, self.far_m)
             for e, i in zip(self.errors, self.nominal, strict=True)
         ]
+        for camera in self.cameras:
+            _readonly(camera.K)
         self.pending = []
         self.latest = [None] * self.num_cameras
 
@@ -301,8 +307,8 @@ class CameraRig:
         """
         mode = self.config.obs_mode
         for c in cameras:
-            T_nominal = poses(c).copy()
-            T_true = T_nominal if self._exact[c] else self.errors[c].true_pose(T_nominal)
+            T_nominal = _readonly(poses(c).copy())
+            T_true = T_nominal if self._exact[c] else _readonly(self.errors[c].true_pose(T_nominal))
             camera = self.cameras[c]
             payload = None
             if mode == "rgb":

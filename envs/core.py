@@ -267,7 +267,7 @@ class CameraEnv(gym.Env):
         self, delivered: list[Frame], applied: np.ndarray | None = None
     ) -> dict[str, Any]:
         frames, truth = [], []
-        for f in delivered:
+        for f in delivered:  # copies: an info shares nothing with another (Gymnasium's check)
             info = {
                 "camera_id": f.camera_id,
                 "capture_time_s": f.capture_tick * self.tick_s,
@@ -279,7 +279,7 @@ class CameraEnv(gym.Env):
             }
             frames.append(info)
             truth.append(
-                {"camera_id": f.camera_id, "K": f.K_true.copy(), "T_world_cam": f.T_world_cam_true}
+                {"camera_id": f.camera_id, "K": f.K_true, "T_world_cam": f.T_world_cam_true}
             )
         return {
             "state": self._ground_truth_state().copy(),

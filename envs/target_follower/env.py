@@ -337,7 +337,7 @@ class TargetFollowerEnv(CameraEnv):
         truth, scene = self._truth, self.scene
         return {
             "camera": {
-                "K": self.intrinsics.K,
+                "K": self.rig.K_nominal[0].copy(),
                 "T_world_cam": scene.camera_pose().copy(),
                 "image_size_px": self.rig.image_size_px,
             },
