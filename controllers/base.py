@@ -11,16 +11,22 @@ controller exactly as it scores a trained agent. ``obs`` is one observation (n,)
 batch (n_envs, n) from a vector env; the action has the matching shape. Controllers with
 memory (PID's integrator) keep it per batch row and clear a row where ``episode_start``
 is True; ``reset()`` clears all of it.
+
+:func:`check_number` is the check every controller option that is a number goes through:
+finite, in range, a Python or NumPy number (``np.float32(0.1)``, ``np.int64(10)``), never a
+bool, else ``ValueError`` naming the option and what is allowed.
 """
 
 from __future__ import annotations
 
+import numbers
+import warnings
 from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["Controller", "StateFeedbackController", "unwrapped_env"]
+__all__ = ["Controller", "StateFeedbackController", "check_number", "unwrapped_env"]
 
 
 @runtime_checkable
@@ -42,6 +48,11 @@ class StateFeedbackController:
     ``obs_dim`` is the length of the observation, ``action_low`` / ``action_high`` the
     action bounds (every action returned lies within them). Subclasses implement
     ``act(obs_batch (b, obs_dim), episode_start (b,) bool) -> actions (b, action_dim)``.
+
+    ``predict`` raises ``ValueError`` for an observation that is not an array of numbers of
+    shape (obs_dim,) or (n_envs, obs_dim), or not finite. A finite observation so large that
+    ``act`` overflows to a non-finite action gets the zero action for that row instead,
+    counted in ``nonfinite_actions``, with a ``RuntimeWarning`` the first time.
     """
 
     name = "controller"
@@ -50,6 +61,8 @@ class StateFeedbackController:
         self.obs_dim = int(obs_dim)
         self.action_low = np.asarray(action_low, dtype=float)
         self.action_high = np.asarray(action_high, dtype=float)
+        self.nonfinite_actions = 0  # rows whose action overflowed and were replaced by zero
+        self._warned_nonfinite = False
 
     def reset(self) -> None:
         """Forget all memory (nothing for a static controller)."""
@@ -66,7 +79,14 @@ class StateFeedbackController:
     ) -> tuple[np.ndarray, Any]:
         """stable-baselines3's signature; ``state`` is passed through, ``deterministic`` is
         ignored (every controller here is deterministic)."""
-        obs = np.asarray(observation, dtype=float)
+        try:
+            obs = np.asarray(observation, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"{type(self).__name__}.predict: observation must be an array of numbers of "
+                f"shape ({self.obs_dim},) or (n_envs, {self.obs_dim}), got {observation!r} "
+                f"({error})"
+            ) from None
         single = obs.ndim == 1
         batch = obs.reshape(1, -1) if single else obs
         if batch.ndim != 2 or batch.shape[1] != self.obs_dim:
@@ -84,8 +104,21 @@ class StateFeedbackController:
             starts = np.broadcast_to(
                 np.asarray(episode_start, dtype=bool).reshape(-1), (len(batch),)
             )
-        actions = np.clip(self.act(batch, starts), self.action_low, self.action_high)
-        actions = actions.astype(np.float32)
+        actions = np.asarray(self.act(batch, starts), dtype=float)
+        bad = ~np.all(np.isfinite(actions), axis=1)
+        if np.any(bad):  # overflow on huge (finite) observations: stop there
+            actions[bad] = 0.0
+            self.nonfinite_actions += int(np.count_nonzero(bad))
+            if not self._warned_nonfinite:
+                self._warned_nonfinite = True
+                warnings.warn(
+                    f"{type(self).__name__}.predict: the action for observation "
+                    f"{batch[bad][0].tolist()} is not finite (overflow); returning the zero "
+                    "action for it (later ones are counted in nonfinite_actions, not warned)",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+        actions = np.clip(actions, self.action_low, self.action_high).astype(np.float32)
         return (actions[0] if single else actions), state
 
 
@@ -95,3 +128,50 @@ def unwrapped_env(env: gym.Env, env_class: type, env_id: str, needed_by: str) ->
     if not isinstance(base, env_class):
         raise ValueError(f"{needed_by} needs a {env_id} env, got {type(base).__name__}")
     return base
+
+
+def check_number(
+    owner: str,
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_inclusive: bool = True,
+    integer: bool = False,
+    allow_none: bool = False,
+) -> float | int | None:
+    """``value`` as a float (an int with ``integer``), or ValueError naming ``owner``'s
+    option ``name`` and what it allows: a finite number (Python's or NumPy's, bools
+    excluded; with ``integer`` a whole one, e.g. 20 or 20.0) with ``low`` <= (or <, without
+    ``low_inclusive``) value <= ``high``; None passes through with ``allow_none``."""
+    if value is None and allow_none:
+        return None
+    if integer:
+        kind = "an integer"
+    else:
+        kind = "a finite number"
+    bounds = []
+    if low is not None:
+        bounds.append(f"{'>=' if low_inclusive else '>'} {low:g}")
+    if high is not None:
+        bounds.append(f"<= {high:g}")
+    allowed = kind + (" " + " and ".join(bounds) if bounds else "")
+    if allow_none:
+        allowed = "None or " + allowed
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+    try:
+        ok = number and bool(np.isfinite(float(value)))
+    except OverflowError:  # an int beyond float's range
+        ok = False
+    if ok and integer:
+        ok = float(value) == int(value)
+    if ok and low is not None:
+        ok = float(value) >= low if low_inclusive else float(value) > low
+    if ok and high is not None:
+        ok = float(value) <= high
+    if not ok:
+        raise ValueError(f"{owner}: {name} = {value!r}, must be {allowed}")
+    return int(value) if integer else float(value)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import control
 import numpy as np
 
-from observer_gym.controllers.ball_table.plant import BallTablePlant
+from observer_gym.controllers.ball_table.plant import BallTablePlant, check_plant
 from observer_gym.controllers.ball_table.weights import ball_table_weights
 from observer_gym.controllers.base import StateFeedbackController
 from observer_gym.controllers.weights import check_weights
@@ -18,13 +18,15 @@ class LQRController(StateFeedbackController):
     the plant's exact discretisation (``control.dlqr``).
 
     Arguments: ``plant`` (:class:`BallTablePlant`), ``Q`` (6, 6) and ``R`` (2, 2) or their
-    diagonals (default :func:`ball_table_weights`). Bad weights raise ``ValueError``.
+    diagonals (default :func:`ball_table_weights`). Bad weights (or another plant) raise
+    ``ValueError``.
     Attributes: ``K`` (2, 6), ``P`` (the DARE solution), ``closed_loop_poles``.
     """
 
     name = "lqr"
 
     def __init__(self, plant: BallTablePlant, Q=None, R=None) -> None:
+        check_plant("LQRController", plant)
         super().__init__(plant.obs_dim, *plant.action_bounds)
         Q0, R0 = ball_table_weights()
         self.Q, self.R = check_weights(

@@ -21,16 +21,18 @@ the LQR's saturated at the tilt bound, a finite in-bounds action; ``last_status`
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from observer_gym.controllers.ball_table.plant import BallTablePlant
-from observer_gym.controllers.base import StateFeedbackController
+from observer_gym.controllers.ball_table.plant import BallTablePlant, check_plant
+from observer_gym.controllers.base import StateFeedbackController, check_number
 from observer_gym.controllers.lqr import LQRController
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M
 
-__all__ = ["MPCController"]
+__all__ = ["MAX_HORIZON", "MPCController"]
 
 _SOLVED = {osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE}
 DEFAULT_TILT_RATE_LIMIT_RADPS = 1.5
@@ -44,12 +46,23 @@ DEFAULT_OSQP_SETTINGS = {
 }
 
 
+# The longest horizon allowed. One step must fit well within the control period (BallTable:
+# 20 ms, 50 Hz). Measured on a shared 2-core machine (predict's wall time in closed loop
+# from the env's random starts, as benchmarks/bench_mpc.py times it, 6 episodes x 100 steps):
+# horizon 20: 0.34 ms median warm-started step, 1.4 ms median first (cold) step; 50: 0.75
+# and 7.6 ms; 100: 1.4 and 17 ms (a cold step near the period); 150: 6.0 ms median warm;
+# 500: 15 ms; 1000: 32 ms; 2000: 70 ms. At 50 both stay well under 20 ms.
+MAX_HORIZON = 50
+
+
 class MPCController(StateFeedbackController):
-    """Arguments: ``plant``; ``horizon`` N (steps, default 20); ``Q``, ``R`` as for
+    """Arguments: ``plant``; ``horizon`` N (steps, default 20, at most :data:`MAX_HORIZON`
+    = 50 so that a step stays well within BallTable's 20 ms control period); ``Q``, ``R`` as for
     :class:`LQRController`; ``constrained`` (default True); ``tilt_limit_rad`` (default the
     env's bound), ``tilt_rate_limit_radps`` (default 1.5), ``ball_limit_m`` (default
     L/2 - r, the ball touching a border); ``osqp_settings`` overriding
-    :data:`DEFAULT_OSQP_SETTINGS`.
+    :data:`DEFAULT_OSQP_SETTINGS`. Numbers may be Python's or NumPy's; a bad option
+    raises ``ValueError`` naming it and what it allows.
 
     After each step: ``last_status`` (OSQP's status text), ``last_solve_time_s`` (OSQP's
     setup-free solve time), ``failures`` (steps that fell back to the LQR action),
@@ -70,24 +83,34 @@ class MPCController(StateFeedbackController):
         ball_limit_m: float = BALL_TRAVEL_M,
         osqp_settings: dict | None = None,
     ) -> None:
+        check_plant("MPCController", plant)
         super().__init__(plant.obs_dim, *plant.action_bounds)
-        if int(horizon) != horizon or horizon < 1:
-            raise ValueError(f"MPCController: horizon = {horizon!r}, must be an integer >= 1")
-        tilt_limit = plant.max_tilt_rad if tilt_limit_rad is None else float(tilt_limit_rad)
-        for name, value in (
-            ("tilt_limit_rad", tilt_limit),
-            ("tilt_rate_limit_radps", tilt_rate_limit_radps),
-            ("ball_limit_m", ball_limit_m),
-        ):
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"MPCController: {name} = {value!r}, must be finite and > 0")
+        owner = "MPCController"
+        horizon = check_number(owner, "horizon", horizon, low=1, high=MAX_HORIZON, integer=True)
+        tilt_limit = check_number(
+            owner, "tilt_limit_rad", tilt_limit_rad, low=0.0, low_inclusive=False, allow_none=True
+        )
+        tilt_limit = plant.max_tilt_rad if tilt_limit is None else tilt_limit
+        tilt_rate_limit_radps = check_number(
+            owner, "tilt_rate_limit_radps", tilt_rate_limit_radps, low=0.0, low_inclusive=False
+        )
+        ball_limit_m = check_number(
+            owner, "ball_limit_m", ball_limit_m, low=0.0, low_inclusive=False
+        )
+        if not isinstance(constrained, bool | np.bool_):
+            raise ValueError(f"MPCController: constrained = {constrained!r}, must be True or False")
+        if osqp_settings is not None and not isinstance(osqp_settings, Mapping):
+            raise ValueError(
+                f"MPCController: osqp_settings = {osqp_settings!r}, must be None or a dict of "
+                "OSQP settings"
+            )
         self.plant = plant
-        self.horizon = int(horizon)
+        self.horizon = horizon
         self.lqr = LQRController(plant, Q, R)  # checks Q and R; its P is the terminal cost
         self.constrained = bool(constrained)
         self.tilt_limit_rad = min(tilt_limit, plant.max_tilt_rad)
-        self.tilt_rate_limit_radps = float(tilt_rate_limit_radps)
-        self.ball_limit_m = float(ball_limit_m)
+        self.tilt_rate_limit_radps = tilt_rate_limit_radps
+        self.ball_limit_m = ball_limit_m
         self.settings = {**DEFAULT_OSQP_SETTINGS, **(osqp_settings or {})}
         self._setup()
         self.failures = 0

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from observer_gym.controllers.ball_table.plant import BallTablePlant
-from observer_gym.controllers.base import StateFeedbackController
+from observer_gym.controllers.ball_table.plant import BallTablePlant, check_plant
+from observer_gym.controllers.base import StateFeedbackController, check_number
 
 __all__ = ["PIDController"]
 
@@ -28,7 +28,8 @@ __all__ = ["PIDController"]
 class PIDController(StateFeedbackController):
     """Arguments: ``plant``; ``omega_radps`` (default 2.5) and ``damping`` (default 0.9)
     set kp and kd; ``ki`` (1/s^3, default kp * omega / 10), or give ``kp``, ``ki``,
-    ``kd`` directly. Memory: the integral of the ball's position, per batch row."""
+    ``kd`` directly (each None or a finite number >= 0; omega and damping finite and > 0,
+    else ``ValueError``). Memory: the integral of the ball's position, per batch row."""
 
     name = "pid"
 
@@ -41,13 +42,19 @@ class PIDController(StateFeedbackController):
         ki: float | None = None,
         kd: float | None = None,
     ) -> None:
+        check_plant("PIDController", plant)
         super().__init__(plant.obs_dim, *plant.action_bounds)
-        for name, value in (("omega_radps", omega_radps), ("damping", damping)):
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"PIDController: {name} = {value!r}, must be finite and > 0")
-        self.kp = omega_radps**2 if kp is None else float(kp)
-        self.kd = 2.0 * damping * omega_radps if kd is None else float(kd)
-        self.ki = self.kp * omega_radps / 10.0 if ki is None else float(ki)
+        owner = "PIDController"
+        omega_radps = check_number(owner, "omega_radps", omega_radps, low=0.0, low_inclusive=False)
+        damping = check_number(owner, "damping", damping, low=0.0, low_inclusive=False)
+        kp, ki, kd = (
+            check_number(owner, name, value, low=0.0, allow_none=True)
+            for name, value in (("kp", kp), ("ki", ki), ("kd", kd))
+        )
+        self.omega_radps, self.damping = omega_radps, damping
+        self.kp = omega_radps**2 if kp is None else kp
+        self.kd = 2.0 * damping * omega_radps if kd is None else kd
+        self.ki = self.kp * omega_radps / 10.0 if ki is None else ki
         for name, value in (("kp", self.kp), ("ki", self.ki), ("kd", self.kd)):
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"PIDController: {name} = {value!r}, must be finite and >= 0")

@@ -66,8 +66,16 @@ def check_controller_fits(name: str, system: System, others: str = "") -> Contro
 
 def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
     """The controller ``name`` of ``env``'s system designed from ``env``'s nominal model;
-    ``options`` go to its constructor. A controller of another system, an unknown name or
-    an unknown option raise ValueError naming what is allowed."""
+    ``options`` go to its constructor. A controller of another system, an unknown name, an
+    unknown option or an ``env`` that is no gymnasium env raise ValueError naming what is
+    allowed (as does a bad option value, from the constructor)."""
+    if not isinstance(name, str):
+        raise ValueError(f"make_controller: name = {name!r}, must be a controller's name (str)")
+    if not isinstance(env, gym.Env):
+        raise ValueError(
+            f"make_controller: env = {env!r}, must be a gymnasium env of a registered system "
+            f"({', '.join(s.env_id for s in SYSTEMS)}), e.g. gym.make(...)"
+        )
     cls, design_input = check_controller_fits(name, system_of(env))
     allowed = list(inspect.signature(cls).parameters)[1:]
     unknown = sorted(set(options) - set(allowed))

@@ -8,7 +8,12 @@ __all__ = ["check_weights"]
 
 
 def _as_matrix(name: str, value, size: int) -> np.ndarray:
-    M = np.array(value, dtype=float)
+    try:
+        M = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{name} = {value!r}, must be a ({size}, {size}) matrix of numbers or its diagonal"
+        ) from None
     if M.ndim == 1:  # a diagonal
         M = np.diag(M)
     if M.shape != (size, size):

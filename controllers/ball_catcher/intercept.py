@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.controllers.ball_catcher.plant import BallCatcherPlant
-from observer_gym.controllers.base import StateFeedbackController
+from observer_gym.controllers.base import StateFeedbackController, check_number
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.envs.ball_catcher.throws import plane_crossing
 
@@ -68,6 +68,9 @@ class InterceptController(StateFeedbackController):
             default 1 / (3 dt).
         aim_depth_m: aim where the ball crosses the plane this far behind the front face
             (the middle of the front plate: its hole's axis midpoint).
+
+    Numbers may be Python's or NumPy's; a bad option raises ``ValueError`` naming it and
+    what it allows.
     """
 
     name = "intercept"
@@ -80,18 +83,28 @@ class InterceptController(StateFeedbackController):
         position_gain_per_s: float | None = None,
         aim_depth_m: float = 0.005,
     ) -> None:
+        if not isinstance(plant, BallCatcherPlant):
+            raise ValueError(
+                "InterceptController: plant must be a BallCatcherPlant "
+                f"(BallCatcherPlant.from_env(env)), got {type(plant).__name__}"
+            )
         low, high = plant.action_bounds
         super().__init__(plant.obs_dim, low, high)
-        for name, value in (("hold_std_m", hold_std_m), ("aim_depth_m", aim_depth_m)):
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"InterceptController: {name} = {value!r}, must be >= 0")
-        if not 0.0 < brake_fraction <= 1.0:
-            raise ValueError(
-                f"InterceptController: brake_fraction = {brake_fraction!r}, must be in (0, 1]"
-            )
-        gain = 1.0 / (3.0 * plant.dt_s) if position_gain_per_s is None else position_gain_per_s
-        if not (np.isfinite(gain) and gain > 0.0):
-            raise ValueError(f"InterceptController: position_gain_per_s = {gain!r}, must be > 0")
+        owner = "InterceptController"
+        hold_std_m = check_number(owner, "hold_std_m", hold_std_m, low=0.0)
+        aim_depth_m = check_number(owner, "aim_depth_m", aim_depth_m, low=0.0)
+        brake_fraction = check_number(
+            owner, "brake_fraction", brake_fraction, low=0.0, low_inclusive=False, high=1.0
+        )
+        gain = check_number(
+            owner,
+            "position_gain_per_s",
+            position_gain_per_s,
+            low=0.0,
+            low_inclusive=False,
+            allow_none=True,
+        )
+        gain = 1.0 / (3.0 * plant.dt_s) if gain is None else gain
         self.plant = plant
         self.hold_std_m = float(hold_std_m)
         self.brake_fraction = float(brake_fraction)

@@ -11,7 +11,7 @@ from observer_gym.controllers.base import unwrapped_env
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.estimation.ball_table.control_model import BallTableControlModel
 
-__all__ = ["BallTablePlant"]
+__all__ = ["BallTablePlant", "check_plant"]
 
 
 @dataclass(frozen=True)
@@ -40,3 +40,13 @@ class BallTablePlant:
     def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         bound = np.full(2, self.max_tilt_rad)
         return -bound, bound
+
+
+def check_plant(owner: str, plant: object) -> None:
+    """ValueError unless ``plant`` is a :class:`BallTablePlant` (make one with
+    ``BallTablePlant.from_env(env)``, or use ``make_controller``)."""
+    if not isinstance(plant, BallTablePlant):
+        raise ValueError(
+            f"{owner}: plant must be a BallTablePlant (BallTablePlant.from_env(env)), got "
+            f"{type(plant).__name__}"
+        )

@@ -95,6 +95,7 @@ class ViewlineKalmanFilter:
     kB per frame); a measurement older than the oldest kept estimate raises ``ValueError``
     (:attr:`earliest_late_time_s` says how far back is allowed). ``late_count`` counts
     late measurements, ``refiltered_count`` the measurements processed again for them.
+    :meth:`restart` starts the estimate over (``restart_count``).
     To read the estimate at a control tick while frames may still arrive late, use
     :meth:`predicted`, which does not move the filter.
     """
@@ -123,6 +124,7 @@ class ViewlineKalmanFilter:
         self.time_s = float(time_s)
         self.late_count = 0
         self.refiltered_count = 0
+        self.restart_count = 0
         # The estimate before the oldest kept entry (initially the initial state), and
         # the kept entries in time order.
         self._anchor = self._checkpoint()
@@ -204,6 +206,43 @@ class ViewlineKalmanFilter:
         Phi, Gamma, Q = self.model.matrices(dt_s)
         self.kf.predict(Phi, Q, Gamma, self.model.u)  # (1), u = 1 (20)
         self.time_s = t_s
+
+    def restart(self, x0: np.ndarray, P0: np.ndarray, time_s: float, since_s: float) -> int:
+        """Start the estimate over from (``x0``, ``P0``) at ``time_s`` and filter again, in
+        time order and each gate decision made anew, the kept measurements from
+        ``since_s`` on (``time_s`` <= ``since_s``); older ones are forgotten (late frames
+        are then taken back to ``time_s``). The counters are those before the first
+        measurement filtered again plus its new decisions (as for a late frame), so
+        ``accepted_count + rejected_count`` still counts each detection once;
+        ``restart_count`` counts the restarts. Returns how many measurements were filtered
+        again. For an observer whose estimate was lost (see
+        :class:`~observer_gym.estimation.ball_catcher.observer.BallCatcherObserver`)."""
+        x0 = np.array(x0, dtype=float).reshape(-1)
+        P0 = np.array(P0, dtype=float)
+        if x0.shape != (6,) or P0.shape != (6, 6):
+            raise ValueError(
+                f"ViewlineKalmanFilter.restart: x0 {x0.shape}, P0 {P0.shape}; expected (6,), (6, 6)"
+            )
+        time_s, since_s = float(time_s), float(since_s)
+        if not time_s <= since_s:
+            raise ValueError(
+                f"ViewlineKalmanFilter.restart: time_s = {time_s!r} is after since_s = {since_s!r}"
+            )
+        resume_s = self.time_s
+        i = bisect.bisect_left([e.time_s for e in self._entries], since_s)
+        before = self._entries[i - 1].after if i > 0 else self._anchor
+        again = self._entries[i:]
+        kf = self.kf
+        kf.x, kf.P = x0, 0.5 * (P0 + P0.T)
+        kf.accepted_count, kf.rejected_count = before.accepted, before.rejected
+        self.time_s = time_s
+        self._anchor = self._checkpoint()
+        self._entries = []
+        self.restart_count += 1
+        for entry in again:
+            self._add(entry.time_s, entry.frames, entry.stacked)
+        self.predict_to(max(resume_s, self.time_s))
+        return len(again)
 
     # ------------------------------------------------------------------ measurements
 

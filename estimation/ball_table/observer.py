@@ -19,7 +19,13 @@ Per frame:
    updates with the ball's measured position, behind a chi-square gate. After
    ``reacquire_after`` consecutive rejections it restarts from the measurement (the
    estimate was lost, not the measurement wrong).
-When a frame is dropped or the ball is not seen, the estimate is the prediction.
+When a frame is dropped or the ball is not seen, the estimate is the prediction. A
+detection with a non-finite tilt or ball position (NaN, inf: e.g. from NaN pixels in a
+measurement) is no detection of that part: it neither updates a filter nor counts as a
+gate rejection.
+
+Frames (``obs_mode="rgb"``) must be uint8 images of the env's size (``image_size_px`` of
+the frame, else the env config's), H x W x 3: others raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -81,6 +87,7 @@ class BallTableObserver:
         self.detector = detector or BallTableDetector()
         cfg = env.config
         self.from_pixels = cfg.obs_mode == "rgb"
+        self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
         self.ball_model = RollingBallModel(self.params.ball)
         self.tilt_model = TiltLagModel.from_arm(
             cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
@@ -104,7 +111,8 @@ class BallTableObserver:
     def detect(self, obs: Any, frame: dict):
         """The detection of one frame."""
         if self.from_pixels:
-            features = self.table_tracker.extract_features(obs, frame["K"], frame["T_world_cam"])
+            image = checked_rgb_frame(obs, frame.get("image_size_px", self.image_size_px))
+            features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
         else:
             features = features_from_measurement(obs)
         return self.detector.detect(features, frame["K"], frame["T_world_cam"])
@@ -117,6 +125,7 @@ class BallTableObserver:
         ball_pos = (
             detection.ball_pos_table_m if detection is not None and detection.ball_found else None
         )
+        tilt_rad, ball_pos = _finite_or_none(tilt_rad), _finite_or_none(ball_pos)
         if self._ball_kf is None:
             self._start_tilt(tilt_rad)
             self._start_ball(ball_pos)
@@ -206,3 +215,25 @@ class BallTableObserver:
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
+
+
+def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:
+    """``value`` as a float array if all of it is finite, else None (no detection)."""
+    if value is None:
+        return None
+    value = np.asarray(value, dtype=float)
+    return value if bool(np.all(np.isfinite(value))) else None
+
+
+def checked_rgb_frame(image: Any, size_px: tuple[int, int]) -> np.ndarray:
+    """``image`` if it is a uint8 RGB frame of ``size_px`` = (W, H), i.e. shape (H, W, 3);
+    ValueError naming the expected and the given shape and dtype otherwise."""
+    expected = (int(size_px[1]), int(size_px[0]), 3)
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
+        shape = getattr(image, "shape", None)
+        dtype = getattr(image, "dtype", type(image).__name__)
+        raise ValueError(
+            f"BallTableObserver: the frame must be an RGB image of shape {expected} and dtype "
+            f"uint8, got shape {shape} and dtype {dtype}"
+        )
+    return image

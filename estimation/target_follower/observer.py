@@ -15,7 +15,11 @@ Per step:
 The output has the env's state layout; ``tracking_valid`` is 1 while the estimate is
 reliable (initialised, every diagonal element of P below the threshold), else 0, and the
 image entries then hold the last reliable estimate with zero rates; ``target_visible`` is
-1 when this step's frame gave a detection.
+1 when this step's frame gave a detection. A detection with a non-finite entry (NaN,
+inf) is no detection (the estimator's missed-measurement step).
+
+Frames (``obs_mode="rgb"``) must be uint8 images of the env's size (``image_size_px`` of
+the frame, else the env config's), H x W x 3: others raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -78,6 +82,7 @@ class TargetFollowerObserver:
         self.delta_y_m = env.calibration["delta_y_m"]
         self.detector = detector or TargetFollowerDetector()
         self.from_pixels = env.config.obs_mode == "rgb"
+        self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         self.vse = VisualStateEstimator(self.params)
         self.reset()
 
@@ -88,12 +93,18 @@ class TargetFollowerObserver:
         self._last_image = np.zeros(3)
 
     def detect(self, obs: Any, frame: dict) -> np.ndarray | None:
-        """(x_i, y_i, d_x) of one frame, or None."""
+        """(x_i, y_i, d_x) of one frame, or None (also when an entry is NaN or inf)."""
         if self.from_pixels:
-            return self.detector.detect(obs, frame["K"])
-        if not obs[DETECTED][0]:
+            image = checked_rgb_frame(obs, frame.get("image_size_px", self.image_size_px))
+            z = self.detector.detect(image, frame["K"])
+        elif not obs[DETECTED][0]:
             return None
-        return np.asarray(obs[TARGET_PX], dtype=float)
+        else:
+            z = obs[TARGET_PX]
+        if z is None:
+            return None
+        z = np.asarray(z, dtype=float)
+        return z if bool(np.all(np.isfinite(z))) else None
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         frames = info["frames"]
@@ -136,3 +147,17 @@ class TargetFollowerObserver:
         mean[StateIndex.TRACKING_VALID] = float(valid)
         mean[StateIndex.TARGET_VISIBLE] = float(z is not None)
         return Estimate(mean, cov, used, z, time_s)
+
+
+def checked_rgb_frame(image: Any, size_px: tuple[int, int]) -> np.ndarray:
+    """``image`` if it is a uint8 RGB frame of ``size_px`` = (W, H), i.e. shape (H, W, 3);
+    ValueError naming the expected and the given shape and dtype otherwise."""
+    expected = (int(size_px[1]), int(size_px[0]), 3)
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
+        shape = getattr(image, "shape", None)
+        dtype = getattr(image, "dtype", type(image).__name__)
+        raise ValueError(
+            f"TargetFollowerObserver: the frame must be an RGB image of shape {expected} and "
+            f"dtype uint8, got shape {shape} and dtype {dtype}"
+        )
+    return image
