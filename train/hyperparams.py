@@ -11,7 +11,8 @@ An env's entry holds two kinds of keys:
   image, MultiInputPolicy for a Dict) and ``env_kwargs`` (``gym.make`` options, e.g. a
   smaller camera image for ``--obs rgb``; ``--env-option`` overrides them);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
-  against its signature. Two values are written as text and built on use:
+  against its signature (:func:`algorithm_parameters`: its public parameters but those
+  ``observer-gym train`` sets itself). Two values are written as text and built on use:
   ``policy_kwargs.activation_fn`` (relu, tanh, elu) and ``action_noise``
   (``{type: normal, sigma: 0.1}``, in the [-1, 1] action units).
 
