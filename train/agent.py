@@ -5,12 +5,12 @@ An :class:`Agent` keeps the controller protocol (``reset()`` and SB3's ``predict
 ``observer-gym run``, ``evaluate`` and ``compare`` drive it exactly as the LQR. It
 normalises observations with the run's saved VecNormalize statistics, and maps its
 [-1, 1] actions back to the env's units; ``wrap_env`` adds the image preprocessing an
-rgb agent was trained with.
+rgb agent was trained with. The run folder itself (config.json, model files, ``ALGO:DIR``)
+is read by :mod:`observer_gym.train.run_dir`.
 """
 
 from __future__ import annotations
 
-import json
 import pickle
 from pathlib import Path
 from typing import Any
@@ -19,56 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from observer_gym.train.agent_env import ImageOptions, to_env_action, wrap_images
-from observer_gym.train.hyperparams import ALGOS
-
-CONFIG_FILE = "config.json"
-FINAL_MODEL = "model.zip"
-FINAL_VECNORMALIZE = "vecnormalize.pkl"
-
-
-def parse_agent_spec(name: str) -> tuple[str, Path] | None:
-    """``("ppo", Path("runs/x"))`` for ``"ppo:runs/x"``; None for a name without ``ALGO:``
-    (a baseline controller's name)."""
-    algo, sep, run_dir = name.partition(":")
-    if not sep or algo not in ALGOS:
-        return None
-    if not run_dir:
-        raise ValueError(f"agent {name!r} names no folder; expected {algo}:DIR")
-    return algo, Path(run_dir)
-
-
-def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
-    """The resolved config.json of the training run in ``run_dir``.
-
-    Raises:
-        ValueError: no training run there, or one trained with another algorithm.
-    """
-    path = Path(run_dir) / CONFIG_FILE
-    if not path.is_file():
-        raise ValueError(
-            f"{run_dir} is not an observer-gym training run (no {CONFIG_FILE}); "
-            "make one with 'observer-gym train'"
-        )
-    config = json.loads(path.read_text())
-    if algo is not None and config["algo"] != algo:
-        raise ValueError(f"{run_dir} holds a {config['algo']} agent, not {algo}")
-    return config
-
-
-def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
-    """(model, VecNormalize statistics or None, timesteps or None): the final model of a
-    finished run, else its latest checkpoint. ValueError if there is neither."""
-    from observer_gym.train.checkpoints import latest_checkpoint
-
-    run_dir = Path(run_dir)
-    checkpoint = latest_checkpoint(run_dir / "checkpoints")
-    if (run_dir / FINAL_MODEL).is_file():  # written last, after the final checkpoint
-        stats = run_dir / FINAL_VECNORMALIZE
-        steps = None if checkpoint is None else checkpoint["timesteps"]
-        return run_dir / FINAL_MODEL, stats if stats.is_file() else None, steps
-    if checkpoint is None:
-        raise ValueError(f"{run_dir} has neither {FINAL_MODEL} nor a checkpoint yet")
-    return checkpoint["model"], checkpoint.get("vecnormalize"), checkpoint["timesteps"]
+from observer_gym.train.run_dir import model_files, read_config
 
 
 class Agent:

@@ -10,7 +10,6 @@ intact. Only the newest ``keep`` sets stay on disk.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -20,8 +19,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import write_json_atomic
-
-LATEST = "latest.json"
+from observer_gym.train.run_dir import LATEST, latest_checkpoint  # noqa: F401  (read here too)
 
 
 def replace_atomically(path: Path, write: Any) -> None:
@@ -62,16 +60,6 @@ def _prune(directory: Path, keep: int) -> None:
     for old in steps[keep:]:
         for pattern in (f"model_{old}.zip", f"vecnormalize_{old}.pkl", f"replay_buffer_{old}.pkl"):
             (directory / pattern).unlink(missing_ok=True)
-
-
-def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
-    """The newest complete checkpoint in ``directory`` (its files as paths and its
-    ``timesteps``), or None if none was saved."""
-    path = Path(directory) / LATEST
-    if not path.exists():
-        return None
-    entry = json.loads(path.read_text())
-    return {k: (v if k == "timesteps" else Path(directory) / v) for k, v in entry.items()}
 
 
 class CheckpointCallback(EveryStepsCallback):

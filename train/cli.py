@@ -2,11 +2,20 @@
 
 Each subcommand is a thin layer over a library function that tests call directly; to add
 one, write its ``add_arguments`` and ``run`` functions and list it in ``COMMANDS``.
+
+Building the parser imports nothing heavy (:mod:`observer_gym.train.cli_args`), so
+``--help`` answers at once. Each ``run`` function checks the whole request first
+(:mod:`observer_gym.train.checks`: observers, controllers, trained agents, env options,
+training settings), before the heavy imports (PyTorch, stable-baselines3, the layers) and
+before any env is built; a mistake, there or in parsing, is one line on stderr,
+``observer-gym COMMAND: error: ...``, and exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -15,11 +24,15 @@ from pathlib import Path
 
 from observer_gym.train import compare_cli
 from observer_gym.train.cli_args import (
+    Parser,
+    UsageError,
     add_output_arguments,
     controller_name,
     env_name,
     env_option,
+    error_line,
     hyperparam_option,
+    import_pybullet_quietly,
     nonnegative_int,
     positive_float,
     positive_int,
@@ -57,6 +70,12 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_arguments(parser, "demo")
 
 
+def _error(command: str, message: object) -> int:
+    """Report a mistake in ``observer-gym COMMAND``'s request; the exit code 2."""
+    print(error_line(f"observer-gym {command}", message), file=sys.stderr)
+    return 2
+
+
 def _demo_run(args: argparse.Namespace) -> int:
     from observer_gym.train import demo  # deferred: imports PyBullet and OpenCV
     from observer_gym.train.outputs import default_out_dir
@@ -77,7 +96,7 @@ def _demo_run(args: argparse.Namespace) -> int:
 
 # --- run -------------------------------------------------------------------------------
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train.systems import observer_choices, per_env  # deferred: the systems
+    from observer_gym.train.checks import observer_choices, per_env
 
     parser.add_argument(
         "--env",
@@ -151,14 +170,25 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run import check_pair, results_text, run_experiment  # deferred
+    from observer_gym.train.checks import (
+        check_controller,
+        check_env_options,
+        check_observer,
+        names_for,
+    )
 
     try:
-        check_pair(args.env, args.observer, args.controller)
-    except ValueError as exc:  # an observer or controller the env does not take
-        print(f"observer-gym run: error: {exc}", file=sys.stderr)
-        return 2
+        env_id = check_observer(args.env, args.observer)
+        check_controller(args.controller, env_id, args.observer)
+        import_pybullet_quietly()
+        obs_mode = names_for(env_id).observers[args.observer]
+        check_env_options(env_id, obs_mode, dict(args.env_option))
+    except ValueError as exc:  # an observer, controller or env option the env does not take
+        return _error("run", exc)
+
+    from observer_gym.train.outputs import default_out_dir
+    from observer_gym.train.run import results_text, run_experiment  # deferred: the layers
+
     cli_args = recorded_args(args)
     results = run_experiment(
         env_id=args.env,
@@ -182,17 +212,38 @@ def _run_run(args: argparse.Namespace) -> int:
 TRAIN_OBS = ("state", "estimate", "rgb")
 
 
+class _ResumeAction(argparse.Action):
+    """``--resume DIR``: the run in DIR brings its own settings, so the options it
+    names in ``relaxes`` (--algo, --obs) are no longer required."""
+
+    def __init__(self, *args, relaxes: Sequence[argparse.Action] = (), **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.relaxes = tuple(relaxes)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+        for action in self.relaxes:
+            action.required = False
+
+
 def _train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
     )
-    parser.add_argument("--algo", choices=ALGOS, help="stable-baselines3 algorithm")
-    parser.add_argument(
+    algo = parser.add_argument(
+        "--algo",
+        choices=ALGOS,
+        required=True,
+        help="stable-baselines3 algorithm (not with --resume)",
+    )
+    obs = parser.add_argument(
         "--obs",
         choices=TRAIN_OBS,
+        required=True,
         help=(
             "what the agent reads: state (the true state), estimate (the VisionObserver's "
-            "estimate, same layout) or rgb (the camera frames: resized, grayscale, stacked)"
+            "estimate, same layout) or rgb (the camera frames: resized, grayscale, stacked) "
+            "(not with --resume)"
         ),
     )
     parser.add_argument(
@@ -247,7 +298,12 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="DIR",
-        help="continue the run in DIR from its last checkpoint (takes only --timesteps)",
+        action=_ResumeAction,
+        relaxes=(algo, obs),
+        help=(
+            "continue the run in DIR from its last checkpoint, with its own settings "
+            "(takes only --timesteps; then --algo and --obs are not needed)"
+        ),
     )
     add_output_arguments(parser, "train")
 
@@ -258,52 +314,77 @@ _TRAIN_RUN_OPTIONS = ("algo", "obs", "n_envs", "vec_env", "hyperparam", "env_opt
 
 def _train_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.training import (  # deferred: torch
-        resume_training,
-        train_agent,
-        training_text,
-    )
+    from observer_gym.train.run_dir import CHECKPOINTS, latest_checkpoint, read_config
 
     if args.resume is not None:
         given = [f"--{k.replace('_', '-')}" for k in _TRAIN_RUN_OPTIONS if getattr(args, k)]
         if given:
-            raise SystemExit(
-                f"observer-gym train: error: --resume continues a run with its own settings; "
-                f"drop {', '.join(given)}"
+            line = error_line(
+                "observer-gym train",
+                "--resume continues a run with its own settings; drop " + ", ".join(given),
             )
+            print(line, file=sys.stderr)
+            raise UsageError(line)
         run_dir = args.resume
+        try:
+            read_config(run_dir)
+            if latest_checkpoint(run_dir / CHECKPOINTS) is None:
+                raise ValueError(f"{run_dir} has no checkpoint to resume from")
+        except ValueError as exc:
+            return _error("train", exc)
+        from observer_gym.train.training import resume_training, training_text  # deferred
+
         state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
     else:
-        missing = [f"--{k}" for k in ("algo", "obs") if getattr(args, k) is None]
-        if missing:
-            raise SystemExit(
-                f"observer-gym train: error: {' and '.join(missing)} required (or --resume DIR)"
-            )
-        cli_args = recorded_args(args)
+        from observer_gym.train.checks import check_training_request, training_overrides
+
         run_dir = args.out if args.out is not None else default_out_dir("train")
-        state = train_agent(
-            env_id=args.env,
-            algo=args.algo,
-            obs=args.obs,
-            out_dir=run_dir,
-            timesteps=args.timesteps,
-            seed=args.seed,
-            estimate_from=args.estimate_from,
-            n_envs=args.n_envs,
-            vec_env=args.vec_env,
-            hyperparams=dict(args.hyperparam),
-            env_kwargs=dict(args.env_option),
-            tensorboard=args.tensorboard,
-            progress=not args.no_progress,
-            cli_args=cli_args,
-        )
+        options = {
+            "env_id": args.env,
+            "algo": args.algo,
+            "obs": args.obs,
+            "out_dir": run_dir,
+            "timesteps": args.timesteps,
+            "seed": args.seed,
+            "estimate_from": args.estimate_from,
+            "n_envs": args.n_envs,
+            "vec_env": args.vec_env,
+            "hyperparams": dict(args.hyperparam),
+            "env_kwargs": dict(args.env_option),
+            "tensorboard": args.tensorboard,
+        }
+        try:
+            import_pybullet_quietly()
+            overrides = training_overrides(
+                options["hyperparams"], args.timesteps, args.n_envs, args.vec_env
+            )
+            check_training_request(
+                args.env,
+                args.algo,
+                args.obs,
+                args.estimate_from,
+                run_dir,
+                overrides,
+                options["env_kwargs"],
+                args.tensorboard,
+            )
+            # deferred: PyTorch; the hyperparameters' names come from stable-baselines3
+            from observer_gym.train.training import check_training
+
+            check_training(**options)
+        except ValueError as exc:
+            return _error("train", exc)
+        from observer_gym.train.training import train_agent, training_text
+
+        cli_args = recorded_args(args)
+        state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
     print(training_text(run_dir, state))
     return 130 if state["status"] == "interrupted" else 0
 
 
 # --- evaluate --------------------------------------------------------------------------
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train.systems import observer_choices  # deferred: the systems
+    from observer_gym.train.checks import observer_choices
 
     parser.add_argument(
         "--model",
@@ -337,6 +418,25 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:
+    from observer_gym.train.checks import (
+        check_controller,
+        check_env_options,
+        check_observer,
+        names_for,
+    )
+    from observer_gym.train.run_dir import read_config
+
+    try:
+        config = read_config(args.model)
+        observer = args.observer or config["observer"]
+        env_id = check_observer(config["env_id"], observer)
+        check_controller(f"{config['algo']}:{args.model}", env_id, observer)
+        import_pybullet_quietly()
+        obs_mode = names_for(env_id).observers[observer]
+        check_env_options(env_id, obs_mode, config["env_kwargs"])
+    except ValueError as exc:  # no trained agent there, or an observer it cannot read
+        return _error("evaluate", exc)
+
     from observer_gym.train.evaluate import evaluate_agent  # deferred: torch, PyBullet
     from observer_gym.train.outputs import default_out_dir
     from observer_gym.train.run import results_text
@@ -358,22 +458,27 @@ def _evaluate_run(args: argparse.Namespace) -> int:
 
 
 # --- reproduce -------------------------------------------------------------------------
-def _reproduce_arguments(parser: argparse.ArgumentParser) -> None:
-    import importlib
+def _study_runner(module_name: str) -> Callable[[argparse.Namespace], int]:
+    """The ``run`` of the study module ``module_name``, imported when called."""
 
+    def run(args: argparse.Namespace) -> int:
+        return importlib.import_module(module_name).run(args)
+
+    return run
+
+
+def _reproduce_arguments(parser: argparse.ArgumentParser) -> None:
     from observer_gym.train.reproduce import STUDIES
+    from observer_gym.train.reproduce.arguments import ARGUMENTS
 
     studies = parser.add_subparsers(dest="study", metavar="STUDY", title="studies", required=True)
     for name, module_name in STUDIES.items():
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if exc.name != module_name:
-                raise
+        if importlib.util.find_spec(module_name) is None:
             continue  # a study listed before its module landed
-        sub = studies.add_parser(name, help=module.DESCRIPTION, description=module.DESCRIPTION)
-        module.add_arguments(sub)
-        sub.set_defaults(study_run=module.run)
+        study = ARGUMENTS[name]
+        sub = studies.add_parser(name, help=study.description, description=study.description)
+        study.add_arguments(sub)
+        sub.set_defaults(study_run=_study_runner(module_name))
 
 
 def _reproduce_run(args: argparse.Namespace) -> int:
@@ -471,8 +576,9 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
-    parser = argparse.ArgumentParser(
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`; it
+    imports nothing heavy."""
+    parser = Parser(
         prog="observer-gym",
         description=(
             "Gymnasium environments in PyBullet controlled through what their cameras see. "
@@ -493,7 +599,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``observer-gym``; returns the process exit code.
 
-    argparse raises ``SystemExit`` for ``--help`` (code 0) and for bad arguments (code 2).
+    argparse raises ``SystemExit`` for ``--help`` (code 0); a mistake in parsing raises
+    :class:`~observer_gym.train.cli_args.UsageError` (a ``SystemExit`` with code 2) after
+    printing its one line, one found by a command's checks returns 2 after printing its.
     """
     args = build_parser().parse_args(argv)
     return args.run(args)

@@ -1,17 +1,85 @@
-"""The argparse types and shared options of the ``observer-gym`` subcommands.
+"""The parser, argparse types and shared options of the ``observer-gym`` subcommands.
 
-Parsing imports nothing heavy at module level: the types that need the systems (env ids,
-controller names) import them when called.
+Parsing imports nothing heavy: env ids come from the system registry
+(:data:`observer_gym.envs.SYSTEMS`, which imports Gymnasium only) and controller names
+from :mod:`observer_gym.train.checks`. A mistake is answered with one line on stderr
+(:class:`Parser`).
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import math
+import os
+import sys
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 from observer_gym.train.hyperparams import ALGOS
+
+
+class UsageError(SystemExit):
+    """A mistake in the command line: exit code 2; ``str()`` is the message."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(2)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def one_line(text: object) -> str:
+    """``text`` with every run of whitespace (newlines too) made one space."""
+    return " ".join(str(text).split())
+
+
+def error_line(prog: str, message: object) -> str:
+    """The one line that reports a mistake: ``PROG: error: MESSAGE``."""
+    return f"{prog}: error: {one_line(message)}"
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser whose mistakes are one line on stderr, ``PROG: error: MESSAGE``
+    (with a pointer to ``--help`` instead of the usage), raising :class:`UsageError`
+    (exit code 2). Its subparsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        line = error_line(self.prog, f"{message} (see '{self.prog} --help')")
+        print(line, file=sys.stderr)
+        raise UsageError(line)
+
+
+def import_pybullet_quietly() -> None:
+    """Import PyBullet, dropping the build-time banner its C code writes to stderr
+    ("pybullet build time: ...") at the first import; anything else written to stderr
+    meanwhile passes on (like the stdout silencing of :mod:`observer_gym.envs.sim`)."""
+    if "pybullet" in sys.modules:
+        return
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to filter
+        import pybullet
+
+        return
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            import pybullet  # noqa: F401
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            written = capture.read().decode(errors="replace").splitlines(keepends=True)
+            rest = [line for line in written if not line.startswith("pybullet build time:")]
+            if rest:
+                sys.stderr.write("".join(rest))
+                sys.stderr.flush()
 
 
 def positive_float(text: str) -> float:
@@ -34,6 +102,11 @@ def _int_at_least(minimum: int, text: str) -> int:
     if value < minimum:
         raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text}")
     return value
+
+
+def int_at_least(minimum: int) -> Callable[[str], int]:
+    """argparse type: an integer >= ``minimum``."""
+    return functools.partial(_int_at_least, minimum)
 
 
 def positive_int(text: str) -> int:
@@ -62,7 +135,7 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
 def controller_name(text: str) -> str:
     """argparse type: a controller of some system or a trained agent ``ALGO:DIR``
     (whether it fits the env is checked with the env)."""
-    from observer_gym.train.systems import controller_choices  # deferred: the controllers
+    from observer_gym.train.checks import controller_choices
 
     controllers = controller_choices()
     algo, sep, run_dir = text.partition(":")

@@ -26,12 +26,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from observer_gym.train.agent import parse_agent_spec
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import VERSIONED_PACKAGES, package_versions
 from observer_gym.train.run import EpisodeSpec, build_controller, check_controller, run_episodes
+from observer_gym.train.run_dir import parse_agent_spec
 from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
 

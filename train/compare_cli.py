@@ -2,8 +2,10 @@
 :func:`observer_gym.train.compare.run_comparison`).
 
 The help texts list every system's observers and controllers
-(:mod:`observer_gym.train.systems`, imported when the arguments are added); the library
-and Ray load inside :func:`run`, which prints what the comparison returns.
+(:mod:`observer_gym.train.checks`, which imports no layer). :func:`run` checks each
+observer, controller and env option there first, then loads the library (and Ray),
+which checks the rest (:func:`~observer_gym.train.compare.check_comparison`), runs the
+comparison and prints what it returns.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from observer_gym.train.cli_args import (
     add_output_arguments,
     env_name,
     env_option,
+    error_line,
+    import_pybullet_quietly,
     nonnegative_int,
     positive_int,
     recorded_args,
@@ -55,7 +59,7 @@ def seed_list(text: str) -> list[int]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``observer-gym compare``."""
-    from observer_gym.train.systems import per_env  # deferred: the systems
+    from observer_gym.train.checks import per_env
 
     parser.add_argument(
         "--env",
@@ -149,14 +153,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_arguments(parser, "compare")
 
 
-def _error(message: str) -> int:
-    print(f"observer-gym compare: error: {message}", file=sys.stderr)
+def _error(message: object) -> int:
+    print(error_line("observer-gym compare", message), file=sys.stderr)
     return 2
 
 
+def check_pairs(
+    env_id: str,
+    observers: list[str],
+    controllers: list[str],
+    env_options: dict[str, object],
+) -> None:
+    """The checks of :mod:`observer_gym.train.checks` for every pair and the env options
+    with each observer's obs_mode; ValueError naming what is allowed otherwise. Imports
+    no layer but the env's module."""
+    from observer_gym.train.checks import (
+        check_controller,
+        check_env_options,
+        check_observer,
+        names_for,
+    )
+
+    for observer in observers:
+        env_id = check_observer(env_id, observer)
+    for controller in controllers:
+        for observer in observers:
+            check_controller(controller, env_id, observer)
+    import_pybullet_quietly()
+    modes = names_for(env_id).observers
+    for obs_mode in dict.fromkeys(modes[observer] for observer in observers):
+        check_env_options(env_id, obs_mode, env_options, decided_by="each observer")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the comparison of ``args``; 0 on success, 2 (with a message on stderr) for an
-    input the library rejects before running anything."""
+    """Run the comparison of ``args``; 0 on success, 2 (with a one-line message on
+    stderr) for an input :func:`check_pairs` or the library rejects before running
+    anything."""
     if args.seeds is not None and (args.episodes is not None or args.seed is not None):
         return _error("--seeds lists the seeds: give it alone, without --episodes or --seed")
     if args.seeds is not None:
@@ -164,6 +196,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         first = DEFAULT_SEED if args.seed is None else args.seed
         seeds = list(range(first, first + (args.episodes or DEFAULT_EPISODES)))
+
+    try:
+        check_pairs(args.env, args.observers, args.controllers, dict(args.env_option))
+    except ValueError as exc:
+        return _error(exc)
 
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.compare import check_comparison, run_comparison

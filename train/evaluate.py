@@ -7,8 +7,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.agent import model_files, read_config
 from observer_gym.train.run import run_experiment
+from observer_gym.train.run_dir import model_files, read_config
 
 
 def evaluate_agent(

@@ -11,7 +11,8 @@ An env's entry holds two kinds of keys:
   image, MultiInputPolicy for a Dict) and ``env_kwargs`` (``gym.make`` options, e.g. a
   smaller camera image for ``--obs rgb``; ``--env-option`` overrides them);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
-  against its signature. Two values are written as text and built on use:
+  against its signature (:func:`algorithm_parameters`: its public parameters but those
+  ``observer-gym train`` sets itself). Two values are written as text and built on use:
   ``policy_kwargs.activation_fn`` (relu, tanh, elu) and ``action_noise``
   (``{type: normal, sigma: 0.1}``, in the [-1, 1] action units).
 
@@ -24,6 +25,7 @@ records, so a run can be repeated from it alone.
 from __future__ import annotations
 
 import copy
+import difflib
 import inspect
 from collections.abc import Mapping
 from pathlib import Path
@@ -82,17 +84,19 @@ def _merge(base: dict[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
     return base
 
 
-def load_hyperparams(
+def resolve_hyperparams(
     env_id: str, algo: str, obs: str, overrides: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
-    """The resolved hyperparameters of ``algo`` on ``env_id`` with ``obs``: the defaults,
-    the YAML entry, its ``obs`` section, then ``overrides`` (dotted keys), validated.
+    """The hyperparameters of ``algo`` on ``env_id`` with ``obs``: the defaults, the YAML
+    entry, its ``obs`` section, then ``overrides`` (dotted keys), with the training keys
+    checked (:func:`check_training_keys`) but not the algorithm's: this imports neither
+    stable-baselines3 nor PyTorch.
 
     Raises:
-        ValueError: an unknown algo, an env without an entry, an unknown key or a bad
-            training value, naming it and what is allowed.
+        ValueError: an unknown algo, an env without an entry or a bad training value.
     """
-    cls = algorithm_class(algo)
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
     path = HYPERPARAMS_DIR / f"{algo}.yml"
     entries = yaml.safe_load(path.read_text()) or {}
     if env_id not in entries:
@@ -103,18 +107,78 @@ def load_hyperparams(
     _merge(params, by_obs.get(obs) or {})
     for dotted, value in (overrides or {}).items():
         _set_dotted(params, dotted, value)
-    _validate(params, cls)
+    check_training_keys(params)
     return params
 
 
-def _validate(params: Mapping[str, Any], cls: type) -> None:
-    allowed = set(inspect.signature(cls.__init__).parameters) - {"self", "env", "policy"}
-    unknown = sorted(set(params) - set(TRAINING_DEFAULTS) - allowed)
-    if unknown:
-        raise ValueError(
-            f"unknown hyperparameter(s) {unknown} for {cls.__name__}; allowed: training keys "
-            f"{', '.join(TRAINING_DEFAULTS)} and {cls.__name__}'s {', '.join(sorted(allowed))}"
+def load_hyperparams(
+    env_id: str, algo: str, obs: str, overrides: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The resolved hyperparameters of ``algo`` on ``env_id`` with ``obs``
+    (:func:`resolve_hyperparams`), every key checked: a key that is no training key must
+    be one of :func:`algorithm_parameters` (this imports stable-baselines3).
+
+    Raises:
+        ValueError: an unknown algo, an env without an entry, an unknown key or a bad
+            training value, naming it and what is allowed.
+    """
+    params = resolve_hyperparams(env_id, algo, obs, overrides)
+    check_algorithm_keys(params, algo)
+    return params
+
+
+# Constructor parameters of the SB3 classes that observer-gym train sets itself, with
+# what sets them; they are no hyperparameters.
+SET_BY_TRAIN = {
+    "env": "--env and --obs",
+    "seed": "--seed",
+    "device": "always cpu",
+    "verbose": "always 0",
+}
+
+
+def algorithm_parameters(algo: str) -> tuple[str, ...]:
+    """The constructor parameters of ``algo``'s SB3 class that a hyperparameter may set,
+    sorted: the public ones (no leading underscore) but ``policy`` (a training key) and
+    those of :data:`SET_BY_TRAIN`."""
+    cls = algorithm_class(algo)
+    skip = {"self", "policy", *SET_BY_TRAIN}
+    return tuple(
+        sorted(
+            name
+            for name in inspect.signature(cls.__init__).parameters
+            if not name.startswith("_") and name not in skip
         )
+    )
+
+
+def check_algorithm_keys(params: Mapping[str, Any], algo: str) -> None:
+    """ValueError unless every key of ``params`` is a training key or one of
+    :func:`algorithm_parameters`; the message names the allowed keys (and the closest
+    one to a misspelt key)."""
+    allowed = algorithm_parameters(algo)
+    unknown = sorted(set(params) - set(TRAINING_DEFAULTS) - set(allowed))
+    if not unknown:
+        return
+    name = algorithm_class(algo).__name__
+    set_here = [key for key in unknown if key in SET_BY_TRAIN]
+    if set_here:
+        raise ValueError(
+            "not hyperparameters, observer-gym train sets them: "
+            + ", ".join(f"{key} ({SET_BY_TRAIN[key]})" for key in set_here)
+        )
+    close = difflib.get_close_matches(unknown[0], [*TRAINING_DEFAULTS, *allowed], n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise ValueError(
+        f"unknown hyperparameter(s) {unknown} for {name}{hint}; allowed: training keys "
+        f"{', '.join(TRAINING_DEFAULTS)} and {name}'s {', '.join(allowed)}"
+    )
+
+
+def check_training_keys(params: Mapping[str, Any]) -> None:
+    """ValueError for a bad value of a training key (:data:`TRAINING_DEFAULTS`) or of
+    the two text values built on use (``policy_kwargs.activation_fn``,
+    ``action_noise``)."""
     for key in INTEGER_KEYS:
         value = params[key]
         if isinstance(value, float) and value.is_integer():
@@ -136,8 +200,13 @@ def _validate(params: Mapping[str, Any], cls: type) -> None:
             f"got {activation!r}"
         )
     noise = params.get("action_noise")
+    sigma = noise.get("sigma") if isinstance(noise, Mapping) else None
     if noise is not None and not (
-        isinstance(noise, Mapping) and noise.get("type") == "normal" and noise.get("sigma", 0) > 0
+        isinstance(noise, Mapping)
+        and noise.get("type") == "normal"
+        and isinstance(sigma, int | float)
+        and not isinstance(sigma, bool)
+        and sigma > 0
     ):
         raise ValueError(f"action_noise must be {{type: normal, sigma: > 0}}, got {noise!r}")
 

@@ -25,7 +25,8 @@ from tqdm import tqdm
 
 from observer_gym.controllers import check_controller_fits, make_controller
 from observer_gym.envs import system_for_id
-from observer_gym.train.agent import Agent, parse_agent_spec, read_config
+from observer_gym.train.agent import Agent
+from observer_gym.train.checks import AGENT_FORMS, check_agent, frames_message
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
@@ -33,6 +34,7 @@ from observer_gym.train.outputs import (
     to_jsonable,
     write_json_atomic,
 )
+from observer_gym.train.run_dir import parse_agent_spec
 from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
 
@@ -77,34 +79,19 @@ class EpisodeSpec:
 def check_controller(controller: str, env_id: str, observer: str) -> None:
     """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
     ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
-    system's is refused naming those that fit) or a trained agent ``ALGO:DIR`` (see
-    :func:`observer_gym.train.agent.parse_agent_spec`). Controllers and agents trained on
+    system's is refused naming those that fit) or a trained agent ``ALGO:DIR`` whose
+    folder holds a run of ``env_id`` with a model to load
+    (:func:`observer_gym.train.checks.check_agent`). Controllers and agents trained on
     the state or an estimate read the state layout (any observer but "pixels"); an agent
     trained on rgb reads only "pixels"."""
     obs_mode, pipeline = task_for(env_id).OBSERVERS[observer]
     reads_pixels = pipeline is None and obs_mode != "state"
-    agent_spec = parse_agent_spec(controller)
-    if agent_spec is None:
-        check_controller_fits(
-            controller,
-            system_for_id(env_id),
-            others=", or a trained agent as ALGO:DIR (ppo:runs/ppo-balltable)",
-        )
+    if parse_agent_spec(controller) is None:
+        check_controller_fits(controller, system_for_id(env_id), others=f", {AGENT_FORMS}")
         if reads_pixels:
-            raise ValueError(
-                f"controller {controller!r} acts on the state layout; observer {observer!r} "
-                "gives camera frames, which only an agent trained with --obs rgb reads"
-            )
+            raise ValueError(frames_message(controller, observer))
         return
-    agent = read_config(agent_spec[1], algo=agent_spec[0])
-    if agent["env_id"] != env_id:
-        raise ValueError(f"agent {controller!r} was trained on {agent['env_id']}, not {env_id}")
-    if (agent["obs"] == "rgb") != reads_pixels:
-        wants = "observer 'pixels'" if agent["obs"] == "rgb" else "an observer but 'pixels'"
-        raise ValueError(
-            f"agent {controller!r} was trained with --obs {agent['obs']}: it needs {wants}, "
-            f"got {observer!r}"
-        )
+    check_agent(controller, resolve_env_id(env_id), reads_pixels, observer)
 
 
 def check_pair(env_id: str, observer: str, controller: str) -> str:

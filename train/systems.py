@@ -4,7 +4,8 @@ For each record of :data:`observer_gym.envs.SYSTEMS`, :func:`system_entries` gat
 env id, the observers of its task (what ``run`` and ``compare`` take as ``--observer``),
 the pipelines of ``observer_gym.estimation.<system>``, the controllers of
 ``observer_gym.controllers.<system>`` and the task module ``observer_gym.train.tasks.<system>``.
-The command line's choices and help texts come from here.
+Reading them imports every layer; the command line takes its choices and help texts from
+the light copy in :mod:`observer_gym.train.checks`, which the tests hold equal to these.
 """
 
 from __future__ import annotations

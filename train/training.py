@@ -22,6 +22,7 @@ trained on. On CPU, two runs with the same seed and settings give identical mode
 from __future__ import annotations
 
 import csv
+import dataclasses
 import functools
 import signal
 import time
@@ -32,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.train.agent import CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE, read_config
-from observer_gym.train.agent_env import make_agent_env, observer_for
+from observer_gym.train.agent_env import ImageOptions, make_agent_env, observer_for
 from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import package_versions, to_jsonable, write_json_atomic
+from observer_gym.train.run_dir import CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE, read_config
 
 TRAIN_SEED_OFFSET = 1_000_000
 EVAL_SEED_OFFSET = 2_000_000
@@ -87,30 +88,21 @@ def train_agent(
     Raises:
         ValueError: any bad argument or hyperparameter, before anything is written.
     """
-    from observer_gym.train.hyperparams import load_hyperparams
-    from observer_gym.train.systems import resolve_env_id
-
-    env_id = resolve_env_id(env_id)
-    observer = observer_for(env_id, obs, estimate_from)
-    if int(seed) != seed or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-    overrides = dict(hyperparams or {})
-    if timesteps is not None:
-        overrides["n_timesteps"] = timesteps
-    if n_envs is not None:
-        overrides["n_envs"] = n_envs
-    if vec_env is not None:
-        overrides["vec_env"] = vec_env
-    params = load_hyperparams(env_id, algo, obs, overrides)
-    env_kwargs = {**params["env_kwargs"], **dict(env_kwargs or {})}
-    if "obs_mode" in env_kwargs:
-        raise ValueError("env_kwargs must not set obs_mode: --obs decides it")
-    if tensorboard:
-        _check_tensorboard()
+    env_id, observer, params, env_kwargs = check_training(
+        env_id,
+        algo,
+        obs,
+        out_dir,
+        timesteps=timesteps,
+        seed=seed,
+        estimate_from=estimate_from,
+        n_envs=n_envs,
+        vec_env=vec_env,
+        hyperparams=hyperparams,
+        env_kwargs=env_kwargs,
+        tensorboard=tensorboard,
+    )
     out_dir = Path(out_dir)
-    if (out_dir / CONFIG_FILE).exists():
-        raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")
-
     probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"])
     try:  # the action bounds a loaded agent maps back to, and a check that the env builds
         action_space = probe.unwrapped.action_space
@@ -138,6 +130,58 @@ def train_agent(
     return _learn(out_dir, config, progress=progress)
 
 
+def check_training(
+    env_id: str,
+    algo: str,
+    obs: str,
+    out_dir: str | Path,
+    timesteps: int | None = None,
+    seed: int = 0,
+    estimate_from: str = "measurements",
+    n_envs: int | None = None,
+    vec_env: str | None = None,
+    hyperparams: Mapping[str, Any] | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    tensorboard: bool = False,
+) -> tuple[str, str, dict[str, Any], dict[str, Any]]:
+    """The checks of :func:`train_agent` (same arguments), which build no env and write
+    nothing: the env, ``obs`` and ``estimate_from``, the seed, the env options, the
+    output folder and TensorBoard (:func:`observer_gym.train.checks.check_training_request`),
+    then the hyperparameters' keys against the algorithm's constructor (this imports
+    stable-baselines3) and, for ``obs="rgb"``, the image options.
+
+    Returns:
+        The registered env id, the observer that feeds the agent, the resolved
+        hyperparameters and the env's ``gym.make`` options (the YAML's with
+        ``env_kwargs`` over them).
+
+    Raises:
+        ValueError: naming the bad argument or hyperparameter and what is allowed.
+    """
+    from observer_gym.train.checks import check_training_request, training_overrides
+    from observer_gym.train.hyperparams import check_algorithm_keys
+    from observer_gym.train.systems import resolve_env_id
+
+    env_id = resolve_env_id(env_id)
+    observer = observer_for(env_id, obs, estimate_from)
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    overrides = training_overrides(hyperparams, timesteps, n_envs, vec_env)
+    params = check_training_request(
+        env_id, algo, obs, estimate_from, out_dir, overrides, env_kwargs or {}, tensorboard
+    )
+    check_algorithm_keys(params, algo)
+    if obs == "rgb":
+        try:
+            ImageOptions(**params["image"])
+        except TypeError:
+            fields = ", ".join(f.name for f in dataclasses.fields(ImageOptions))
+            raise ValueError(
+                f"hyperparameter image must have only {fields}, got {params['image']!r}"
+            ) from None
+    return env_id, observer, params, {**params["env_kwargs"], **dict(env_kwargs or {})}
+
+
 def resume_training(
     run_dir: str | Path, timesteps: int | None = None, progress: bool = True
 ) -> dict[str, Any]:
@@ -156,15 +200,6 @@ def resume_training(
         config["hyperparams"]["n_timesteps"] = int(timesteps)
         write_json_atomic(run_dir / CONFIG_FILE, config)
     return _learn(run_dir, config, progress=progress, resume=True)
-
-
-def _check_tensorboard() -> None:
-    try:
-        import tensorboard  # noqa: F401
-    except ImportError:
-        raise ValueError(
-            "--tensorboard needs the tensorboard package: pip install 'observer-gym[tensorboard]'"
-        ) from None
 
 
 def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Path | None):

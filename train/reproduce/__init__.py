@@ -2,7 +2,9 @@
 beside the paper's.
 
 Each entry of :data:`STUDIES` names a module of this package with ``DESCRIPTION`` (one
-line), ``add_arguments(parser)`` and ``run(args) -> int`` (the process exit code).
+line), ``add_arguments(parser)`` and ``run(args) -> int`` (the process exit code). The
+description and options live in :mod:`observer_gym.train.reproduce.arguments` (same
+names), so the command line is parsed without importing a study.
 """
 
 from __future__ import annotations

@@ -42,11 +42,10 @@ from observer_gym.train.outputs import (
     package_versions,
     write_json_atomic,
 )
+from observer_gym.train.reproduce.arguments import LINDEROTH2010
 
-DESCRIPTION = (
-    "viewline Kalman filter (Linderoth et al. 2010): two alternating cameras and one static "
-    "camera on synthetic throws, figures beside the paper's, covariance-ellipse plots"
-)
+DESCRIPTION = LINDEROTH2010.description
+add_arguments = LINDEROTH2010.add_arguments
 
 ACCEL_NOISE_STD = 0.05  # m/s^2 per sqrt(s): the synthetic flight is drag-free
 POSITION_BOUND_M = 0.05
@@ -59,21 +58,6 @@ OUTLIER_FRAMES = 24
 SINGLE_CAMERA_FRAMES = 40  # the ball leaves the side camera's view after 17-22 of them
 SINGLE_CAMERA_INITS = 8
 SINGLE_CAMERA_GATE_P = 5.0  # see run_single_camera
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="output folder (default: observer-gym-out/reproduce-linderoth2010-<time>)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of throws and noise")
-    parser.add_argument("--pixel-std", type=float, default=0.5, help="pixel noise std (px)")
-    parser.add_argument("--runs", type=int, default=40, help="throws in the two-camera runs")
-    parser.add_argument(
-        "--single-runs", type=int, default=10, help="throws in the single-camera run (x8 inits)"
-    )
 
 
 def _first_from(ok: list[bool]) -> int | None:

@@ -44,11 +44,15 @@ from observer_gym.train.outputs import (
     package_versions,
     write_json_atomic,
 )
-
-DESCRIPTION = (
-    "self-tuning Kalman filter (Tsai et al. 2009): Table 2's MSE of KF and STKF over "
-    "sigma_n = 0..10 in closed loop with the VTC, beside the paper's, and Fig. 8's plot"
+from observer_gym.train.reproduce.arguments import (
+    TSAI2009,
+    TSAI2009_DEFAULT_RUNS,
+    TSAI2009_DEFAULT_STEPS,
+    TSAI2009_DEFAULT_WINDOW,
 )
+
+DESCRIPTION = TSAI2009.description
+add_arguments = TSAI2009.add_arguments
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 QUANTITIES = ("x_i", "y_i", "d_x", "x_i^t'", "y_i^t'", "d_x^t'")
@@ -67,9 +71,9 @@ PAPER_TABLE2 = {
 RATIO_SLACK = 1.25  # target: our STKF/KF ratio no worse than 1.25x the paper's
 POSITION_MSE_BOUND_PX2 = 0.1  # target at sigma_n = 0, both filters
 RHO_MAX = 0.1
-DEFAULT_STEPS = 400
-DEFAULT_RUNS = 20
-DEFAULT_WINDOW = 10
+DEFAULT_STEPS = TSAI2009_DEFAULT_STEPS
+DEFAULT_RUNS = TSAI2009_DEFAULT_RUNS
+DEFAULT_WINDOW = TSAI2009_DEFAULT_WINDOW
 
 
 def run_once(
@@ -232,41 +236,9 @@ def save_plot(sigmas: list[float], mse: dict, out_dir: Path) -> Path:
     return path
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--runs", type=int, default=DEFAULT_RUNS, help="runs per sigma_n and filter (default: 20)"
-    )
-    parser.add_argument(
-        "--steps", type=int, default=DEFAULT_STEPS, help="samples per run (default: 400 = 40 s)"
-    )
-    parser.add_argument(
-        "--sigmas",
-        type=float,
-        nargs="+",
-        default=list(range(11)),
-        metavar="S",
-        help="noise levels sigma_n in px (default: 0 1 ... 10)",
-    )
-    parser.add_argument(
-        "--window", type=int, default=DEFAULT_WINDOW, help="STKF register length k (default: 10)"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="run r resets with seed + r")
-    parser.add_argument(
-        "--turn-rate-radps",
-        type=float,
-        default=PROFILE_TURN_RATE_RADPS,
-        metavar="W",
-        help="the target's turn rate in (44) (default: 5 pi / 72 = 0.218; 0: no turning, "
-        "which isolates what the turning costs the filters)",
-    )
-    parser.add_argument(
-        "--out", type=Path, default=None, metavar="DIR", help="output folder for plot and json"
-    )
-
-
 def run(args: argparse.Namespace) -> int:
-    if args.runs < 1 or args.steps < 10 or args.window < 3:
-        raise SystemExit("--runs >= 1, --steps >= 10 and --window >= 3 are needed")
+    if args.turn_rate_radps is None:  # the option's default, recorded as its value
+        args.turn_rate_radps = PROFILE_TURN_RATE_RADPS
     out_dir = Path(args.out) if args.out is not None else default_out_dir("reproduce-tsai2009")
     out_dir.mkdir(parents=True, exist_ok=True)
     sigmas = [int(s) if float(s).is_integer() else float(s) for s in args.sigmas]

@@ -1,0 +1,377 @@
+"""A user's mistake on the ``observer-gym`` command line is one line on stderr naming
+what was wrong and what is allowed, exit code 2, never a traceback; it is found before
+any env is built and (but for a hyperparameter's name, which stable-baselines3 knows)
+before the heavy imports. The command's light copy of the systems' names
+(:mod:`observer_gym.train.checks`) is the layers', with the library's messages."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from observer_gym.envs import SYSTEMS
+from observer_gym.train import checks
+from observer_gym.train.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
+from observer_gym.train.cli import build_parser
+from observer_gym.train.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
+from observer_gym.train.run import check_pair
+from observer_gym.train.systems import system_entries
+
+CLI = [sys.executable, "-m", "observer_gym.train.cli"]
+# never imported to parse a command line or to find a mistake in it
+HEAVY = (
+    "torch",
+    "stable_baselines3",
+    "ray",
+    "matplotlib",
+    "observer_gym.estimation",
+    "observer_gym.controllers",
+    "observer_gym.train.tasks",
+)
+
+
+def _fake_run(folder: Path, obs: str = "state", model: bool = True) -> Path:
+    """A folder that looks like a PPO run of BallTable-v0 trained on ``obs``."""
+    folder.mkdir()
+    config = {
+        "env_id": "observer_gym/BallTable-v0",
+        "algo": "ppo",
+        "obs": obs,
+        "observer": {"state": "oracle", "rgb": "pixels"}.get(obs, "kf-measurements"),
+        "env_kwargs": {},
+    }
+    (folder / "config.json").write_text(json.dumps(config))
+    if model:
+        (folder / "model.zip").write_bytes(b"")
+    return folder
+
+
+STATE_RUN = "{state_run}"  # replaced by a fake state-trained run's folder
+EMPTY_RUN = "{empty_run}"  # a run folder with config.json but no model yet
+RUN = ["run", "--no-progress"]
+COMPARE = ["compare", "--no-progress"]
+TRAIN = ["train", "--no-progress", "--algo", "ppo", "--obs", "state"]
+
+CASES = {
+    # --- a controller that does not fit the env
+    "run-foreign-controller": (
+        [*RUN, "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "lqr"],
+        "BallCatcher-v0 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
+    ),
+    "run-foreign-controller-workers": (
+        [*RUN, "--env", "BallCatcher-v0", "--observer", "kf", "--controller", "lqr", "--workers=2"],
+        "BallCatcher-v0 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
+    ),
+    "compare-foreign-controller": (
+        [*COMPARE, "--env=TargetFollower-v0", "--observers=oracle", "--controllers=vtc,intercept"],
+        "TargetFollower-v0 takes: vtc, ppo:DIR, sac:DIR, td3:DIR",
+    ),
+    # --- a bad env option: an unknown key, a value out of range, obs_mode
+    "run-unknown-env-option": (
+        [*RUN, "--observer", "oracle", "--controller", "lqr", "--env-option", "hfov=60"],
+        "BallTableConfig has no option 'hfov'. Did you mean 'hfov_deg'?",
+    ),
+    "run-bad-env-option-workers": (
+        [*RUN, "--observer=kf", "--controller=lqr", "--workers=2", "--env-option=hfov_deg=500"],
+        "hfov_deg=500 is out of range; allowed: [20.0, 120.0]",
+    ),
+    "run-env-option-obs-mode": (
+        [*RUN, "--observer", "oracle", "--controller", "lqr", "--env-option", "obs_mode=rgb"],
+        "obs_mode is not allowed: the observer decides it",
+    ),
+    "run-bad-render-mode": (
+        [*RUN, "--observer", "oracle", "--controller", "lqr", "--env-option", "render_mode=x"],
+        "render_mode='x' is not supported",
+    ),
+    "compare-bad-env-option": (
+        [
+            *COMPARE,
+            "--env=BallCatcher-v0",
+            "--observers=oracle,kf",
+            "--controllers=intercept",
+            "--env-option=latency_s=-1",
+        ],
+        "latency_s=-1 is out of range",
+    ),
+    "train-unknown-env-option": (
+        [*TRAIN, "--env-option", "camera=single"],
+        "BallTableConfig has no option 'camera'",
+    ),
+    "train-env-option-obs-mode": (
+        [*TRAIN, "--env-option", "obs_mode=rgb"],
+        "obs_mode is not allowed: --obs decides it",
+    ),
+    # --- an observer the env does not have
+    "run-stkf-on-balltable": (
+        [*RUN, "--env", "BallTable-v0", "--observer", "stkf", "--controller", "lqr"],
+        "unknown observer 'stkf' for observer_gym/BallTable-v0; allowed: oracle, kf, "
+        "kf-measurements, pixels",
+    ),
+    "compare-stkf-on-balltable": (
+        [*COMPARE, "--observers", "oracle,stkf", "--controllers", "lqr"],
+        "unknown observer 'stkf' for observer_gym/BallTable-v0",
+    ),
+    "evaluate-stkf-on-balltable": (
+        ["evaluate", "--no-progress", "--model", STATE_RUN, "--observer", "stkf"],
+        "unknown observer 'stkf' for observer_gym/BallTable-v0",
+    ),
+    # --- camera frames for a controller of the state layout
+    "run-pixels-with-lqr": (
+        [*RUN, "--observer", "pixels", "--controller", "lqr"],
+        "controller 'lqr' acts on the state layout; observer 'pixels' gives camera frames",
+    ),
+    "compare-pixels-with-lqr": (
+        [*COMPARE, "--observers", "oracle,pixels", "--controllers", "lqr,pid"],
+        "observer 'pixels' gives camera frames",
+    ),
+    "evaluate-pixels-for-a-state-agent": (
+        ["evaluate", "--no-progress", "--model", STATE_RUN, "--observer", "pixels"],
+        "trained with --obs state: it needs an observer but 'pixels'",
+    ),
+    # --- a missing model folder, or one without a model
+    "evaluate-missing-model": (
+        ["evaluate", "--no-progress", "--model", "/nonexistent/run"],
+        "/nonexistent/run is not an observer-gym training run (no such folder)",
+    ),
+    "evaluate-no-model-yet": (
+        ["evaluate", "--no-progress", "--model", EMPTY_RUN],
+        "has neither model.zip nor a checkpoint yet",
+    ),
+    "run-missing-agent": (
+        [*RUN, "--observer", "oracle", "--controller", "ppo:/nonexistent/run"],
+        "/nonexistent/run is not an observer-gym training run",
+    ),
+    "run-agent-without-model": (
+        [*RUN, "--observer", "oracle", "--controller", f"ppo:{EMPTY_RUN}"],
+        "has neither model.zip nor a checkpoint yet",
+    ),
+    "compare-missing-agent": (
+        [*COMPARE, "--observers", "oracle", "--controllers", "lqr,sac:/nonexistent/run"],
+        "/nonexistent/run is not an observer-gym training run",
+    ),
+    "train-resume-missing-run": (
+        ["train", "--no-progress", "--resume", "/nonexistent/run"],
+        "/nonexistent/run is not an observer-gym training run",
+    ),
+    "train-resume-with-settings": (
+        ["train", "--no-progress", "--resume", STATE_RUN, "--obs", "rgb"],
+        "--resume continues a run with its own settings; drop --obs",
+    ),
+    # --- a bad hyperparameter
+    "train-unknown-hyperparam": (
+        [*TRAIN, "--hyperparam", "learning_rat=1e-4"],
+        "unknown hyperparameter(s) ['learning_rat'] for PPO (did you mean 'learning_rate'?)",
+    ),
+    "train-hyperparam-set-by-train": (
+        [*TRAIN, "--hyperparam", "seed=3"],
+        "observer-gym train sets them: seed (--seed)",
+    ),
+    "train-bad-training-key": (
+        [*TRAIN, "--hyperparam", "n_envs=0"],
+        "hyperparameter n_envs must be an integer >= 1",
+    ),
+    # --- --algo and --obs are required
+    "train-without-algo": (
+        ["train", "--obs", "state"],
+        "the following arguments are required: --algo",
+    ),
+    "train-without-algo-and-obs": (
+        ["train"],
+        "the following arguments are required: --algo, --obs",
+    ),
+    # --- argparse's own checks, one line too
+    "run-unknown-env": (
+        [*RUN, "--env", "BallJuggler-v0", "--observer", "oracle", "--controller", "lqr"],
+        "unknown env 'BallJuggler-v0'",
+    ),
+    "demo-negative-seconds": (["demo", "--seconds", "-1"], "must be a positive number"),
+    "reproduce-no-runs": (
+        ["reproduce", "tsai2009", "--runs", "0"],
+        "argument --runs: must be an integer >= 1, got 0",
+    ),
+    "reproduce-short-steps": (
+        ["reproduce", "tsai2009", "--steps", "5"],
+        "argument --steps: must be an integer >= 10, got 5",
+    ),
+    "reproduce-negative-seed": (
+        ["reproduce", "linderoth2010", "--seed", "-1"],
+        "argument --seed: must be an integer >= 0, got -1",
+    ),
+}
+
+
+@pytest.fixture
+def runs(tmp_path: Path) -> dict[str, str]:
+    return {
+        "state_run": str(_fake_run(tmp_path / "state-run")),
+        "empty_run": str(_fake_run(tmp_path / "empty-run", model=False)),
+    }
+
+
+def _argv(argv: list[str], runs: dict[str, str], out: Path) -> list[str]:
+    argv = [word.format(**runs) for word in argv]
+    if argv[0] in ("run", "compare", "train", "evaluate") and "--resume" not in argv:
+        argv += ["--out", str(out)]
+    return argv
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_mistake_is_one_line_and_exit_code_2(case, runs, tmp_path):
+    argv, message = CASES[case]
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [*CLI, *_argv(argv, runs, out)], capture_output=True, text=True, timeout=120
+    )
+    assert "Traceback" not in result.stderr, result.stderr
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    command = " ".join(argv[:2] if argv[0] == "reproduce" else argv[:1])
+    assert lines[0].startswith(f"observer-gym {command}: error: "), lines[0]
+    assert message in lines[0]
+    assert result.stdout == ""
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_the_hyperparameter_error_lists_only_public_settable_names(algo):
+    with pytest.raises(ValueError, match="unknown hyperparameter") as error:
+        check_algorithm_keys({**TRAINING_DEFAULTS, "foo": 1}, algo)
+    assert "\n" not in str(error.value)
+    allowed = str(error.value).split("allowed: training keys ", 1)[1]
+    names = [name.strip() for name in re.split(r",| and \w+'s ", allowed)]
+    assert "learning_rate" in names and "policy_kwargs" in names and "policy" in names
+    assert not [name for name in names if name.startswith("_")], names
+    for set_by_train in ("self", "env", "seed", "device", "verbose"):
+        assert set_by_train not in names
+
+
+_PROBE = """
+import sys
+from observer_gym.train.cli import main
+try:
+    code = main(sys.argv[1:])
+except SystemExit as exc:
+    code = exc.code
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in {heavy!r}
+               or any(m == h or m.startswith(h + ".") for h in {heavy!r}))
+print(code, "pybullet" in sys.modules, heavy)
+"""
+
+
+@pytest.mark.parametrize(
+    ("case", "pybullet"),
+    [
+        ("run-foreign-controller", False),
+        ("run-stkf-on-balltable", False),
+        ("run-pixels-with-lqr", False),
+        ("run-missing-agent", False),
+        ("evaluate-missing-model", False),
+        ("train-without-algo-and-obs", False),
+        ("run-unknown-env-option", True),  # the env's config class lives with the env
+        ("compare-bad-env-option", True),
+        ("train-unknown-env-option", True),
+    ],
+)
+def test_mistakes_are_found_before_the_heavy_imports(case, pybullet, runs, tmp_path):
+    argv = _argv(CASES[case][0], runs, tmp_path / "out")
+    probe = _PROBE.format(heavy=HEAVY)
+    result = subprocess.run(
+        [sys.executable, "-c", probe, *argv], capture_output=True, text=True, timeout=120
+    )
+    assert result.stdout.split()[:2] == ["2", str(pybullet)], result.stdout + result.stderr
+    assert result.stdout.strip().endswith("[]"), result.stdout
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        *([command] for command in ("demo", "run", "compare", "train", "evaluate", "reproduce")),
+        [],
+        ["reproduce", "linderoth2010"],
+        ["reproduce", "tsai2009"],
+    ],
+)
+def test_help_imports_no_heavy_module(argv):
+    probe = _PROBE.format(heavy=(*HEAVY, "pybullet"))
+    result = subprocess.run(
+        [sys.executable, "-c", probe, *argv, "--help"], capture_output=True, text=True, timeout=60
+    )
+    assert result.stdout.splitlines()[-1] == "0 False []", result.stdout + result.stderr
+
+
+def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return sub.choices[command]
+
+
+def test_train_usage_shows_algo_and_obs_as_required():
+    usage = " ".join(_subparser(build_parser(), "train").format_usage().split())
+    assert "--algo {ppo,sac,td3} --obs {state,estimate,rgb}" in usage
+    assert "[--algo" not in usage and "[--obs" not in usage
+    assert "[--resume DIR]" in usage
+
+
+def test_resume_needs_neither_algo_nor_obs():
+    args = build_parser().parse_args(["train", "--resume", "runs/x", "--timesteps", "10"])
+    assert (args.algo, args.obs, args.resume, args.timesteps) == (None, None, Path("runs/x"), 10)
+
+
+# --- the light copy of the systems' names is the layers' ---------------------------------
+def test_the_checks_hold_the_layers_names():
+    entries = {entry.system.name: entry for entry in system_entries()}
+    assert set(checks.SYSTEM_NAMES) == set(entries) == {system.name for system in SYSTEMS}
+    for name, names in checks.SYSTEM_NAMES.items():
+        task = entries[name].task
+        assert dict(names.observers) == {k: v[0] for k, v in task.OBSERVERS.items()}
+        assert list(names.observers) == list(task.OBSERVERS)
+        frames = tuple(
+            k
+            for k, (mode, pipeline) in task.OBSERVERS.items()
+            if pipeline is None and mode != "state"
+        )
+        assert names.frame_observers == frames
+        assert dict(names.estimate_observers) == dict(task.ESTIMATE_OBSERVERS)
+        assert names.controllers == entries[name].controllers
+
+
+def test_the_checks_feed_an_agent_from_the_observer_train_uses():
+    for system in SYSTEMS:
+        for obs in OBS_TYPES:
+            for source in ESTIMATE_SOURCES:
+                assert checks.agent_observer(system.env_id, obs, source) == observer_for(
+                    system.env_id, obs, source
+                )
+
+
+def _message(check, *args) -> str | None:
+    try:
+        check(*args)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def test_the_checks_say_what_the_library_says(tmp_path):
+    runs = {
+        "ppo:" + str(_fake_run(tmp_path / "state", "state")),
+        "ppo:" + str(_fake_run(tmp_path / "rgb", "rgb")),
+        "ppo:" + str(_fake_run(tmp_path / "empty", model=False)),
+        "sac:" + str(tmp_path / "state"),  # a PPO run named as SAC
+        "td3:" + str(tmp_path / "none"),
+    }
+    names = {*checks.controller_choices(), "lqg", *runs}
+    for system in SYSTEMS:
+        for observer in [*checks.observer_choices(), "ekf"]:
+            for controller in sorted(names):
+                cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
+                    checks.check_controller, controller, system.env_id, observer
+                )
+                library = _message(check_pair, system.short_id, observer, controller)
+                assert cli_side == library, (system.short_id, observer, controller)

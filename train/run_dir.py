@@ -1,0 +1,84 @@
+"""The folder of an ``observer-gym train`` run as the other commands read it: its
+``config.json``, its final model or latest checkpoint, and the ``ALGO:DIR`` names of
+trained agents.
+
+Reading these imports neither PyTorch nor stable-baselines3, so ``observer-gym run``,
+``evaluate`` and ``compare`` check a trained agent before any heavy import;
+:mod:`observer_gym.train.agent` loads it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from observer_gym.train.hyperparams import ALGOS
+
+CONFIG_FILE = "config.json"
+FINAL_MODEL = "model.zip"
+FINAL_VECNORMALIZE = "vecnormalize.pkl"
+CHECKPOINTS = "checkpoints"
+LATEST = "latest.json"  # in checkpoints/: the newest complete checkpoint
+
+
+def parse_agent_spec(name: str) -> tuple[str, Path] | None:
+    """``("ppo", Path("runs/x"))`` for ``"ppo:runs/x"``; None for a name without ``ALGO:``
+    (a baseline controller's name)."""
+    algo, sep, run_dir = name.partition(":")
+    if not sep or algo not in ALGOS:
+        return None
+    if not run_dir:
+        raise ValueError(f"agent {name!r} names no folder; expected {algo}:DIR")
+    return algo, Path(run_dir)
+
+
+def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
+    """The resolved config.json of the training run in ``run_dir``.
+
+    Raises:
+        ValueError: no training run there (no such folder, no config.json or one that is
+            not JSON), or one trained with another algorithm.
+    """
+    path = Path(run_dir) / CONFIG_FILE
+    if not Path(run_dir).is_dir():
+        raise ValueError(
+            f"{run_dir} is not an observer-gym training run (no such folder); "
+            "make one with 'observer-gym train'"
+        )
+    if not path.is_file():
+        raise ValueError(
+            f"{run_dir} is not an observer-gym training run (no {CONFIG_FILE}); "
+            "make one with 'observer-gym train'"
+        )
+    try:
+        config = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    if algo is not None and config["algo"] != algo:
+        raise ValueError(f"{run_dir} holds a {config['algo']} agent, not {algo}")
+    return config
+
+
+def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
+    """The newest complete checkpoint in ``directory`` (its files as paths and its
+    ``timesteps``), or None if none was saved."""
+    path = Path(directory) / LATEST
+    if not path.exists():
+        return None
+    entry = json.loads(path.read_text())
+    return {k: (v if k == "timesteps" else Path(directory) / v) for k, v in entry.items()}
+
+
+def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
+    """(model, VecNormalize statistics or None, timesteps or None): the final model of a
+    finished run, else its latest checkpoint. ValueError if there is neither."""
+    run_dir = Path(run_dir)
+    checkpoint = latest_checkpoint(run_dir / CHECKPOINTS)
+    if (run_dir / FINAL_MODEL).is_file():  # written last, after the final checkpoint
+        stats = run_dir / FINAL_VECNORMALIZE
+        steps = None if checkpoint is None else checkpoint["timesteps"]
+        return run_dir / FINAL_MODEL, stats if stats.is_file() else None, steps
+    if checkpoint is None:
+        raise ValueError(f"{run_dir} has neither {FINAL_MODEL} nor a checkpoint yet")
+    return checkpoint["model"], checkpoint.get("vecnormalize"), checkpoint["timesteps"]
