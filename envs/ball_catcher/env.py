@@ -11,8 +11,13 @@ from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.camera_presets import preset_timings
 from observer_gym.envs.ball_catcher.config import BallCatcherConfig
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS, BOX_VEL, STATE_HIGH
-from observer_gym.envs.ball_catcher.scene import BallCatcherScene, interior_contains
-from observer_gym.envs.ball_catcher.throws import Throw, plane_crossing, sample_throw
+from observer_gym.envs.ball_catcher.scene import BallCatcherScene
+from observer_gym.envs.ball_catcher.throws import (
+    MAX_THROW_SPEED_MPS,
+    Throw,
+    plane_crossing,
+    sample_throw,
+)
 from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
 from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
@@ -35,8 +40,9 @@ class BallCatcherEnv(CameraEnv):
     A catch is the ball passing through the hole into the box. Cameras beside the flight
     path (two by default, 320x240, 60 deg horizontal field of view, 50 frames/s each) are
     not synchronised: each has its own phase, latency, jitter and frame losses, set by a
-    preset. Physics runs at 1 kHz (no tunnelling below 61 m/s, see scene.py); the env
-    steps at 100 Hz.
+    preset. Physics runs at 1 kHz, in substeps near the box for a ball faster than 10 m/s
+    (no tunnelling at any throw speed the options allow, see scene.py); the env steps at
+    100 Hz.
 
     ## Action Space
     ``Box(-v_max, v_max, (3,), float32)``: the commanded velocity (m/s, world frame) of
@@ -90,7 +96,8 @@ class BallCatcherEnv(CameraEnv):
     home plane within 0.08 m of the hole's home after 0.40-0.48 s (configurable; the
     defaults are reachable by the "paper" profile and arrive 10-30 deg below horizontal,
     flat enough to pass the hole).
-    ``reset(options={"throw": (launch_pos_world, launch_vel_world)})`` sets the throw.
+    ``reset(options={"throw": (launch_pos_world, launch_vel_world)})`` sets the throw
+    (launch within 10 m of the origin, speed at most ``throws.MAX_THROW_SPEED_MPS``, 100 m/s).
 
     Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
     sensor noise from its own stream. The throw and the rig's timing (the preset's
@@ -103,9 +110,17 @@ class BallCatcherEnv(CameraEnv):
     the noise, a reset without a seed continues with new noise.
 
     ## Episode End
-    Terminated on a catch (the ball's centre inside the box, behind the front plate) or a
-    miss (the ball's centre below 0.15 m, or 0.2 m behind the box's back plane outside
-    it). Truncated by the registered time limit of 200 steps (2 s).
+    The catch is judged geometrically, on the ball's centre between consecutive physics
+    (sub)steps in the box's frame. When that segment crosses the front plane inward on
+    the box's front face, the ball has entered: a catch if it crossed within the hole's
+    radius minus the ball's (0.5 cm of the axis by default: it cleared the hole's circle)
+    and, if it touched the box before (a contact with a normal force), the straight line
+    it was flying on just before that touch also crossed within that radius; a miss
+    otherwise (a rim hit that still rattles in, or a ball through the plate, is no catch).
+    A ball deflected by a touch that does not enter flies on.
+    Terminated on a catch or on such a miss, and on a miss by the ball's centre falling
+    below 0.15 m or getting 0.2 m behind the box's back plane. Truncated by the registered
+    time limit of 200 steps (2 s).
 
     ## Arguments
     ``gym.make("observer_gym/BallCatcher-v0", **options)``; the options are the fields of
@@ -133,6 +148,13 @@ class BallCatcherEnv(CameraEnv):
         self._throw: Throw | None = None
         self._truth = None
         self._miss_m = 0.0
+        # The catch judgement: the ball's centre and velocity (box frame) after the last
+        # physics (sub)step, whether the line it flew on before first touching the box
+        # would have passed cleanly (None: no touch yet), and whether it entered cleanly
+        # (None: not entered).
+        self._ball_box: tuple[np.ndarray, np.ndarray] | None = None
+        self._approach_clean: bool | None = None
+        self._entered_clean: bool | None = None
         super().__init__(render_mode, **options)
 
     # --- the system's hooks -------------------------------------------------------------
@@ -183,6 +205,8 @@ class BallCatcherEnv(CameraEnv):
         given = options.get("throw")
         throw = sample_throw(self.config, rng) if given is None else self._checked_throw(given)
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
+        self._ball_box = self.scene.ball_in_box()
+        self._approach_clean = self._entered_clean = None
         self._throw = throw
         self._box_vel_cmd = np.zeros(3)
 
@@ -202,13 +226,30 @@ class BallCatcherEnv(CameraEnv):
         drag = self.config.air_drag
         while self._tick < end_tick:
             stop = self._next_stop(end_tick)
-            if drag:  # the drag force is applied anew before every physics step
-                for _ in range(stop - self._tick):
-                    self.scene.apply_drag()
-                    self.sim.step()
+            ticks = stop - self._tick
+            if not drag and not self.scene.may_reach_box(ticks * self.tick_s):
+                # Far from the box: no substeps, no contact, no crossing to judge.
+                self.sim.step(ticks)
+                self._ball_box = self.scene.ball_in_box()
             else:
-                self.sim.step(stop - self._tick)
+                for _ in range(ticks):
+                    self.scene.step(drag, self._track_ball)
             self._reach(stop, end_tick)
+
+    def _track_ball(self) -> None:
+        """After every physics (sub)step: the catch judgement's record (see Episode End)."""
+        hole_m = self.config.hole_diameter_m
+        p_prev, v_prev = self._ball_box
+        self._ball_box = self.scene.ball_in_box()
+        p = self._ball_box[0]
+        if self._approach_clean is None and self.scene.ball_touches_box():
+            point = geo.approach_point(p_prev, v_prev)
+            self._approach_clean = point is not None and geo.is_clean(point, hole_m)
+        if self._entered_clean is None:
+            point = geo.front_plane_entry(p_prev, p)
+            if point is not None and geo.on_front_face(point):
+                clean = geo.is_clean(point, hole_m)
+                self._entered_clean = clean and self._approach_clean is not False
 
     def _after_physics(self) -> None:
         self._truth = self.scene.ground_truth()
@@ -319,8 +360,12 @@ class BallCatcherEnv(CameraEnv):
             )
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError(f"reset option throw must be finite, got {given!r}")
-        if np.any(np.abs(pos) > 10.0) or np.linalg.norm(vel) > 30.0:
-            raise ValueError("reset option throw: position within 10 m and speed <= 30 m/s")
+        speed = float(np.linalg.norm(vel))
+        if np.any(np.abs(pos) > 10.0) or speed > MAX_THROW_SPEED_MPS:
+            raise ValueError(
+                f"reset option throw: position within 10 m and speed <= {MAX_THROW_SPEED_MPS:g}"
+                f" m/s, got position {pos.tolist()} and speed {speed:.6g} m/s"
+            )
         crossing = plane_crossing(pos, vel, geo.HOLE_HOME_WORLD[0])
         t, point = crossing if crossing is not None else (float("nan"), np.full(3, np.nan))
         return Throw(pos, vel, t, point)
@@ -353,12 +398,12 @@ class BallCatcherEnv(CameraEnv):
         self.scene.command_hole(np.clip(target, low, high))
 
     def _judge(self) -> str:
+        if self._entered_clean is not None:
+            return CAUGHT if self._entered_clean else MISSED
         state = self._truth.state
         ball = state[BALL_POS]
         T = self._truth.T_world_box
         ball_box = T[:3, :3].T @ (ball - T[:3, 3])
-        if interior_contains(ball_box):
-            return CAUGHT
         passed = ball_box[2] < -geo.BOX_DEPTH_M - PASSED_MARGIN_M
         if ball[2] < geo.MISS_HEIGHT_M or passed:
             return MISSED

@@ -64,3 +64,40 @@ def camera_pose(index: int) -> np.ndarray:
     """``T_world_cam`` of rig camera ``index`` (0 to MAX_CAMERAS - 1)."""
     eye, target = CAMERA_RIG_WORLD[index]
     return look_at(eye, target)
+
+
+# --- the catch rule (box frame: origin at the hole's centre on the front plane, z outward) ---
+def clean_radius_m(hole_diameter_m: float) -> float:
+    """How far from the hole's axis the ball's centre may cross the front plane and the
+    ball still clear the hole's circle: the hole's radius minus the ball's."""
+    return hole_diameter_m / 2 - BALL_RADIUS_M
+
+
+def front_plane_entry(p0_box, p1_box) -> np.ndarray | None:
+    """Where the ball's centre, moving from ``p0_box`` to ``p1_box`` (box frame) in one
+    physics step, crosses the front plane inward (z from >= 0 to < 0), linearly
+    interpolated; None if it does not."""
+    p0, p1 = np.asarray(p0_box, dtype=float), np.asarray(p1_box, dtype=float)
+    if not (p0[2] >= 0.0 > p1[2]):
+        return None
+    return p0 + (p0[2] / (p0[2] - p1[2])) * (p1 - p0)
+
+
+def approach_point(p_box, v_box) -> np.ndarray | None:
+    """Where the ball's centre at ``p_box`` moving at ``v_box`` (box frame, relative to the
+    box) would cross the front plane inward flying straight on; None if it is behind
+    the plane or not approaching it."""
+    p, v = np.asarray(p_box, dtype=float), np.asarray(v_box, dtype=float)
+    if p[2] < 0.0 or not v[2] < 0.0:
+        return None
+    return p - (p[2] / v[2]) * v
+
+
+def on_front_face(point_box) -> bool:
+    """Whether a point of the front plane (box frame) is on the box's front face."""
+    return bool(max(abs(point_box[0]), abs(point_box[1])) < BOX_OUTER_SIDE_M / 2)
+
+
+def is_clean(point_box, hole_diameter_m: float) -> bool:
+    """Whether the ball's centre crossing the front plane at ``point_box`` clears the hole."""
+    return bool(np.hypot(point_box[0], point_box[1]) < clean_radius_m(hole_diameter_m))

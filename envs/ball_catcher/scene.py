@@ -9,15 +9,24 @@ frame has its origin at the hole's centre on the front face's outer plane, z alo
 outward normal; its centre of mass is put there too, so PyBullet's base pose and velocity
 are the hole's.
 
-Tunnelling: a ball of radius r crossing a wall of thickness w is caught by the discrete
-collision test as long as it moves less than 2 r + w per physics step; at the default
-1 ms step that is 61 m/s, and the ball also uses maximal coordinates with a swept-sphere
-radius (continuous collision detection). tests/envs/test_ball_catcher_physics.py throws
-at 1.5 times the fastest throw of the default distribution.
+Tunnelling: PyBullet's collision test is discrete, so a fast ball can step past the 1 cm
+front plate or be pushed sideways through the rim when it is first found deep inside it
+(measured: at a 1 ms step, throws from 20 m/s aimed 1.4 cm off the hole's axis went
+through the rim; at 5 ms, from 5 m/s). A swept-sphere radius (PyBullet's
+ccdSweptSphereRadius, with or without contactProcessingThreshold=0) did not stop it. So
+:meth:`BallCatcherScene.step` splits a physics step into substeps while the ball is within
+reach of the box and moves more than MAX_SUBSTEP_MOTION_M (the wall's 1 cm) relative to it
+per step: enough that it moves at most SUBSTEP_MOTION_M (5 mm) per substep, so it is found
+at most 5 mm into a wall and pushed back out the way it came (with 1 cm substeps a 92 m/s
+ball still squeezed 4 mm into the rim). The default throws (under 7 m/s at 1 ms) never
+need a substep. tests/envs/test_ball_catcher_tunnelling.py throws at the rim, the plate and
+the hole from 5 m/s up to the fastest throw the configuration allows (91.7 m/s), at the
+smallest and largest physics steps.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +42,14 @@ MAX_SHAPES_PER_LINK = 16  # PyBullet's limit on the shapes of one link
 BOX_RGBA = (0.85, 0.85, 0.8, 1.0)
 RESTITUTION = 0.4
 IK_JOINT_DAMPING = 1e-3  # exact IK in 20 iterations (see KukaIiwa)
+# Near the box, a physics step in which the ball moves more than MAX_SUBSTEP_MOTION_M
+# relative to it is split into substeps of at most SUBSTEP_MOTION_M.
+MAX_SUBSTEP_MOTION_M = geo.WALL_M
+SUBSTEP_MOTION_M = geo.WALL_M / 2
+# The radius of the sphere around the box's centre that holds the box.
+BOX_BOUND_RADIUS_M = float(np.hypot(np.sqrt(2.0) * geo.BOX_OUTER_SIDE_M / 2, geo.BOX_DEPTH_M / 2))
+# may_reach_box: room for gravity's bend over a step (g t^2 / 2 = 0.5 mm at 10 ms) and more.
+REACH_MARGIN_M = 0.05
 # Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
 AIR_DENSITY_KGPM3 = 1.2
 DRAG_COEFFICIENT = 0.47
@@ -70,13 +87,6 @@ def _box_parts(hole_radius_m: float) -> list[tuple[np.ndarray, np.ndarray, float
     parts.append((np.array([w / 2, s - w, side_half]), np.array([-s + w / 2, 0.0, z_mid]), 0.0))
     parts.append((np.array([s, s, w / 2]), np.array([0.0, 0.0, -d + w / 2]), 0.0))
     return parts
-
-
-def interior_contains(point_box: np.ndarray) -> bool:
-    """Whether a point (box frame) is inside the box, behind the front plate."""
-    s_in = geo.BOX_OUTER_SIDE_M / 2 - geo.WALL_M
-    x, y, z = point_box
-    return bool(-geo.BOX_DEPTH_M + geo.WALL_M < z < -geo.WALL_M and abs(x) < s_in and abs(y) < s_in)
 
 
 @dataclass
@@ -119,12 +129,7 @@ class BallCatcherScene:
         # PyBullet damps every body's velocity by default (linear damping 0.04 1/s, a
         # 2 cm error over a 0.45 s throw): off, so the flight is ballistic (19)-(20).
         client.changeDynamics(
-            self.ball,
-            -1,
-            restitution=RESTITUTION,
-            ccdSweptSphereRadius=0.9 * geo.BALL_RADIUS_M,
-            linearDamping=0.0,
-            angularDamping=0.0,
+            self.ball, -1, restitution=RESTITUTION, linearDamping=0.0, angularDamping=0.0
         )
         self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
         self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
@@ -209,6 +214,66 @@ class BallCatcherScene:
         q = self.arm.solve_ik(self.flange_target(hole_pos_world), geo.FLANGE_QUAT_WORLD)
         self.arm.command_joints(q)
 
+    def substeps(self) -> int:
+        """How many substeps the next physics step needs: 1 unless the ball would move
+        more than MAX_SUBSTEP_MOTION_M relative to the box within reach of it (its centre
+        nearer the box's centre than BOX_BOUND_RADIUS_M, the ball's radius and one step's
+        motion); then enough that it moves at most SUBSTEP_MOTION_M per substep."""
+        client = self.sim.client
+        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
+        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
+        v_rel = np.subtract(
+            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
+        )
+        motion_m = float(np.linalg.norm(v_rel)) * self.sim.physics_dt_s
+        if motion_m <= MAX_SUBSTEP_MOTION_M:
+            return 1
+        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
+        box_centre = np.asarray(box_pos) + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        reach_m = BOX_BOUND_RADIUS_M + geo.BALL_RADIUS_M + motion_m
+        if np.linalg.norm(np.asarray(ball_pos) - box_centre) > reach_m:
+            return 1
+        return int(np.ceil(motion_m / SUBSTEP_MOTION_M))
+
+    def may_reach_box(self, horizon_s: float) -> bool:
+        """Whether the ball, moving at its velocity relative to the box, could come within
+        reach of the box (BOX_BOUND_RADIUS_M of its centre, plus the ball's radius and a
+        margin for gravity's bend) within ``horizon_s``."""
+        client = self.sim.client
+        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
+        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
+        v_rel = np.subtract(
+            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
+        )
+        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
+        box_centre = np.asarray(box_pos) + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        reach_m = (
+            BOX_BOUND_RADIUS_M
+            + geo.BALL_RADIUS_M
+            + float(np.linalg.norm(v_rel)) * horizon_s
+            + REACH_MARGIN_M
+        )
+        return bool(np.linalg.norm(np.asarray(ball_pos) - box_centre) <= reach_m)
+
+    def step(self, air_drag: bool, after_substep: Callable[[], None]) -> None:
+        """One physics step of ``sim.physics_dt_s``, in :meth:`substeps` equal substeps
+        (PyBullet's time step is set for them and restored), with the ball's air drag
+        (optional) and ``after_substep()`` after each."""
+        client = self.sim.client
+        dt_s = self.sim.physics_dt_s
+        n = self.substeps()
+        if n > 1:
+            client.setTimeStep(dt_s / n)
+        try:
+            for _ in range(n):
+                if air_drag:
+                    self.apply_drag()
+                client.stepSimulation()
+                after_substep()
+        finally:
+            if n > 1:
+                client.setTimeStep(dt_s)
+
     def apply_drag(self) -> None:
         """Quadratic air drag on the ball for the next physics step (forces are cleared
         after every step)."""
@@ -222,6 +287,23 @@ class BallCatcherScene:
     # --- ground truth -----------------------------------------------------------------
     def ball_pos_world(self) -> np.ndarray:
         return np.asarray(self.sim.client.getBasePositionAndOrientation(self.ball)[0])
+
+    def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ball's centre and its velocity relative to the box, box frame."""
+        client = self.sim.client
+        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
+        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
+        v_rel = np.subtract(
+            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
+        )
+        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
+        return R.T @ (np.asarray(ball_pos) - box_pos), R.T @ v_rel
+
+    def ball_touches_box(self) -> bool:
+        """Whether the last physics step pushed the ball off the box (a contact with a
+        normal force)."""
+        contacts = self.sim.client.getContactPoints(self.ball, self.box)
+        return any(contact[9] > 0.0 for contact in contacts)
 
     def ground_truth(self) -> GroundTruth:
         client = self.sim.client

@@ -7,6 +7,11 @@ the hole's home (in the plane), from a launch point uniform in the cube of half-
 ``launch_spread_m`` around (``launch_x_m``, 0, ``launch_height_m``). The launch velocity
 follows in closed form: with p(t) = p0 + v0 t - (0, 0, g t^2 / 2),
 v0 = (c - p0) / T + (0, 0, g T / 2).
+
+MAX_THROW_SPEED_MPS bounds every throw: the fastest the configuration's ranges allow
+(:func:`fastest_throw_mps` at their extremes, 91.7 m/s: launched 9 m out and 4 m high,
+arriving after 0.1 s) and reset's ``throw`` option. The physics keeps the
+ball out of the box's walls up to it (scene.py; tests/envs/test_ball_catcher_tunnelling.py).
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ import numpy as np
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.sim import GRAVITY_MPS2
+
+MAX_THROW_SPEED_MPS = 100.0
 
 
 @dataclass(frozen=True)
@@ -71,3 +78,22 @@ def plane_crossing(
     point = p + v * t
     point[2] -= 0.5 * gravity_mps2 * t * t
     return float(t), point
+
+
+def fastest_throw_mps(config) -> float:
+    """The fastest launch speed ``sample_throw`` can draw from ``config`` (a
+    BallCatcherConfig): the launch cube's corners, crossings on the target circle (every
+    degree) and the shortest and longest flight times (the speed is convex in the launch
+    and crossing points)."""
+    spread = config.launch_spread_m
+    corners = np.array(np.meshgrid(*[[-spread, spread]] * 3)).T.reshape(-1, 3)
+    launches = np.array([config.launch_x_m, 0.0, config.launch_height_m]) + corners
+    angles = np.radians(np.arange(360))
+    circle = np.stack([np.zeros_like(angles), np.cos(angles), np.sin(angles)], axis=1)
+    crossings = geo.HOLE_HOME_WORLD + config.target_radius_m * circle
+    fastest = 0.0
+    for t in (config.flight_time_min_s, config.flight_time_max_s):
+        v = (crossings[None, :, :] - launches[:, None, :]) / t
+        v[..., 2] += 0.5 * GRAVITY_MPS2 * t
+        fastest = max(fastest, float(np.linalg.norm(v, axis=-1).max()))
+    return fastest
