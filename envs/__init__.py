@@ -5,8 +5,6 @@ public contract (layouts, camera geometry, info keys, the :data:`SYSTEMS` record
 the other way round.
 """
 
-# First: envs/sim.py imports pybullet quietly, before any other module of the package does.
-import observer_gym.envs.sim  # noqa: F401
 from observer_gym.envs.registration import (
     SYSTEMS,
     System,

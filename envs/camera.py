@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import pybullet
 
+from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.transforms import pose_matrix
 

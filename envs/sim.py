@@ -8,10 +8,9 @@ about 28 MB).
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
 from importlib import resources
+
+from observer_gym.envs.bullet import BulletClient, pybullet, pybullet_data, silenced
 
 GRAVITY_MPS2 = 9.81
 
@@ -22,32 +21,6 @@ def asset_path(name: str) -> str:
     if not path.is_file():
         raise FileNotFoundError(f"asset {name!r} is not in the package's assets folder")
     return str(path)
-
-
-@contextlib.contextmanager
-def _silenced(fd: int):
-    """Silence C-level writes to file descriptor ``fd`` (1: stdout, 2: stderr) inside the
-    block."""
-    stream = sys.stdout if fd == 1 else sys.stderr
-    try:
-        stream.flush()
-        saved = os.dup(fd)
-    except (OSError, ValueError, AttributeError):  # no real stream: nothing to hide
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), fd)
-            yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-
-
-with _silenced(2):  # pybullet writes a "pybullet build time" line to stderr on import
-    import pybullet
-import pybullet_data  # noqa: E402
-from pybullet_utils.bullet_client import BulletClient  # noqa: E402
 
 
 class Simulation:
@@ -61,7 +34,7 @@ class Simulation:
         if not physics_dt_s > 0:
             raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
         self.physics_dt_s = float(physics_dt_s)
-        with _silenced(1):  # PyBullet prints "argv[0]=" on every connection
+        with silenced(1):  # PyBullet prints "argv[0]=" on every connection
             self.client = BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
         self._configure()

@@ -4,7 +4,8 @@ without ``np.cross``'s overhead (~50 us a call, too slow for a per-step hot path
 from __future__ import annotations
 
 import numpy as np
-import pybullet
+
+from observer_gym.envs.bullet import pybullet
 
 
 def rot_x(angle: float) -> np.ndarray:

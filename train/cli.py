@@ -32,7 +32,6 @@ from observer_gym.train.cli_args import (
     env_option,
     error_line,
     hyperparam_option,
-    import_pybullet_quietly,
     nonnegative_int,
     positive_float,
     positive_int,
@@ -180,7 +179,6 @@ def _run_run(args: argparse.Namespace) -> int:
     try:
         env_id = check_observer(args.env, args.observer)
         check_controller(args.controller, env_id, args.observer)
-        import_pybullet_quietly()
         obs_mode = names_for(env_id).observers[args.observer]
         check_env_options(env_id, obs_mode, dict(args.env_option))
     except ValueError as exc:  # an observer, controller or env option the env does not take
@@ -354,7 +352,6 @@ def _train_run(args: argparse.Namespace) -> int:
             "tensorboard": args.tensorboard,
         }
         try:
-            import_pybullet_quietly()
             overrides = training_overrides(
                 options["hyperparams"], args.timesteps, args.n_envs, args.vec_env
             )
@@ -431,7 +428,6 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         observer = args.observer or config["observer"]
         env_id = check_observer(config["env_id"], observer)
         check_controller(f"{config['algo']}:{args.model}", env_id, observer)
-        import_pybullet_quietly()
         obs_mode = names_for(env_id).observers[observer]
         check_env_options(env_id, obs_mode, config["env_kwargs"])
     except ValueError as exc:  # no trained agent there, or an observer it cannot read

@@ -12,9 +12,7 @@ import argparse
 import ast
 import functools
 import math
-import os
 import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
@@ -52,34 +50,6 @@ class Parser(argparse.ArgumentParser):
         line = error_line(self.prog, f"{message} (see '{self.prog} --help')")
         print(line, file=sys.stderr)
         raise UsageError(line)
-
-
-def import_pybullet_quietly() -> None:
-    """Import PyBullet, dropping the build-time banner its C code writes to stderr
-    ("pybullet build time: ...") at the first import; anything else written to stderr
-    meanwhile passes on (like the stdout silencing of :mod:`observer_gym.envs.sim`)."""
-    if "pybullet" in sys.modules:
-        return
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to filter
-        import pybullet
-
-        return
-    with tempfile.TemporaryFile() as capture:
-        os.dup2(capture.fileno(), 2)
-        try:
-            import pybullet  # noqa: F401
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            capture.seek(0)
-            written = capture.read().decode(errors="replace").splitlines(keepends=True)
-            rest = [line for line in written if not line.startswith("pybullet build time:")]
-            if rest:
-                sys.stderr.write("".join(rest))
-                sys.stderr.flush()
 
 
 def positive_float(text: str) -> float:

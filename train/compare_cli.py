@@ -18,7 +18,6 @@ from observer_gym.train.cli_args import (
     env_name,
     env_option,
     error_line,
-    import_pybullet_quietly,
     nonnegative_int,
     positive_int,
     recorded_args,
@@ -179,7 +178,6 @@ def check_pairs(
     for controller in controllers:
         for observer in observers:
             check_controller(controller, env_id, observer)
-    import_pybullet_quietly()
     modes = names_for(env_id).observers
     for obs_mode in dict.fromkeys(modes[observer] for observer in observers):
         check_env_options(env_id, obs_mode, env_options, decided_by="each observer")

@@ -30,10 +30,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import STATE_DIM, StateIndex
+from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation, asset_path
 

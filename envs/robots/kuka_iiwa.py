@@ -9,8 +9,8 @@ step command as a discrete first-order lag with pole (1 - k_p) per physics step
 from __future__ import annotations
 
 import numpy as np
-import pybullet
 
+from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.transforms import rotation_from_quaternion
 
