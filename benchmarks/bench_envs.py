@@ -20,7 +20,9 @@ envs' default options:
   seeds, through pre-bound ``pybullet`` functions. So BallCatcher-v0's floor renders
   the camera that captures in that step (two cameras at 50 Hz, 100 Hz steps: one frame
   per step on average), and TargetFollower-v0's (a kinematic world that never calls
-  ``stepSimulation``) is its placements plus the render. Everything else in a step --
+  ``stepSimulation``) is its placements, the render, and its physics engine's work: the
+  target's motion integrated over the step's substeps (``TargetMotion.advance``, the
+  Python integrator that takes the place of ``stepSimulation`` there). Everything else in a step --
   action checks, inverse kinematics, ground-truth queries, the frame schedule, image
   copies, observation and info -- is the overhead the ratio measures (target <= 1.15).
 - **state new / old**: a child process runs this file with ``--baseline-python`` (a venv
@@ -260,13 +262,27 @@ class Floor:
                 n: functools.partial(getattr(pybullet, n), physicsClientId=cid) for n in FLOOR_CALLS
             }
             replay = [[(bound[n], a, kw) for n, a, kw in step] for step in episode]
+            physics = self._kinematics()
             gc.collect()
             for calls in replay:
                 start = now()
+                physics()
                 for call, args, kwargs in calls:
                     call(*args, **kwargs)
                 total += now() - start
         return self.steps / total
+
+    def _kinematics(self):
+        """The per-step work of a kinematic world's own integrator (TargetFollower-v0's
+        target motion over the step's substeps), or nothing for a PyBullet-stepped one."""
+        base = self.env.unwrapped
+        scene = getattr(base, "scene", None)
+        motion = getattr(scene, "motion", None)
+        if motion is None:
+            return lambda: None
+        twin = copy.deepcopy(motion)  # advancing it leaves the env's own motion as it was
+        dt_s, substeps = base.config.dt_s, base.ticks_per_step
+        return lambda: twin.advance(dt_s, substeps)
 
     def close(self) -> None:
         self.env.close()

@@ -148,3 +148,17 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         space = self.observation_space
         mean = np.clip(estimate.mean, space.low, space.high).astype(space.dtype)
         return mean, info
+
+
+def checked_rgb_frame(image: Any, size_px: tuple[int, int], who: str) -> np.ndarray:
+    """``image`` if it is a uint8 RGB frame of ``size_px`` = (W, H), i.e. shape (H, W, 3);
+    ValueError naming ``who`` wanted it, the expected and the given shape and dtype."""
+    expected = (int(size_px[1]), int(size_px[0]), 3)
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
+        shape = getattr(image, "shape", None)
+        dtype = getattr(image, "dtype", type(image).__name__)
+        raise ValueError(
+            f"{who}: the frame must be an RGB image of shape {expected} and dtype uint8, "
+            f"got shape {shape} and dtype {dtype}"
+        )
+    return image

@@ -219,19 +219,13 @@ class BallCatcherScene:
         more than MAX_SUBSTEP_MOTION_M relative to the box within reach of it (its centre
         nearer the box's centre than BOX_BOUND_RADIUS_M, the ball's radius and one step's
         motion); then enough that it moves at most SUBSTEP_MOTION_M per substep."""
-        client = self.sim.client
-        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
-        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        v_rel = np.subtract(
-            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
-        )
+        ball_pos, box_pos, R, v_rel = self._ball_and_box()
         motion_m = float(np.linalg.norm(v_rel)) * self.sim.physics_dt_s
         if motion_m <= MAX_SUBSTEP_MOTION_M:
             return 1
-        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        box_centre = np.asarray(box_pos) + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
         reach_m = BOX_BOUND_RADIUS_M + geo.BALL_RADIUS_M + motion_m
-        if np.linalg.norm(np.asarray(ball_pos) - box_centre) > reach_m:
+        if np.linalg.norm(ball_pos - box_centre) > reach_m:
             return 1
         return int(np.ceil(motion_m / SUBSTEP_MOTION_M))
 
@@ -239,6 +233,19 @@ class BallCatcherScene:
         """Whether the ball, moving at its velocity relative to the box, could come within
         reach of the box (BOX_BOUND_RADIUS_M of its centre, plus the ball's radius and a
         margin for gravity's bend) within ``horizon_s``."""
+        ball_pos, box_pos, R, v_rel = self._ball_and_box()
+        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        reach_m = (
+            BOX_BOUND_RADIUS_M
+            + geo.BALL_RADIUS_M
+            + float(np.linalg.norm(v_rel)) * horizon_s
+            + REACH_MARGIN_M
+        )
+        return bool(np.linalg.norm(ball_pos - box_centre) <= reach_m)
+
+    def _ball_and_box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ball centre, box origin (the hole's centre), R_world_box, ball velocity relative
+        to the box), world frame."""
         client = self.sim.client
         ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
         box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
@@ -246,14 +253,7 @@ class BallCatcherScene:
             client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
         )
         R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        box_centre = np.asarray(box_pos) + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
-        reach_m = (
-            BOX_BOUND_RADIUS_M
-            + geo.BALL_RADIUS_M
-            + float(np.linalg.norm(v_rel)) * horizon_s
-            + REACH_MARGIN_M
-        )
-        return bool(np.linalg.norm(np.asarray(ball_pos) - box_centre) <= reach_m)
+        return np.asarray(ball_pos), np.asarray(box_pos), R, v_rel
 
     def step(self, air_drag: bool, after_substep: Callable[[], None]) -> None:
         """One physics step of ``sim.physics_dt_s``, in :meth:`substeps` equal substeps
@@ -290,14 +290,8 @@ class BallCatcherScene:
 
     def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The ball's centre and its velocity relative to the box, box frame."""
-        client = self.sim.client
-        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
-        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        v_rel = np.subtract(
-            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
-        )
-        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        return R.T @ (np.asarray(ball_pos) - box_pos), R.T @ v_rel
+        ball_pos, box_pos, R, v_rel = self._ball_and_box()
+        return R.T @ (ball_pos - box_pos), R.T @ v_rel
 
     def ball_touches_box(self) -> bool:
         """Whether the last physics step pushed the ball off the box (a contact with a

@@ -61,7 +61,7 @@ from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
-from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.observer import Estimate, checked_rgb_frame
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0
@@ -148,7 +148,12 @@ class BallCatcherObserver:
     def detect(self, frame: dict) -> np.ndarray | None:
         """The ball's pixel (u, v) in one delivered frame, or None (also for NaN/inf)."""
         if self.rgb:
-            uv = self.detector.detect(checked_rgb_frame(frame, self.image_size_px))
+            image = checked_rgb_frame(
+                frame["image"],
+                frame.get("image_size_px", self.image_size_px),
+                f"BallCatcherObserver, camera {frame.get('camera_id')!r}",
+            )
+            uv = self.detector.detect(image)
         else:
             uv = frame["uv_px"]
         if uv is None:
@@ -202,20 +207,3 @@ class BallCatcherObserver:
         accepted_before = kf.accepted_count
         kf.restart(self.x0, self.P0, 0.0, since_s)
         return kf.accepted_count > accepted_before
-
-
-def checked_rgb_frame(frame: dict, default_size_px: tuple[int, int]) -> np.ndarray:
-    """A delivered frame's image, checked: uint8, H x W x 3 with (W, H) the frame's
-    ``image_size_px`` (else ``default_size_px``, the env config's); ValueError naming
-    the expected and the given shape and dtype otherwise."""
-    image = frame["image"]
-    width, height = frame.get("image_size_px", default_size_px)
-    expected = (int(height), int(width), 3)
-    shape = getattr(image, "shape", None)
-    dtype = getattr(image, "dtype", type(image).__name__)
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
-        raise ValueError(
-            f"BallCatcherObserver: frame of camera {frame.get('camera_id')!r} must be an RGB "
-            f"image of shape {expected} and dtype uint8, got shape {shape} and dtype {dtype}"
-        )
-    return image

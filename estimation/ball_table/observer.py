@@ -47,7 +47,7 @@ from observer_gym.estimation.ball_table.models import (
 from observer_gym.estimation.ball_table.tracker import TableTracker
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
-from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.observer import Estimate, checked_rgb_frame
 
 
 def _tuned_ball_params() -> RollingBallParams:
@@ -111,7 +111,9 @@ class BallTableObserver:
     def detect(self, obs: Any, frame: dict):
         """The detection of one frame."""
         if self.from_pixels:
-            image = checked_rgb_frame(obs, frame.get("image_size_px", self.image_size_px))
+            image = checked_rgb_frame(
+                obs, frame.get("image_size_px", self.image_size_px), "BallTableObserver"
+            )
             features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
         else:
             features = features_from_measurement(obs)
@@ -223,17 +225,3 @@ def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:
         return None
     value = np.asarray(value, dtype=float)
     return value if bool(np.all(np.isfinite(value))) else None
-
-
-def checked_rgb_frame(image: Any, size_px: tuple[int, int]) -> np.ndarray:
-    """``image`` if it is a uint8 RGB frame of ``size_px`` = (W, H), i.e. shape (H, W, 3);
-    ValueError naming the expected and the given shape and dtype otherwise."""
-    expected = (int(size_px[1]), int(size_px[0]), 3)
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
-        shape = getattr(image, "shape", None)
-        dtype = getattr(image, "dtype", type(image).__name__)
-        raise ValueError(
-            f"BallTableObserver: the frame must be an RGB image of shape {expected} and dtype "
-            f"uint8, got shape {shape} and dtype {dtype}"
-        )
-    return image

@@ -39,7 +39,7 @@ from observer_gym.envs.target_follower import (
     TargetFollowerEnv,
 )
 from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
-from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.observer import Estimate, checked_rgb_frame
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
 from observer_gym.estimation.target_follower.models import (
@@ -95,7 +95,9 @@ class TargetFollowerObserver:
     def detect(self, obs: Any, frame: dict) -> np.ndarray | None:
         """(x_i, y_i, d_x) of one frame, or None (also when an entry is NaN or inf)."""
         if self.from_pixels:
-            image = checked_rgb_frame(obs, frame.get("image_size_px", self.image_size_px))
+            image = checked_rgb_frame(
+                obs, frame.get("image_size_px", self.image_size_px), "TargetFollowerObserver"
+            )
             z = self.detector.detect(image, frame["K"])
         elif not obs[DETECTED][0]:
             return None
@@ -147,17 +149,3 @@ class TargetFollowerObserver:
         mean[StateIndex.TRACKING_VALID] = float(valid)
         mean[StateIndex.TARGET_VISIBLE] = float(z is not None)
         return Estimate(mean, cov, used, z, time_s)
-
-
-def checked_rgb_frame(image: Any, size_px: tuple[int, int]) -> np.ndarray:
-    """``image`` if it is a uint8 RGB frame of ``size_px`` = (W, H), i.e. shape (H, W, 3);
-    ValueError naming the expected and the given shape and dtype otherwise."""
-    expected = (int(size_px[1]), int(size_px[0]), 3)
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != expected:
-        shape = getattr(image, "shape", None)
-        dtype = getattr(image, "dtype", type(image).__name__)
-        raise ValueError(
-            f"TargetFollowerObserver: the frame must be an RGB image of shape {expected} and "
-            f"dtype uint8, got shape {shape} and dtype {dtype}"
-        )
-    return image

@@ -3,8 +3,6 @@ a brute-force conditional Gaussian, textbook formulas and the outlier test (27)-
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import scipy.stats
@@ -258,6 +256,7 @@ def test_missed_measurement_leaves_the_estimate_exactly_unchanged():
     assert kf.accepted_count == 0 and kf.rejected_count == 0
 
 
+@pytest.mark.slow  # 1e5 filter cycles; its cost is bench_filters.py's business, not a test's
 def test_covariance_stays_symmetric_positive_definite_over_1e5_ill_conditioned_steps():
     """R = 1e-12 I and P0 = 1e12 I: the first updates span 24 orders of magnitude, more than
     double precision resolves (eps ~ 2e-16), so any covariance-form update returns
@@ -272,7 +271,6 @@ def test_covariance_stays_symmetric_positive_definite_over_1e5_ill_conditioned_s
     Cs = rng.normal(size=(steps, m, n))
     ys = rng.normal(size=(steps, m))
     min_eigs = []
-    start = time.perf_counter()
     for k in range(steps):
         kf.predict(Phi, Q)
         kf.update(ys[k], Cs[k], R)
@@ -281,7 +279,6 @@ def test_covariance_stays_symmetric_positive_definite_over_1e5_ill_conditioned_s
             min_eigs.append(np.linalg.eigvalsh(kf.P)[0])
         if k == 9:
             early_repairs = kf.pd_repairs
-    assert time.perf_counter() - start < 10.0
     assert 1 <= early_repairs <= 3 and kf.pd_repairs == early_repairs
     assert np.all(np.isfinite(kf.P)) and np.all(np.isfinite(kf.x))
     assert min(min_eigs) > 0.0
