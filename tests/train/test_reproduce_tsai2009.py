@@ -6,12 +6,34 @@ noise level (sigma_n = 0 and 10, 40 s each) and check the issue's targets agains
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.reproduce import tsai2009
+
+
+def _tables(text: str) -> dict[str, list[list[str]]]:
+    """The Markdown tables of ``text`` (cells stripped, rule and header rows dropped), each
+    under the first words (up to ":") of the line above it."""
+    tables, title, rows = {}, None, None
+    for line in text.splitlines():
+        if line.startswith("|"):
+            if rows is None:  # the header row
+                rows = tables[title] = []
+            elif not line.startswith("|-"):
+                rows.append([c.strip() for c in line.strip("|").split("|")])
+        else:
+            title, rows = line.split(":")[0], None
+    return tables
+
+
+def _ours_and_paper(cell: str) -> tuple[str, str]:
+    match = re.fullmatch(r"(\S+) \((\S+)\)", cell)
+    assert match, cell
+    return match[1], match[2]
 
 
 def test_short_study_orders_the_filters_as_the_paper(capsys):
@@ -64,11 +86,69 @@ def test_cli_prints_table_2_and_writes_the_plot_and_json(tmp_path, capsys):
     )
     assert code == 0
     out = capsys.readouterr().out
-    assert "Table 2" in out and "16.7670 -> 8.8669" in out  # the paper's x_i at sigma_n = 10
+    table = {(row[0], row[1]): row[2:] for row in _tables(out)["Table 2"]}
+    # the paper's x_i at sigma_n = 10, KF and STKF
+    assert _ours_and_paper(table["10", "KF"][0])[1] == "16.7670"
+    assert _ours_and_paper(table["10", "STKF"][0])[1] == "8.8669"
     assert (tmp_path / "fig8_mse_vs_noise.png").stat().st_size > 10_000
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["sigmas"] == [0, 5, 10]
     assert len(results["mse_mean"]["stkf"]) == 3 and len(results["mse_mean"]["stkf"][0]) == 6
+
+
+def test_cli_table_2_shows_the_numbers_of_results_json(tmp_path, capsys):
+    """The smallest run the CLI allows: every number of the printed Table 2 and Fig. 8 data
+    is results.json's (ours, the paper's, the ratios, the targets), and the output names
+    the files it wrote."""
+    code = main(
+        [
+            *("reproduce", "tsai2009", "--runs", "1", "--steps", "10"),
+            *("--sigmas", "0", "10", "--out", str(tmp_path)),
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    results = json.loads((tmp_path / "results.json").read_text())
+    sigmas, mean, paper = results["sigmas"], results["mse_mean"], results["paper_table2"]
+    targets = results["targets"]
+    tables = _tables(out)
+    table = {(row[0], row[1]): row[2:] for row in tables["Table 2"]}
+    assert [key[0] for key in table] == ["10"] * 4 + ["0"] * 4  # the paper's order
+    ok0 = targets["sigma0_position_mse_ok"]
+    expected_met = {
+        10: [
+            "yes" if below and within else "no"
+            for below, within in zip(
+                targets["sigma10_stkf_below_kf"], targets["sigma10_ratio_within_slack"], strict=True
+            )
+        ],
+        0: ["yes" if a and b else "no" for a, b in zip(ok0["kf"], ok0["stkf"], strict=True)]
+        + ["-"] * 3,
+    }
+    for s in (10, 0):
+        i = sigmas.index(s)
+        kf, st = mean["kf"][i], mean["stkf"][i]
+        paper_kf, paper_st = paper[str(s)]
+        for name, ours, theirs in (("KF", kf, paper_kf), ("STKF", st, paper_st)):
+            cells = [_ours_and_paper(c) for c in table[str(s), name]]
+            assert cells == [(f"{a:.4f}", f"{b:.4f}") for a, b in zip(ours, theirs, strict=True)]
+        ratios = [_ours_and_paper(c) for c in table[str(s), "STKF / KF"]]
+        assert ratios == [
+            (f"{a / b:.2f}", f"{c / d:.2f}")
+            for a, b, c, d in zip(st, kf, paper_st, paper_kf, strict=True)
+        ]
+        assert [c.split(":")[0] for c in table[str(s), "target met"]] == expected_met[s]
+    n_met = (expected_met[10] + expected_met[0]).count("yes")
+    assert f"Targets met: {n_met} of 9." in out
+    sweep = tables["Fig. 8 data"]
+    assert [row[0] for row in sweep] == ["0", "10"]
+    for i, row in enumerate(sweep):
+        assert row[1:] == [
+            f"{a:.3f} / {b:.3f}" for a, b in zip(mean["kf"][i], mean["stkf"][i], strict=True)
+        ]
+    assert f"Wrote {tmp_path / 'fig8_mse_vs_noise.png'} and {tmp_path / 'results.json'}" in out
+    # no reprs of dicts, lists of bools, unrounded floats or arrays
+    assert not re.search(r"\{'|\[(True|False)|\d\.\d{6,}|array\(", out)
 
 
 @pytest.fixture(scope="module")

@@ -55,20 +55,33 @@ def _linderoth2010(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output folder (default: observer-gym-out/reproduce-linderoth2010-<time>)",
+        metavar="DIR",
+        help="output folder for results.json, two_cameras_ellipses.png and "
+        "single_camera_ellipses.png (default: "
+        "observer-gym-out/reproduce-linderoth2010-YYYYmmdd-HHMMSS)",
     )
-    parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed of throws and noise")
     parser.add_argument(
-        "--pixel-std", type=positive_float, default=0.5, help="pixel noise std (px)"
+        "--seed", type=nonnegative_int, default=0, help="seed of throws and noise (default: 0)"
     )
     parser.add_argument(
-        "--runs", type=positive_int, default=40, help="throws in the two-camera runs"
+        "--pixel-std",
+        type=positive_float,
+        default=0.5,
+        metavar="PX",
+        help="pixel noise std in px (default: 0.5)",
+    )
+    parser.add_argument(
+        "--runs",
+        type=positive_int,
+        default=40,
+        help="throws in the two-camera runs (default: 40)",
     )
     parser.add_argument(
         "--single-runs",
         type=positive_int,
         default=10,
-        help="throws in the single-camera run (x8 inits)",
+        metavar="RUNS",
+        help="throws in the single-camera run, each from 8 inits (default: 10)",
     )
 
 
@@ -113,7 +126,7 @@ def _tsai2009(parser: argparse.ArgumentParser) -> None:
         help="STKF register length k, >= 3 (default: 10)",
     )
     parser.add_argument(
-        "--seed", type=nonnegative_int, default=0, help="run r resets with seed + r"
+        "--seed", type=nonnegative_int, default=0, help="run r resets with seed + r (default: 0)"
     )
     parser.add_argument(
         "--turn-rate-radps",
@@ -124,7 +137,12 @@ def _tsai2009(parser: argparse.ArgumentParser) -> None:
         "which isolates what the turning costs the filters)",
     )
     parser.add_argument(
-        "--out", type=Path, default=None, metavar="DIR", help="output folder for plot and json"
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="output folder for results.json and fig8_mse_vs_noise.png (default: "
+        "observer-gym-out/reproduce-tsai2009-YYYYmmdd-HHMMSS)",
     )
 
 

@@ -296,24 +296,43 @@ def figures_table(two: dict, outliers: dict, single: dict, single_default: dict)
     return format_table(["figure", "paper", "measured: median (min-max)"], rows)
 
 
-def _ellipse(ax, mean_2d: np.ndarray, cov_2d: np.ndarray, color: str) -> None:
+ELLIPSE_SIGMAS = 2.0  # the plotted position ellipses: 2-sigma (full axes 4 sigma)
+
+
+def _ellipse(ax, mean_2d: np.ndarray, cov_2d: np.ndarray, color) -> None:
+    """The ELLIPSE_SIGMAS-sigma ellipse of ``cov_2d`` about ``mean_2d``, outline only."""
     from matplotlib.patches import Ellipse
 
     lam, V = np.linalg.eigh(cov_2d)
     angle = np.degrees(np.arctan2(V[1, -1], V[0, -1]))
-    w, h = 2.0 * 2.0 * np.sqrt(np.maximum(lam[::-1], 0.0))  # 2-sigma: full axes 4 sigma
+    w, h = 2.0 * ELLIPSE_SIGMAS * np.sqrt(np.maximum(lam[::-1], 0.0))
     ax.add_patch(Ellipse(mean_2d, w, h, angle=angle, fill=False, color=color, lw=0.8))
 
 
-def _track_views(axes, throw, states, cameras, n_show: int, title: str) -> None:
-    """Top (x-y) and side (x-z) views: truth, estimates, 2-sigma ellipses, cameras."""
+def _track_views(fig, axes, throw, frames, states, cameras, title: str) -> None:
+    """Top (x-y) and side (x-z) views of one track on ``axes``: the true flight, per frame
+    k the estimate after it (dot), the truth at its capture time (cross) and the estimate's
+    2-sigma position ellipse, coloured by the capture time, and the cameras (squares).
+
+    ``frames`` and ``states`` (estimate, covariance, true state, ...) are aligned. A
+    legend on the side view names the markers, and a colour bar beside both views gives
+    the capture time in ms after release, with the frame numbers k on its other side.
+    """
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
+
     t = np.linspace(0.0, 0.55, 100)
     truth = throw.state(t)
-    colors = __import__("matplotlib").colormaps["viridis"](np.linspace(0.0, 0.9, n_show))
+    times_ms = 1000.0 * np.array([f.capture_time_s for f in frames[: len(states)]])
+    cmap = colormaps["viridis"]
+    norm = Normalize(times_ms.min(), times_ms.max() if len(times_ms) > 1 else times_ms[0] + 1.0)
+    colors = cmap(norm(times_ms))
     for ax, (i, j), label in zip(axes, ((0, 1), (0, 2)), ("top view", "side view"), strict=True):
-        ax.plot(truth[:, i], truth[:, j], "k-", lw=1, label="true flight")
-        for k, (x, P, true_state, *_rest) in enumerate(states[:n_show]):
-            idx = [i, j]
+        ax.plot(truth[:, i], truth[:, j], "k-", lw=1)
+        idx = [i, j]
+        for k, (x, P, true_state, *_rest) in enumerate(states):
             _ellipse(ax, x[idx], P[np.ix_(idx, idx)], colors[k])
             ax.plot(*x[idx], "o", color=colors[k], ms=3)
             ax.plot(*true_state[idx], "x", color=colors[k], ms=4)
@@ -325,53 +344,114 @@ def _track_views(axes, throw, states, cameras, n_show: int, title: str) -> None:
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)" if j == 1 else "z (m)")
         ax.set_title(f"{title}: {label}", fontsize=9)
-    axes[0].legend(fontsize=7, loc="upper right")
+    grey = "0.4"
+    handles = [
+        Line2D([], [], color="k", lw=1, label="true flight"),
+        Line2D([], [], color=grey, marker="o", ls="", ms=3, label="estimate after frame k"),
+        Line2D([], [], color=grey, marker="x", ls="", ms=4, label="true position at frame k"),
+        Line2D(
+            [],
+            [],
+            color=grey,
+            marker="o",
+            mfc="none",
+            ls="",
+            ms=9,
+            label="2-sigma position ellipse",
+        ),
+        Line2D([], [], color="tab:red", marker="s", ls="", ms=5, label="camera"),
+    ]
+    axes[1].legend(handles=handles, fontsize=7, loc="lower left")
+    bar = fig.colorbar(ScalarMappable(norm, cmap), ax=list(axes), shrink=0.8, pad=0.02)
+    bar.set_label("capture time of frame k (ms after release)")
+    every = max(1, int(np.ceil(len(times_ms) / 10)))
+    frame_axis = bar.ax.secondary_yaxis("left")
+    frame_axis.set_yticks(
+        times_ms[::every], labels=[str(k) for k in range(1, len(times_ms) + 1, every)]
+    )
+    frame_axis.set_ylabel("frame k", fontsize=8, labelpad=1)
+    frame_axis.tick_params(labelsize=7)
 
 
-def save_plots(two: dict, single: dict, out_dir: Path) -> list[Path]:
-    import matplotlib
+def two_camera_figure(two: dict):
+    """The two-camera figure (a matplotlib ``Figure``): top and side views of the first
+    throw's frames 1-8 with 2-sigma position ellipses (:func:`_track_views`)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    throw, frames, states = two["_track"]
+    fig = Figure(figsize=(12, 4.8), layout="constrained")
+    axes = fig.subplots(1, 2)
+    _track_views(
+        fig, axes, throw, frames, states[:8], st.RIG_CAMERAS, "two cameras, frames 1-8, 2-sigma"
+    )
+    return fig
 
-    paths = []
-    throw, _frames, states = two["_track"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    _track_views(axes, throw, states, st.RIG_CAMERAS, 8, "two cameras, frames 1-8, 2-sigma")
-    fig.tight_layout()
-    paths.append(out_dir / "two_cameras_ellipses.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+
+def single_camera_figure(single: dict):
+    """The single-camera figure (a matplotlib ``Figure``): top and side views of the first
+    throw's track from the first of the 8 inits 70 m away (:func:`_track_views`), and the
+    position error of all 8 tracks per frame against twice the pixel CRLB's largest std
+    and the 5 cm bound."""
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     throw, frames, tracks, crlb_std = single["_track"]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig = Figure(figsize=(17, 4.8), layout="constrained")
+    axes = fig.subplots(1, 3, width_ratios=[1.0, 1.0, 0.9])
     _track_views(
+        fig,
         axes[:2],
         throw,
+        frames,
         tracks[0],
         [st.SINGLE_CAMERA],
-        len(frames),
         "single camera, one track from 70 m",
     )
     ax = axes[2]
-    for states in tracks:
-        ax.semilogy(range(1, len(states) + 1), [s[3] for s in states], color="tab:blue", lw=0.8)
+    for n, states in enumerate(tracks):
+        ax.semilogy(
+            range(1, len(states) + 1),
+            [s[3] for s in states],
+            color="tab:blue",
+            lw=0.8,
+            label=f"position error of the {len(tracks)} tracks" if n == 0 else None,
+        )
     ax.semilogy(
-        range(1, len(crlb_std) + 1), 2.0 * np.array(crlb_std), "k--", label="2 x CRLB largest std"
+        range(1, len(crlb_std) + 1),
+        2.0 * np.array(crlb_std),
+        "k--",
+        label="2 x pixel CRLB's largest std",
     )
-    ax.axhline(POSITION_BOUND_M, color="tab:red", lw=0.8, label="5 cm")
-    ax.set_xlabel("frame")
+    ax.axhline(POSITION_BOUND_M, color="tab:red", lw=0.8, label="5 cm bound")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("frame k (k-th detection, 20 ms apart)")
     ax.set_ylabel("position error (m)")
-    ax.set_title("single camera: 8 inits 70 m away", fontsize=9)
+    ax.set_title(f"single camera: {len(tracks)} inits 70 m away", fontsize=9)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(out_dir / "single_camera_ellipses.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def save_plots(two: dict, single: dict, out_dir: Path) -> list[Path]:
+    """Save :func:`two_camera_figure` and :func:`single_camera_figure` into ``out_dir`` as
+    two_cameras_ellipses.png and single_camera_ellipses.png; their paths."""
+    paths = []
+    for fig, name in (
+        (two_camera_figure(two), "two_cameras_ellipses.png"),
+        (single_camera_figure(single), "single_camera_ellipses.png"),
+    ):
+        paths.append(out_dir / name)
+        fig.savefig(paths[-1], dpi=110)
     return paths
 
 
+def _plural(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def run(args: argparse.Namespace) -> int:
+    """Run the three experiments of ``args``, print :func:`figures_table` and write the
+    plots of :func:`save_plots` and ``results.json`` into ``args.out`` (default
+    ``observer-gym-out/reproduce-linderoth2010-<time>``), whose paths it prints last."""
     out_dir = Path(args.out) if args.out is not None else default_out_dir("reproduce-linderoth2010")
     out_dir.mkdir(parents=True, exist_ok=True)
     two = run_two_cameras(args.runs, args.pixel_std, args.seed)
@@ -381,9 +461,9 @@ def run(args: argparse.Namespace) -> int:
         args.single_runs, args.pixel_std, args.seed, accel_noise_std=0.5, gate_p=DEFAULT_GATE_P
     )
     print(
-        f"Linderoth et al. 2010 on synthetic throws: {args.runs} two-camera throws, "
-        f"{args.single_runs} single-camera throws x {SINGLE_CAMERA_INITS} inits, pixel noise "
-        f"{args.pixel_std} px, seed {args.seed}"
+        f"Linderoth et al. 2010 on synthetic throws: {_plural(args.runs, 'two-camera throw')}, "
+        f"{_plural(args.single_runs, 'single-camera throw')} x {SINGLE_CAMERA_INITS} inits, "
+        f"pixel noise {args.pixel_std:g} px, seed {args.seed}"
     )
     print(figures_table(two, outliers, single, single_default))
     plots = save_plots(two, single, out_dir)
@@ -413,5 +493,5 @@ def run(args: argparse.Namespace) -> int:
         "plots": [p.name for p in plots],
     }
     write_json_atomic(out_dir / "results.json", results)
-    print(f"plots and results.json in {out_dir}")
+    print(f"Wrote {', '.join(str(p) for p in plots)} and {out_dir / 'results.json'}")
     return 0
