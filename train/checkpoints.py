@@ -5,12 +5,13 @@ A checkpoint is ``checkpoints/model_<N>.zip`` (the SB3 model, N its timestep cou
 off-policy algorithms. Each file is written to a temporary name and renamed into place;
 ``checkpoints/latest.json`` names the newest complete set and is replaced last, so a run
 killed while saving (Ctrl-C, SIGTERM, SIGKILL, power) leaves the previous set named and
-intact. Only the newest ``keep`` sets stay on disk.
+intact; the temp files such a kill leaves (``.model_<N>.zip.tmp-<PID>``, ...) are removed
+when the run is resumed (:func:`observer_gym.train.outputs.remove_stale_temps`). Only the
+newest ``keep`` sets stay on disk.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -18,18 +19,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from observer_gym.train.callbacks import EveryStepsCallback
-from observer_gym.train.outputs import write_json_atomic
+from observer_gym.train.outputs import replace_atomically, write_json_atomic
 from observer_gym.train.run_dir import LATEST, latest_checkpoint  # noqa: F401  (read here too)
-
-
-def replace_atomically(path: Path, write: Any) -> None:
-    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX)."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def save_checkpoint(

@@ -17,10 +17,10 @@ import argparse
 import importlib
 import importlib.util
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import metadata
-from pathlib import Path
 
 from observer_gym.train import compare_cli
 from observer_gym.train.cli_args import (
@@ -31,8 +31,10 @@ from observer_gym.train.cli_args import (
     env_name,
     env_option,
     error_line,
+    folder_path,
     hyperparam_option,
     nonnegative_int,
+    one_line,
     positive_float,
     positive_int,
     recorded_args,
@@ -135,7 +137,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=Path,
+        type=folder_path,
         default=None,
         metavar="DIR",
         help="output folder (default: ./observer-gym-out/run-YYYYmmdd-HHMMSS)",
@@ -293,7 +295,7 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--resume",
-        type=Path,
+        type=folder_path,
         default=None,
         metavar="DIR",
         action=_ResumeAction,
@@ -312,7 +314,7 @@ _TRAIN_RUN_OPTIONS = ("algo", "obs", "n_envs", "vec_env", "hyperparam", "env_opt
 
 def _train_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run_dir import CHECKPOINTS, latest_checkpoint, read_config
+    from observer_gym.train.run_dir import check_resumable
 
     if args.resume is not None:
         given = [f"--{k.replace('_', '-')}" for k in _TRAIN_RUN_OPTIONS if getattr(args, k)]
@@ -325,9 +327,7 @@ def _train_run(args: argparse.Namespace) -> int:
             raise UsageError(line)
         run_dir = args.resume
         try:
-            read_config(run_dir)
-            if latest_checkpoint(run_dir / CHECKPOINTS) is None:
-                raise ValueError(f"{run_dir} has no checkpoint to resume from")
+            check_resumable(run_dir)  # a run there, a checkpoint, and no run writing it
         except ValueError as exc:
             return _error("train", exc)
         from observer_gym.train.training import resume_training, training_text  # deferred
@@ -385,7 +385,7 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument(
         "--model",
-        type=Path,
+        type=folder_path,
         required=True,
         metavar="DIR",
         help="the folder of an 'observer-gym train' run",
@@ -598,9 +598,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     argparse raises ``SystemExit`` for ``--help`` (code 0); a mistake in parsing raises
     :class:`~observer_gym.train.cli_args.UsageError` (a ``SystemExit`` with code 2) after
     printing its one line, one found by a command's checks returns 2 after printing its.
+    What a command finds left by a killed run in a folder it uses (an
+    :class:`~observer_gym.train.outputs.OutputFolderWarning`) is one line on stderr,
+    ``observer-gym COMMAND: warning: ...``; other warnings show as Python shows them.
     """
     args = build_parser().parse_args(argv)
-    return args.run(args)
+    prog = f"observer-gym {args.command}"
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None) -> None:
+            # deferred: the warning comes from outputs, loaded by then; --help stays light
+            from observer_gym.train.outputs import OutputFolderWarning
+
+            if issubclass(category, OutputFolderWarning):
+                print(f"{prog}: warning: {one_line(message)}", file=sys.stderr)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        return args.run(args)
 
 
 if __name__ == "__main__":

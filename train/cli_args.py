@@ -89,12 +89,22 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(0, text)
 
 
+def folder_path(text: str) -> Path:
+    """argparse type: a folder's path; an empty one (which would mean the current
+    folder) is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(
+            "expected a folder, got an empty path (write '.' for the current folder)"
+        )
+    return Path(text)
+
+
 def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
-    """``--out DIR`` (default ``default_out_dir(command)``'s pattern) and ``--no-progress``,
-    the two options every command that writes results takes."""
+    """``--out DIR`` (default ``default_out_dir(command)``'s pattern; not empty) and
+    ``--no-progress``, the two options every command that writes results takes."""
     parser.add_argument(
         "--out",
-        type=Path,
+        type=folder_path,
         default=None,
         metavar="DIR",
         help=f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS)",

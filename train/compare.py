@@ -29,7 +29,7 @@ import numpy as np
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
 from observer_gym.train.observer_env import make_env
-from observer_gym.train.outputs import VERSIONED_PACKAGES, package_versions
+from observer_gym.train.outputs import VERSIONED_PACKAGES, output_folder, package_versions
 from observer_gym.train.run import EpisodeSpec, build_controller, check_controller, run_episodes
 from observer_gym.train.run_dir import parse_agent_spec
 from observer_gym.train.systems import resolve_env_id
@@ -273,10 +273,12 @@ def run_comparison(
     Episode i of every pair resets with ``seeds[i]``. Every input is checked first
     (:func:`check_comparison`); then all episodes run in one batch.
 
-    Writes into ``out_dir`` (created): ``table.md`` (one row per pair: mean ± 95 %
-    half-width of each of the task's ``COMPARE_METRICS``, rates with their Wilson
-    interval, and, with "oracle" among the observers, the paired difference of the
-    primary metric observer − oracle), ``table.csv`` (observer, controller, metric, n,
+    Writes into ``out_dir`` (created; removed again if the comparison fails before
+    writing anything: :func:`~observer_gym.train.outputs.output_folder`): ``table.md``
+    (one row per pair: mean ± 95 % half-width of each of the task's
+    ``COMPARE_METRICS``, rates with their Wilson interval, and, with "oracle" among the
+    observers, the paired difference of the primary metric observer − oracle),
+    ``table.csv`` (observer, controller, metric, n,
     mean, half_width, low, high, interval; values in the metric's stored SI unit, rates
     0-1), ``bar_<metric>.png`` per metric, the task's plots of each pair in
     ``pairs/<observer>__<controller>/`` and, last and atomically, ``results.json``
@@ -316,60 +318,70 @@ def run_comparison(
     task = task_for(env_id)
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
 
-    runs = run_pairs(
-        env_id,
-        observers,
-        controllers,
-        seeds,
-        steps,
-        env_kwargs,
-        workers,
-        backend,
-        address,
-        progress,
-    )
-    analysis = analyse_pairs(task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records)
-    if not analysis.starts_match:
-        warnings.warn(
-            "observer-gym compare: the pairs' episodes do not all start from the same state "
-            "for the same seed; the paired differences are not paired",
-            stacklevel=2,
+    with output_folder(out_dir, "compare"):
+        runs = run_pairs(
+            env_id,
+            observers,
+            controllers,
+            seeds,
+            steps,
+            env_kwargs,
+            workers,
+            backend,
+            address,
+            progress,
         )
+        analysis = analyse_pairs(task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records)
+        if not analysis.starts_match:
+            warnings.warn(
+                "observer-gym compare: the pairs' episodes do not all start from the same state "
+                "for the same seed; the paired differences are not paired",
+                stacklevel=2,
+            )
 
-    env_config = dict(runs.records[0]["env_config"])
-    env_config.pop("obs_mode", None)  # each pair's is its observer's (pairs[].obs_mode)
-    versions = VERSIONED_PACKAGES + ("scipy",) + (("ray",) if backend == "ray" else ())
-    results = {
-        "config": {
-            "env_id": env_id,
-            "observers": observers,
-            "controllers": controllers,
-            "seeds": seeds,
-            "episodes": len(seeds),
-            "steps": steps,
-            "env_kwargs": env_kwargs,
-            "env_config": env_config,
-            "workers": workers,
-            "backend": backend,
-            "address": address,
-            "confidence": CONFIDENCE,
-            "primary_metric": next(iter(metrics)),
-            "metrics": {
-                key: dict(zip(("label", "unit", "scale", "digits", "better"), spec, strict=True))
-                for key, spec in metrics.items()
+        env_config = dict(runs.records[0]["env_config"])
+        env_config.pop("obs_mode", None)  # each pair's is its observer's (pairs[].obs_mode)
+        versions = VERSIONED_PACKAGES + ("scipy",) + (("ray",) if backend == "ray" else ())
+        results = {
+            "config": {
+                "env_id": env_id,
+                "observers": observers,
+                "controllers": controllers,
+                "seeds": seeds,
+                "episodes": len(seeds),
+                "steps": steps,
+                "env_kwargs": env_kwargs,
+                "env_config": env_config,
+                "workers": workers,
+                "backend": backend,
+                "address": address,
+                "confidence": CONFIDENCE,
+                "primary_metric": next(iter(metrics)),
+                "metrics": {
+                    key: dict(
+                        zip(("label", "unit", "scale", "digits", "better"), spec, strict=True)
+                    )
+                    for key, spec in metrics.items()
+                },
+                **task.CONFIG,
+                "command": command_line(
+                    env_id,
+                    observers,
+                    controllers,
+                    seeds,
+                    steps,
+                    workers,
+                    backend,
+                    address,
+                    env_kwargs,
+                ),
+                "out_dir": str(out_dir),
+                "cli_args": cli_args,
             },
-            **task.CONFIG,
-            "command": command_line(
-                env_id, observers, controllers, seeds, steps, workers, backend, address, env_kwargs
-            ),
-            "out_dir": str(out_dir),
-            "cli_args": cli_args,
-        },
-        "versions": package_versions(versions),
-        "wall_time_s": runs.wall_time_s,
-        "starts_match": analysis.starts_match,
-        "pairs": analysis.pairs,
-    }
-    return write_comparison(out_dir, task, results, runs.by_pair(len(seeds)))
+            "versions": package_versions(versions),
+            "wall_time_s": runs.wall_time_s,
+            "starts_match": analysis.starts_match,
+            "pairs": analysis.pairs,
+        }
+        return write_comparison(out_dir, task, results, runs.by_pair(len(seeds)))

@@ -23,7 +23,12 @@ from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
 from observer_gym.train.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
-from observer_gym.train.outputs import default_out_dir, package_versions, write_json_atomic
+from observer_gym.train.outputs import (
+    default_out_dir,
+    output_folder,
+    package_versions,
+    write_json_atomic,
+)
 from observer_gym.train.plots import draw_table, new_figure
 
 ENV_ID = "observer_gym/BallTable-v0"
@@ -51,7 +56,9 @@ def run_demo(
     ``make_controller("lqr", env)`` acts on the estimate. An episode that terminates (ball
     over a border) stops early and is recorded as such.
 
-    Writes into ``out_dir`` (default ``observer-gym-out/demo-<time>``; created if missing):
+    Writes into ``out_dir`` (default ``observer-gym-out/demo-<time>``; created if missing,
+    and removed again if the demo fails before writing anything:
+    :func:`~observer_gym.train.outputs.output_folder`):
     ``frames/frame_XXXX.png`` (the camera frame every ``frame_every`` steps, XXXX the step),
     ``trajectory.png`` (ball path, distance from the centre, estimate vs truth) and
     ``summary.json`` (written atomically). Shows a tqdm progress bar when ``progress`` is
@@ -77,60 +84,63 @@ def run_demo(
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every!r}")
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir("demo")
-    frames_dir = out_dir / "frames"
-    frames_dir.mkdir(parents=True, exist_ok=True)
+    with output_folder(out_dir, "demo"):
+        frames_dir = out_dir / "frames"
+        frames_dir.mkdir(parents=True, exist_ok=True)
 
-    dt_s = BallTableConfig().dt_s
-    steps_wanted = max(1, round(seconds / dt_s))
-    # Our own time limit: the registered one (10 s) would cut longer demos short.
-    env = VisionObserver(
-        gym.make(ENV_ID, obs_mode="rgb", render_mode="rgb_array", max_episode_steps=steps_wanted)
-    )
-    try:
-        controller = make_controller(CONTROLLER, env)
-        record = _run_episode(
-            env, controller, steps_wanted, seed, frame_every, frames_dir, progress
+        dt_s = BallTableConfig().dt_s
+        steps_wanted = max(1, round(seconds / dt_s))
+        # Our own time limit: the registered one (10 s) would cut longer demos short.
+        env = VisionObserver(
+            gym.make(
+                ENV_ID, obs_mode="rgb", render_mode="rgb_array", max_episode_steps=steps_wanted
+            )
         )
-    finally:
-        env.close()
+        try:
+            controller = make_controller(CONTROLLER, env)
+            record = _run_episode(
+                env, controller, steps_wanted, seed, frame_every, frames_dir, progress
+            )
+        finally:
+            env.close()
 
-    files = [p.relative_to(out_dir).as_posix() for p in record["frame_paths"]]
-    _plot_trajectory(record, out_dir / "trajectory.png")
-    files += ["trajectory.png", "summary.json"]
+        files = [p.relative_to(out_dir).as_posix() for p in record["frame_paths"]]
+        _plot_trajectory(record, out_dir / "trajectory.png")
+        files += ["trajectory.png", "summary.json"]
 
-    time_s = np.array(record["time_s"])
-    truth = np.array(record["state"])
-    estimate = np.array(record["estimate"])
-    distance_m = np.linalg.norm(truth[:, BALL_POS], axis=1)
-    summary = {
-        "env_id": ENV_ID,
-        "observer": "kf (VisionObserver on rgb frames)",
-        "controller": CONTROLLER,
-        "seed": seed,
-        "seconds": seconds,
-        "dt_s": dt_s,
-        "steps": record["steps"],
-        "start_ball_pos_table_m": record["start_ball_pos_table_m"],
-        "mean_ball_distance_m": float(np.mean(distance_m)),
-        "final_ball_distance_m": float(distance_m[-1]),
-        "settling_time_s": settling_time_s(time_s, distance_m),
-        "time_within_1cm_s": time_within_s(time_s, distance_m),
-        "ball_pos_rmse_m": rmse(estimate[:, BALL_POS], truth[:, BALL_POS]),
-        "ball_vel_rmse_mps": rmse(estimate[:, BALL_VEL], truth[:, BALL_VEL]),
-        "max_abs_tilt_cmd_rad": float(np.max(np.abs(record["tilt_cmd_rad"]))),
-        "terminated": record["terminated"],
-        "mean_step_time_s": record["mean_step_time_s"],
-        "versions": package_versions(),
-        "files": files,
-        "trajectory": {
-            "time_s": record["time_s"],
-            "state": record["state"],
-            "estimate": record["estimate"],
-            "estimate_std": record["estimate_std"],
-        },
-    }
-    write_json_atomic(out_dir / "summary.json", summary)
-    return summary
+        time_s = np.array(record["time_s"])
+        truth = np.array(record["state"])
+        estimate = np.array(record["estimate"])
+        distance_m = np.linalg.norm(truth[:, BALL_POS], axis=1)
+        summary = {
+            "env_id": ENV_ID,
+            "observer": "kf (VisionObserver on rgb frames)",
+            "controller": CONTROLLER,
+            "seed": seed,
+            "seconds": seconds,
+            "dt_s": dt_s,
+            "steps": record["steps"],
+            "start_ball_pos_table_m": record["start_ball_pos_table_m"],
+            "mean_ball_distance_m": float(np.mean(distance_m)),
+            "final_ball_distance_m": float(distance_m[-1]),
+            "settling_time_s": settling_time_s(time_s, distance_m),
+            "time_within_1cm_s": time_within_s(time_s, distance_m),
+            "ball_pos_rmse_m": rmse(estimate[:, BALL_POS], truth[:, BALL_POS]),
+            "ball_vel_rmse_mps": rmse(estimate[:, BALL_VEL], truth[:, BALL_VEL]),
+            "max_abs_tilt_cmd_rad": float(np.max(np.abs(record["tilt_cmd_rad"]))),
+            "terminated": record["terminated"],
+            "mean_step_time_s": record["mean_step_time_s"],
+            "versions": package_versions(),
+            "files": files,
+            "trajectory": {
+                "time_s": record["time_s"],
+                "state": record["state"],
+                "estimate": record["estimate"],
+                "estimate_std": record["estimate_std"],
+            },
+        }
+        write_json_atomic(out_dir / "summary.json", summary)
+        return summary
 
 
 def summary_text(summary: dict[str, Any]) -> str:

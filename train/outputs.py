@@ -1,11 +1,31 @@
-"""What the commands leave behind: JSON written atomically, package versions, text tables."""
+"""What the commands leave behind: JSON and files written atomically, package versions,
+text tables; and the output folder's upkeep after a run that was killed.
+
+Atomic writes go through a temp file beside the target whose name carries the writer's
+PID (:data:`TEMP_PATTERNS`). A run killed with SIGKILL (or a power cut) cannot remove its
+temps, nor say that it stopped; :func:`output_folder` therefore, when a command starts
+writing into a folder, removes the temps there whose writer process is gone and reports
+any earlier run into the folder that never finished (its marker file remains), with an
+:class:`OutputFolderWarning` each.
+
+Whether a writer is gone (:func:`writer_alive`): each writer records its PID, its host
+name and, on Linux, its process start time (:func:`writer_identity`). On the same host it
+is alive while a process with that PID exists, is not a zombie and (when both are known)
+has the recorded start time, so a PID reused by another program does not count; a writer
+on another host cannot be checked from here and is taken as alive.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import socket
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+import time
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from datetime import datetime
 from importlib import metadata
 from pathlib import Path
@@ -58,16 +78,224 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
+class OutputFolderWarning(UserWarning):
+    """What a command found in a folder it uses that an earlier, killed run left there:
+    temp files it removed, a run that never finished."""
+
+
+# The temp files of the atomic writes: write_json_atomic's ".NAME.PID.XXXXXXXX.tmp" (before
+# PIDs were recorded ".NAME.XXXXXXXX.tmp", the writer unknown) and replace_atomically's
+# ".NAME.tmp-PID"; the group "pid" is the writer's.
+TEMP_PATTERNS = (
+    re.compile(r"^\..+?\.(?:(?P<pid>\d+)\.)?[a-z0-9_]{8}\.tmp$"),
+    re.compile(r"^\..+\.tmp-(?P<pid>\d+)$"),
+)
+# The marker a command keeps in its output folder while it writes there (output_folder).
+MARKER_PATTERN = re.compile(r"^\.observer-gym-running-(?P<pid>\d+)\.json$")
+
+
+def _process_stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/PID/stat`` after the command name (state first), or None
+    where that cannot be read (no such process, no /proc)."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return text[text.rfind(")") + 2 :].split()
+
+
+def _process_start(pid: int) -> int | None:
+    """The start time of process ``pid`` (clock ticks after boot, Linux), else None."""
+    stat = _process_stat(pid)
+    return None if stat is None or len(stat) < 20 else int(stat[19])
+
+
+def writer_identity() -> dict[str, Any]:
+    """This process as a writer records itself: ``pid``, ``host`` and ``pid_start`` (its
+    start time on Linux, None elsewhere)."""
+    pid = os.getpid()
+    return {"pid": pid, "host": socket.gethostname(), "pid_start": _process_start(pid)}
+
+
+def process_alive(pid: int, start: int | None = None) -> bool:
+    """Whether process ``pid`` of this host runs (exists and is no zombie) and, if
+    ``start`` is given and known here, started at that time (so it is not a reused PID)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # another user's process: it exists
+    stat = _process_stat(pid)
+    if stat is None:
+        return True  # no /proc here: existence is all we know
+    if stat[0] in ("Z", "X"):
+        return False  # a zombie: it has exited, only its parent has not reaped it
+    return start is None or len(stat) < 20 or int(stat[19]) == start
+
+
+def writer_alive(record: Mapping[str, Any]) -> bool:
+    """Whether the writer ``record`` names (:func:`writer_identity`'s keys) still runs:
+    checked on this host (:func:`process_alive`); a writer on another host is taken as
+    alive (it cannot be checked from here), one without a PID as gone."""
+    pid = record.get("pid")
+    if not isinstance(pid, int):
+        return False
+    if record.get("host", socket.gethostname()) != socket.gethostname():
+        return True
+    return process_alive(pid, record.get("pid_start"))
+
+
+def remove_stale_temps(folder: str | os.PathLike, all_temps: bool = False) -> list[Path]:
+    """Remove the atomic writes' temp files (:data:`TEMP_PATTERNS`) in ``folder`` and its
+    subfolders whose writer process is gone (a temp without a PID counts as gone), or all
+    of them with ``all_temps``; warns (:class:`OutputFolderWarning`) naming how many, and
+    returns their paths."""
+    folder = Path(folder)
+    removed = []
+    for path in sorted(folder.rglob(".*")) if folder.is_dir() else []:
+        match = next((m for p in TEMP_PATTERNS if (m := p.match(path.name))), None)
+        if match is None or not path.is_file():
+            continue
+        pid = match["pid"]
+        if not all_temps and pid is not None and process_alive(int(pid)):
+            continue
+        path.unlink(missing_ok=True)
+        removed.append(path)
+    if removed:
+        names = ", ".join(p.relative_to(folder).as_posix() for p in removed[:3])
+        more = f" and {len(removed) - 3} more" if len(removed) > 3 else ""
+        warnings.warn(
+            f"removed {len(removed)} temp file(s) in {folder} left by a run that was killed "
+            f"while writing: {names}{more}",
+            OutputFolderWarning,
+            stacklevel=2,
+        )
+    return removed
+
+
+def _report_killed_runs(folder: Path) -> None:
+    """Warn of each earlier run whose marker is in ``folder`` but whose writer is gone
+    (killed before it finished), and remove its marker."""
+    for path in sorted(folder.glob(".observer-gym-running-*.json")):
+        if MARKER_PATTERN.match(path.name) is None:
+            continue
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, ValueError):
+            record = {}
+        if not isinstance(record, dict):
+            record = {}
+        if writer_alive(record):
+            continue  # still writing (or on another host): its marker stays
+        warnings.warn(
+            f"an earlier 'observer-gym {record.get('command', '?')}' into {folder} "
+            f"(pid {record.get('pid', '?')} on {record.get('host', '?')}, started "
+            f"{record.get('started', '?')}) was killed before it finished; what it left "
+            "there is incomplete and may be overwritten",
+            OutputFolderWarning,
+            stacklevel=3,
+        )
+        path.unlink(missing_ok=True)
+
+
+def make_dirs(path: str | os.PathLike) -> list[Path]:
+    """Create the folder ``path`` and its missing parents; returns those it created,
+    outermost first."""
+    path = Path(path)
+    missing = []
+    level = path
+    while not level.exists() and level != level.parent:
+        missing.append(level)
+        level = level.parent
+    path.mkdir(parents=True, exist_ok=True)
+    return missing[::-1]
+
+
+def remove_if_empty(created: Sequence[Path]) -> None:
+    """Remove the folders ``created`` (outermost first, as :func:`make_dirs` returns them)
+    innermost first while they are empty; the first one that is not stops it."""
+    for folder in reversed(created):
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (or already gone): it and its parents stay
+            return
+
+
+@contextmanager
+def output_folder(
+    path: str | os.PathLike, command: str, marker: bool = True, all_temps: bool = False
+) -> Iterator[Path]:
+    """The folder a command writes into, for the ``with`` block's duration.
+
+    Creates ``path`` (and missing parents), reports earlier runs into it that were killed
+    (their marker remains) and removes stale temps (:func:`remove_stale_temps`, with
+    ``all_temps``), each with an :class:`OutputFolderWarning`. With ``marker``, keeps
+    ``.observer-gym-running-<PID>.json`` (:func:`writer_identity`, ``command``, the start
+    time) in it until the block ends, however it ends. If the block raises (an error,
+    Ctrl-C), the empty subfolders made in it during the block (a run's ``frames/``) and
+    then the folders this created are removed while empty, so a run that fails before
+    writing anything leaves no folder behind; a folder that was there stays.
+    """
+    path = Path(path)
+    created = make_dirs(path)
+    existing = {p for p in path.rglob("*") if p.is_dir()}
+    _report_killed_runs(path)
+    remove_stale_temps(path, all_temps)
+    marker_path = path / f".observer-gym-running-{os.getpid()}.json"
+    if marker:
+        record = {
+            **writer_identity(),
+            "command": command,
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+        }
+        write_json_atomic(marker_path, record)
+    try:
+        yield path
+    except BaseException:
+        if marker:
+            marker_path.unlink(missing_ok=True)
+        for parent, folders, _ in os.walk(path, topdown=False):
+            for folder in (Path(parent) / name for name in folders):
+                if folder not in existing:
+                    try:
+                        folder.rmdir()
+                    except OSError:  # not empty: something was written there
+                        pass
+        remove_if_empty(created)
+        raise
+    if marker:
+        marker_path.unlink(missing_ok=True)
+
+
+def replace_atomically(path: str | os.PathLike, write: Callable[[Path], Any]) -> None:
+    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX); the
+    temp is ``.NAME.tmp-PID`` beside it, removed if ``write`` fails."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
-    """Write ``data`` as JSON to a temp file beside ``path``, then rename it into place.
+    """Write ``data`` as JSON to a temp file beside ``path`` (``.NAME.PID.XXXXXXXX.tmp``),
+    then rename it into place.
 
     A reader sees the old file or the whole new one, never half of it. NumPy values are
     converted (:func:`to_jsonable`); NaN and infinity raise ``ValueError`` (they are not
-    JSON), so undefined numbers must be given as None. No temp file is left behind.
+    JSON), so undefined numbers must be given as None. No temp file is left behind unless
+    the process is killed while writing (:func:`remove_stale_temps` removes it then).
     """
     path = Path(path)
     text = json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n"
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp_name = tempfile.mkstemp(
+        dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
+    )
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)

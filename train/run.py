@@ -30,6 +30,7 @@ from observer_gym.train.checks import AGENT_FORMS, check_agent, frames_message
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
+    output_folder,
     package_versions,
     to_jsonable,
     write_json_atomic,
@@ -212,7 +213,9 @@ def run_experiment(
     ``workers`` > 1 the episodes run in that many spawned processes, with results
     identical to ``workers=1``.
 
-    Writes into ``out_dir`` (created) the task's plots (BallTable: ``path.png``,
+    Writes into ``out_dir`` (created; see :func:`~observer_gym.train.outputs.output_folder`
+    for what is removed and reported there before, and the folder removed again if the
+    run fails before writing anything) the task's plots (BallTable: ``path.png``,
     ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``
     (atomically): ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of
     the task's ``episode_metrics``), ``summary``, ``files``.
@@ -250,8 +253,29 @@ def run_experiment(
     if "obs_mode" in env_kwargs:
         raise ValueError("env_kwargs must not set obs_mode: the observer decides it")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with output_folder(out_dir, "run"):
+        return _run_into(
+            out_dir, task, env_id, observer, controller, episodes, seed, steps, workers,
+            progress, env_kwargs, reset_options, cli_args,
+        )  # fmt: skip
 
+
+def _run_into(
+    out_dir: Path,
+    task: Any,
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    seed: int,
+    steps: int | None,
+    workers: int,
+    progress: bool,
+    env_kwargs: dict[str, Any],
+    reset_options: Mapping[str, Any] | None,
+    cli_args: Mapping[str, Any] | None,
+) -> dict[str, Any]:
+    """:func:`run_experiment`'s episodes and outputs, its arguments checked."""
     specs = [
         EpisodeSpec(env_id, observer, controller, seed + i, steps, env_kwargs, reset_options)
         for i in range(episodes)

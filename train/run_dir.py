@@ -1,6 +1,6 @@
 """The folder of an ``observer-gym train`` run as the other commands read it: its
-``config.json``, its final model or latest checkpoint, and the ``ALGO:DIR`` names of
-trained agents.
+``config.json``, its ``state.json`` (how the run stands, a killed one told apart), its
+final model or latest checkpoint, and the ``ALGO:DIR`` names of trained agents.
 
 Reading these imports neither PyTorch nor stable-baselines3, so ``observer-gym run``,
 ``evaluate`` and ``compare`` check a trained agent before any heavy import;
@@ -14,8 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.train.hyperparams import ALGOS
+from observer_gym.train.outputs import writer_alive
 
 CONFIG_FILE = "config.json"
+STATE_FILE = "state.json"
 FINAL_MODEL = "model.zip"
 FINAL_VECNORMALIZE = "vecnormalize.pkl"
 CHECKPOINTS = "checkpoints"
@@ -58,6 +60,67 @@ def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
     if algo is not None and config["algo"] != algo:
         raise ValueError(f"{run_dir} holds a {config['algo']} agent, not {algo}")
     return config
+
+
+def read_state(run_dir: str | Path) -> dict[str, Any] | None:
+    """The ``state.json`` of the training run in ``run_dir`` (None if it has none, or one
+    that is not JSON), with ``status`` "killed" for a run that says "running" but whose
+    writer is gone.
+
+    A run records its writer (``pid``, ``host``, ``pid_start``: see
+    :func:`observer_gym.train.outputs.writer_identity`) when it starts and rewrites the
+    file when it ends (finished, interrupted by Ctrl-C or SIGTERM). One killed with
+    SIGKILL (or a power cut) cannot, so it stays "running"; it is reported "killed" when
+    its PID is no longer a running process of the recorded start time on this host
+    (:func:`observer_gym.train.outputs.writer_alive`), or when it recorded no writer
+    (written before writers were recorded: then nothing can still be writing it). A run
+    on another host is taken as still running.
+    """
+    path = Path(run_dir) / STATE_FILE
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    if not isinstance(state, dict):
+        return None
+    if state.get("status") == "running" and not writer_alive(state.get("writer") or {}):
+        state["status"] = "killed"
+    return state
+
+
+def _writer_text(state: dict[str, Any]) -> str:
+    writer = state.get("writer") or {}
+    if "pid" not in writer:
+        return "its writer (not recorded)"
+    return f"pid {writer['pid']} on {writer.get('host', '?')}"
+
+
+def killed_text(run_dir: str | Path, state: dict[str, Any]) -> str:
+    """One sentence on the killed run in ``run_dir`` (``state`` from :func:`read_state`)."""
+    return (
+        f"the training run in {run_dir} was killed: its state.json says running but "
+        f"{_writer_text(state)} is gone"
+    )
+
+
+def check_resumable(run_dir: str | Path) -> dict[str, Any] | None:
+    """Check that the training run in ``run_dir`` can be resumed: it has a config and a
+    checkpoint and is not running (:func:`read_state`). Returns its state (None if it
+    has no state.json).
+
+    Raises:
+        ValueError: no training run there, no checkpoint yet, or a run still writing it.
+    """
+    read_config(run_dir)
+    if latest_checkpoint(Path(run_dir) / CHECKPOINTS) is None:
+        raise ValueError(f"{run_dir} has no checkpoint to resume from")
+    state = read_state(run_dir)
+    if state is not None and state.get("status") == "running":
+        raise ValueError(
+            f"the training run in {run_dir} is still running ({_writer_text(state)}); "
+            "stop it before resuming"
+        )
+    return state
 
 
 def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:

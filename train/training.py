@@ -11,7 +11,11 @@ A run's folder holds:
 - ``logs/<segment>/progress.csv`` (SB3's training log, and TensorBoard events with
   ``--tensorboard``), ``monitor/`` (every training episode's return and length);
 - when finished, ``model.zip`` and ``vecnormalize.pkl``; ``state.json`` says the status
-  (running, interrupted, finished), the timestep count and the throughput.
+  (running, interrupted, finished), the timestep count, the throughput and the
+  ``writer`` (PID, host, process start time). A run killed with SIGKILL stays "running"
+  there; readers report it as "killed" once its writer is gone
+  (:func:`observer_gym.train.run_dir.read_state`), and ``--resume`` then removes the temp
+  files it left and says so (an :class:`~observer_gym.train.outputs.OutputFolderWarning`).
 
 Seeds: the training envs of a run with seed s reset first with 1,000,000 + 1,000 s + rank
 (after a resume, plus the timestep count), and evaluation uses 2,000,000 + 1,000 s, so
@@ -26,6 +30,7 @@ import dataclasses
 import functools
 import signal
 import time
+import warnings
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,8 +40,25 @@ import numpy as np
 
 from observer_gym.train.agent_env import ImageOptions, make_agent_env, observer_for
 from observer_gym.train.callbacks import EveryStepsCallback
-from observer_gym.train.outputs import package_versions, to_jsonable, write_json_atomic
-from observer_gym.train.run_dir import CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE, read_config
+from observer_gym.train.outputs import (
+    OutputFolderWarning,
+    output_folder,
+    package_versions,
+    remove_stale_temps,
+    to_jsonable,
+    write_json_atomic,
+    writer_identity,
+)
+from observer_gym.train.run_dir import (
+    CONFIG_FILE,
+    FINAL_MODEL,
+    FINAL_VECNORMALIZE,
+    STATE_FILE,
+    check_resumable,
+    killed_text,
+    latest_checkpoint,
+    read_config,
+)
 
 TRAIN_SEED_OFFSET = 1_000_000
 EVAL_SEED_OFFSET = 2_000_000
@@ -125,8 +147,9 @@ def train_agent(
             "cli_args": cli_args,
         }
     )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / CONFIG_FILE, config)
+    # The folder: created (and removed again if nothing gets written), stale temps removed.
+    with output_folder(out_dir, "train", marker=False):
+        write_json_atomic(out_dir / CONFIG_FILE, config)
     return _learn(out_dir, config, progress=progress)
 
 
@@ -187,13 +210,29 @@ def resume_training(
 ) -> dict[str, Any]:
     """Continue the run in ``run_dir`` from its latest checkpoint up to its configured
     timesteps (or ``timesteps``, a new total); the timestep count carries on from the
-    checkpoint's. Returns the final ``state.json``."""
-    from observer_gym.train.checkpoints import latest_checkpoint
+    checkpoint's. Returns the final ``state.json``.
 
+    A run that was killed (SIGKILL: :func:`~observer_gym.train.run_dir.read_state`) is
+    reported with an :class:`~observer_gym.train.outputs.OutputFolderWarning`, and every
+    temp file of the atomic writes in ``run_dir`` is removed (no run is writing there),
+    with another.
+
+    Raises:
+        ValueError: no run or no checkpoint there, a run still writing there, or a bad
+            ``timesteps``.
+    """
     run_dir = Path(run_dir)
+    state = check_resumable(run_dir)
     config = read_config(run_dir)
-    if latest_checkpoint(run_dir / "checkpoints") is None:
-        raise ValueError(f"{run_dir} has no checkpoint to resume from")
+    if state is not None and state["status"] == "killed":
+        checkpoint = latest_checkpoint(run_dir / "checkpoints")
+        warnings.warn(
+            f"{killed_text(run_dir, state)}; resuming from its checkpoint at "
+            f"{checkpoint['timesteps']} steps",
+            OutputFolderWarning,
+            stacklevel=2,
+        )
+    remove_stale_temps(run_dir, all_temps=True)
     if timesteps is not None:
         if int(timesteps) != timesteps or timesteps < 1:
             raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
@@ -254,7 +293,6 @@ def _learn(
 
     from observer_gym.train.checkpoints import (
         CheckpointCallback,
-        latest_checkpoint,
         replace_atomically,
         save_checkpoint,
     )
@@ -312,8 +350,14 @@ def _learn(
             ),
             evaluation,
         ]
-        state = {"status": "running", "timesteps": start_steps, "target_timesteps": total}
-        write_json_atomic(run_dir / "state.json", state)
+        writer = writer_identity()  # tells a killed run from a running one (read_state)
+        state = {
+            "status": "running",
+            "timesteps": start_steps,
+            "target_timesteps": total,
+            "writer": writer,
+        }
+        write_json_atomic(run_dir / STATE_FILE, state)
         tic_s = time.perf_counter()
         status = "finished"
         try:
@@ -344,8 +388,9 @@ def _learn(
             "segment_wall_time_s": wall_time_s,
             "segment_eval_time_s": evaluation.time_s,
             "train_steps_per_s": steps / train_time_s,
+            "writer": writer,
         }
-        write_json_atomic(run_dir / "state.json", state)
+        write_json_atomic(run_dir / STATE_FILE, state)
         if (run_dir / "eval.csv").exists():
             plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
         return state
