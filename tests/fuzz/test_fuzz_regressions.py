@@ -1,0 +1,21 @@
+"""The defects the fuzz suite found, each pinned by its reproducer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer_gym.envs.ball_table import BallTableConfig
+
+
+@pytest.mark.parametrize("value", [np.array([0, 0], np.int8), np.array(["fixed"]), ["fixed"]])
+def test_an_array_for_a_choice_field_is_refused_naming_the_field(value):
+    """Before: np.array([0, 0]) raised numpy's unnamed "truth value of an array ... is
+    ambiguous" ValueError, and np.array(["fixed"]) was accepted and stored as an array."""
+    with pytest.raises(ValueError, match=r"^calib_error_draw=.* is not allowed; choose one of"):
+        BallTableConfig.from_kwargs(calib_error_draw=value)
+
+
+def test_a_numpy_string_choice_is_stored_as_the_choice():
+    config = BallTableConfig.from_kwargs(calib_error_draw=np.str_("fixed"))
+    assert type(config.calib_error_draw) is str and config.calib_error_draw == "fixed"
