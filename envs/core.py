@@ -205,7 +205,7 @@ class CameraEnv(gym.Env):
                 f"{options!r}; allowed keys: {', '.join(self._reset_options()) or 'none'}"
             )
         options = dict(options or {})
-        unknown = sorted(set(options) - set(self._reset_options()))
+        unknown = sorted(set(options) - set(self._reset_options()), key=repr)  # keys: any type
         if unknown:
             allowed = ", ".join(self._reset_options()) or "none"
             raise ValueError(f"unknown reset options {unknown}; allowed: {allowed}")

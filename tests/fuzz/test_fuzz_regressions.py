@@ -19,3 +19,10 @@ def test_an_array_for_a_choice_field_is_refused_naming_the_field(value):
 def test_a_numpy_string_choice_is_stored_as_the_choice():
     config = BallTableConfig.from_kwargs(calib_error_draw=np.str_("fixed"))
     assert type(config.calib_error_draw) is str and config.calib_error_draw == "fixed"
+
+
+def test_unknown_reset_options_of_mixed_key_types_are_named(make_env):
+    """Before: TypeError from sorting the unknown keys (int < str)."""
+    env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
+    with pytest.raises(ValueError, match=r"unknown reset options \['x', 0\]; allowed: throw"):
+        env.reset(seed=0, options={"x": None, 0: None})
