@@ -351,7 +351,7 @@ class BallCatcherEnv(CameraEnv):
     @staticmethod
     def _checked_throw(given) -> Throw:
         try:
-            pos, vel = (np.asarray(v, dtype=float) for v in given)
+            pos, vel = (_real_vector(v) for v in given)
         except (TypeError, ValueError):
             pos = vel = None
         if pos is None or pos.shape != (3,) or vel.shape != (3,):
@@ -417,3 +417,14 @@ class BallCatcherEnv(CameraEnv):
         if crossing is None:
             return self._miss_m
         return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
+
+
+def _real_vector(value) -> np.ndarray:
+    """``value`` as a float array; ValueError unless it holds real numbers (complex parts
+    were dropped, strings parsed, bools and masked arrays taken before)."""
+    if isinstance(value, np.ma.MaskedArray):
+        raise ValueError("a masked array")
+    raw = np.asarray(value)
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"dtype {raw.dtype}")
+    return raw.astype(float)

@@ -26,3 +26,19 @@ def test_unknown_reset_options_of_mixed_key_types_are_named(make_env):
     env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
     with pytest.raises(ValueError, match=r"unknown reset options \['x', 0\]; allowed: throw"):
         env.reset(seed=0, options={"x": None, 0: None})
+
+
+@pytest.mark.parametrize(
+    "throw",
+    [
+        (["1", "0", "0.5"], [0, 0, 1]),  # strings
+        (np.array([1 + 1j, 0, 0.5]), [0, 0, 1]),  # complex: the imaginary part was dropped
+        (np.array([True, False, True]), [0, 0, 1]),  # bools
+        np.ma.masked_array([[1.0, 0.0, 0.5], [0.0, 0.0, 1.0]], mask=[[1, 0, 0], [0, 0, 0]]),
+    ],
+)
+def test_a_throw_of_anything_but_real_numbers_is_refused(make_env, throw):
+    """Before: each was taken (``np.asarray(v, dtype=float)``)."""
+    env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
+    with pytest.raises(ValueError, match="reset option throw must be .* two 3-vectors"):
+        env.reset(seed=0, options={"throw": throw})
