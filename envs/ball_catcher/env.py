@@ -201,6 +201,10 @@ class BallCatcherEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return ("throw",)
 
+    def _check_reset_options(self, options: dict) -> None:
+        if options.get("throw") is not None:
+            self._checked_throw(options["throw"])
+
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         given = options.get("throw")
         throw = sample_throw(self.config, rng) if given is None else self._checked_throw(given)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from gymnasium.utils.env_checker import data_equivalence
 
 from observer_gym.envs.ball_table import BallTableConfig
 
@@ -42,3 +43,27 @@ def test_a_throw_of_anything_but_real_numbers_is_refused(make_env, throw):
     env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
     with pytest.raises(ValueError, match="reset option throw must be .* two 3-vectors"):
         env.reset(seed=0, options={"throw": throw})
+
+
+@pytest.mark.parametrize(
+    ("env_id", "options"),
+    [
+        ("observer_gym/BallTable-v0", {"ball_vel_table_mps": [np.nan, 0.0]}),
+        ("observer_gym/BallCatcher-v0", {"throw": (np.zeros(3), [0.0, 0.0, 123.0])}),
+        ("observer_gym/TargetFollower-v0", {"occlusions_s": [-1.0]}),
+        ("observer_gym/TargetFollower-v0", {"tilt_rad": "up"}),
+    ],
+)
+def test_a_refused_reset_changes_nothing(make_env, env_id, options):
+    """Before: the option's value was checked after the world was cleared and rebuilt
+    (and np_random reseeded), so the episode could not go on after the ValueError."""
+    env, ref = make_env(env_id, obs_mode="state"), make_env(env_id, obs_mode="state")
+    zero = np.zeros(env.action_space.shape, np.float32)
+    env.reset(seed=1)
+    ref.reset(seed=1)
+    env.step(zero)
+    ref.step(zero)
+    with pytest.raises(ValueError, match="reset option"):
+        env.reset(seed=2, options=options)
+    for _ in range(3):
+        assert data_equivalence(env.step(zero), ref.step(zero))
