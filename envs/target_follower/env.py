@@ -267,7 +267,11 @@ class TargetFollowerEnv(CameraEnv):
     def _checked_occlusions(value) -> np.ndarray:
         """Occlusion start times: finite seconds in [0, OCCLUSION_START_MAX_S]."""
         name = "reset option occlusions_s"
-        if np.ndim(value) != 1:
+        try:
+            ndim = np.ndim(value)
+        except ValueError:  # ragged nested sequences
+            ndim = None
+        if ndim != 1:
             raise ValueError(f"{name} must be a sequence of start times in seconds, got {value!r}")
         times = real_array(name, value, (len(value),), OCCLUSION_START_MAX_S)
         if np.any(times < 0.0):

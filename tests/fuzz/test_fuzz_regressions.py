@@ -67,3 +67,10 @@ def test_a_refused_reset_changes_nothing(make_env, env_id, options):
         env.reset(seed=2, options=options)
     for _ in range(3):
         assert data_equivalence(env.step(zero), ref.step(zero))
+
+
+def test_ragged_occlusions_are_refused_naming_the_option(make_env):
+    """Before: numpy's unnamed 'inhomogeneous shape' ValueError."""
+    env = make_env("observer_gym/TargetFollower-v0", obs_mode="state")
+    with pytest.raises(ValueError, match="reset option occlusions_s must be a sequence"):
+        env.reset(seed=0, options={"occlusions_s": [[1.0], [1.0, 2.0]]})
