@@ -61,7 +61,7 @@ from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
-from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.observer import Estimate, checked_measurement_array
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0
@@ -150,7 +150,9 @@ class BallCatcherObserver:
         if self.rgb:
             uv = self.detector.detect(checked_rgb_frame(frame, self.image_size_px))
         else:
-            uv = frame["uv_px"]
+            uv = frame.get("uv_px", "missing")  # None: no detection
+            if uv is not None:
+                uv = checked_measurement_array("BallCatcherObserver", "uv_px", uv, (2,))
         if uv is None:
             return None
         uv = np.asarray(uv, dtype=float)
@@ -208,7 +210,7 @@ def checked_rgb_frame(frame: dict, default_size_px: tuple[int, int]) -> np.ndarr
     """A delivered frame's image, checked: uint8, H x W x 3 with (W, H) the frame's
     ``image_size_px`` (else ``default_size_px``, the env config's); ValueError naming
     the expected and the given shape and dtype otherwise."""
-    image = frame["image"]
+    image = frame.get("image")
     width, height = frame.get("image_size_px", default_size_px)
     expected = (int(height), int(width), 3)
     shape = getattr(image, "shape", None)

@@ -47,7 +47,7 @@ from observer_gym.estimation.ball_table.models import (
 from observer_gym.estimation.ball_table.tracker import TableTracker
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
-from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.observer import Estimate, checked_measurement
 
 
 def _tuned_ball_params() -> RollingBallParams:
@@ -87,6 +87,7 @@ class BallTableObserver:
         self.detector = detector or BallTableDetector()
         cfg = env.config
         self.from_pixels = cfg.obs_mode == "rgb"
+        self.measurement_space = env.observation_space  # measurements mode: its Dict
         self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
         self.ball_model = RollingBallModel(self.params.ball)
         self.tilt_model = TiltLagModel.from_arm(
@@ -114,6 +115,7 @@ class BallTableObserver:
             image = checked_rgb_frame(obs, frame.get("image_size_px", self.image_size_px))
             features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
         else:
+            obs = checked_measurement("BallTableObserver", obs, self.measurement_space)
             features = features_from_measurement(obs)
         return self.detector.detect(features, frame["K"], frame["T_world_cam"])
 

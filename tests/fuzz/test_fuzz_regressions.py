@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
 from observer_gym.envs.ball_table import BallTableConfig
+from observer_gym.estimation import default_pipeline
 
 
 @pytest.mark.parametrize("value", [np.array([0, 0], np.int8), np.array(["fixed"]), ["fixed"]])
@@ -74,3 +76,57 @@ def test_ragged_occlusions_are_refused_naming_the_option(make_env):
     env = make_env("observer_gym/TargetFollower-v0", obs_mode="state")
     with pytest.raises(ValueError, match="reset option occlusions_s must be a sequence"):
         env.reset(seed=0, options={"occlusions_s": [[1.0], [1.0, 2.0]]})
+
+
+def _first_observation(env_id, mode="measurements"):
+    env = gym.make(env_id, obs_mode=mode, image_width_px=64, image_height_px=48).unwrapped
+    zero = np.zeros(env.action_space.shape, np.float32)
+    env.reset(seed=0)
+    obs, *_, info = env.step(zero)
+    return env, obs, info, zero
+
+
+@pytest.mark.parametrize(
+    ("env_id", "change"),
+    [
+        ("observer_gym/BallTable-v0", lambda obs: None),  # TypeError
+        ("observer_gym/BallTable-v0", lambda obs: {k: v for k, v in obs.items() if k != "ball_px"}),
+        ("observer_gym/BallTable-v0", lambda obs: {**obs, "table_corners_px": np.zeros(3)}),
+        ("observer_gym/TargetFollower-v0", lambda obs: [1.0, 2.0]),  # TypeError
+        ("observer_gym/TargetFollower-v0", lambda obs: {"detected": np.ones(1, np.int8)}),
+        ("observer_gym/TargetFollower-v0", lambda obs: {**obs, "target_px": ["1", "2", "3"]}),
+    ],
+)
+def test_a_bad_measurement_is_a_value_error(env_id, change):
+    """Before: TypeError, KeyError, or numpy's unnamed reshape ValueError; strings parsed."""
+    env, obs, info, zero = _first_observation(env_id)
+    try:
+        pipeline = default_pipeline(env)
+        with pytest.raises(ValueError, match="Observer: .*measurement"):
+            pipeline.observe(change(obs), info, zero)
+        pipeline.observe(obs, info, zero)  # the real one still passes
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("mode", "key", "value"),
+    [
+        ("measurements", "uv_px", np.zeros((0, 4, 1))),  # IndexError before
+        ("measurements", "uv_px", np.array([1 + 1j, 2.0])),  # the imaginary part was dropped
+        ("measurements", "uv_px", None),  # missing: KeyError before
+        ("rgb", "image", None),  # missing: KeyError before
+    ],
+)
+def test_a_bad_ball_catcher_frame_is_a_value_error(mode, key, value):
+    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v0", mode)
+    try:
+        frames = [dict(f) for f in info["frames"]]
+        if value is None:
+            del frames[0][key]
+        else:
+            frames[0][key] = value
+        with pytest.raises(ValueError, match="BallCatcherObserver: .*(uv_px|frame of camera)"):
+            default_pipeline(env).observe(None, {**info, "frames": frames}, zero)
+    finally:
+        env.close()
