@@ -146,7 +146,8 @@ class BallCatcherObserver:
         self.reacquisitions = 0
 
     def detect(self, frame: dict) -> np.ndarray | None:
-        """The ball's pixel (u, v) in one delivered frame, or None (also for NaN/inf)."""
+        """The ball's pixel (u, v) in one delivered frame, or None (also for NaN, inf or beyond
+        MAX_PIXEL_PX)."""
         if self.rgb:
             uv = self.detector.detect(checked_rgb_frame(frame, self.image_size_px))
         else:
@@ -156,7 +157,8 @@ class BallCatcherObserver:
         if uv is None:
             return None
         uv = np.asarray(uv, dtype=float)
-        return uv if bool(np.all(np.isfinite(uv))) else None
+        # NaN, inf, or a pixel no camera reports (1e308 overflowed the filter's update)
+        return uv if bool(np.all(np.abs(uv) <= MAX_PIXEL_PX)) else None
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         measurements = []
@@ -204,6 +206,10 @@ class BallCatcherObserver:
         accepted_before = kf.accepted_count
         kf.restart(self.x0, self.P0, 0.0, since_s)
         return kf.accepted_count > accepted_before
+
+
+# Beyond this a pixel is no detection: far outside any image, and its squares overflow.
+MAX_PIXEL_PX = 1e6
 
 
 def checked_rgb_frame(frame: dict, default_size_px: tuple[int, int]) -> np.ndarray:

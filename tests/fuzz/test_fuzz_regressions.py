@@ -130,3 +130,18 @@ def test_a_bad_ball_catcher_frame_is_a_value_error(mode, key, value):
             default_pipeline(env).observe(None, {**info, "frames": frames}, zero)
     finally:
         env.close()
+
+
+def test_a_ball_catcher_pixel_no_camera_reports_is_no_detection():
+    """Before: uv = (u, 1e308) overflowed the viewline filter's update (LinAlgError: S is
+    not positive definite)."""
+    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v0")
+    try:
+        pipeline = default_pipeline(env)
+        frames = [dict(f) for f in info["frames"]]
+        for frame in frames:
+            frame["uv_px"] = np.array([10.0, 1e308])
+        estimate = pipeline.observe(None, {**info, "frames": frames}, zero)
+        assert np.all(np.isfinite(estimate.mean)) and not estimate.measurement_used
+    finally:
+        env.close()
