@@ -80,6 +80,10 @@ class StateFeedbackController:
         """stable-baselines3's signature; ``state`` is passed through, ``deterministic`` is
         ignored (every controller here is deterministic)."""
         try:
+            # complex (its imaginary part dropped), strings, dates, masked: not numbers
+            kind = np.asarray(observation).dtype.kind
+            if kind in "cmMSUV" or isinstance(observation, np.ma.MaskedArray):
+                raise TypeError(f"{type(observation).__name__} of dtype kind {kind!r}")
             obs = np.asarray(observation, dtype=float)
         except (TypeError, ValueError) as error:
             raise ValueError(

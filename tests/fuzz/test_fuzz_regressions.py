@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
+from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.estimation import default_pipeline
 
@@ -145,3 +146,19 @@ def test_a_ball_catcher_pixel_no_camera_reports_is_no_detection():
         assert np.all(np.isfinite(estimate.mean)) and not estimate.measurement_used
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(
+    "make_obs",
+    [
+        lambda n: np.full(n, 0.1 + 1j),  # the imaginary part was dropped
+        lambda n: np.zeros(n, "datetime64[s]"),
+        lambda n: [str(0.0)] * n,  # parsed
+        lambda n: np.ma.masked_array(np.zeros(n), mask=True),
+    ],
+)
+def test_predict_refuses_observations_that_are_not_real_numbers(make_env, make_obs):
+    env = make_env("observer_gym/BallTable-v0", obs_mode="state")
+    controller = make_controller("lqr", env)
+    with pytest.raises(ValueError, match="predict: observation must be an array of numbers"):
+        controller.predict(make_obs(env.unwrapped.state_space.shape[0]))
