@@ -85,7 +85,7 @@ class StateFeedbackController:
             if kind in "cmMSUV" or isinstance(observation, np.ma.MaskedArray):
                 raise TypeError(f"{type(observation).__name__} of dtype kind {kind!r}")
             obs = np.asarray(observation, dtype=float)
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, OverflowError) as error:  # Overflow: 10**400
             raise ValueError(
                 f"{type(self).__name__}.predict: observation must be an array of numbers of "
                 f"shape ({self.obs_dim},) or (n_envs, {self.obs_dim}), got {observation!r} "
