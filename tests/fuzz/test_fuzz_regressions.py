@@ -163,3 +163,12 @@ def test_predict_refuses_observations_that_are_not_real_numbers(make_env, make_o
     controller = make_controller("lqr", env)
     with pytest.raises(ValueError, match="predict: observation must be an array of numbers"):
         controller.predict(make_obs(env.unwrapped.state_space.shape[0]))
+
+
+@pytest.mark.parametrize(("omega", "damping"), [(1e200, 0.9), (1e160, 1e160)])
+def test_pid_gains_beyond_float_name_omega_and_damping(make_env, omega, damping):
+    """Before: OverflowError from omega_radps**2 (1e200), or a ValueError naming only the
+    derived gain kd (1e160, 1e160)."""
+    env = make_env("observer_gym/BallTable-v0", obs_mode="state")
+    with pytest.raises(ValueError, match=r"= inf, must be finite .* omega_radps = .* damping ="):
+        make_controller("pid", env, omega_radps=omega, damping=damping)
