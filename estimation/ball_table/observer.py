@@ -116,6 +116,9 @@ class BallTableObserver:
             features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
         else:
             obs = checked_measurement("BallTableObserver", obs, self.measurement_space)
+            # A pixel no camera reports (1e308: its rays cancel, ZeroDivisionError in the
+            # geometry stage) is a non-finite one: no detection of that part.
+            obs = {k: np.where(np.abs(v) <= MAX_PIXEL_PX, v, np.nan) for k, v in obs.items()}
             features = features_from_measurement(obs)
         return self.detector.detect(features, frame["K"], frame["T_world_cam"])
 
@@ -217,6 +220,9 @@ class BallTableObserver:
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
+
+
+MAX_PIXEL_PX = 1e6  # beyond this a measured pixel is taken as non-finite
 
 
 def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:

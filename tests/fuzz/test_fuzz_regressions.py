@@ -172,3 +172,21 @@ def test_pid_gains_beyond_float_name_omega_and_damping(make_env, omega, damping)
     env = make_env("observer_gym/BallTable-v0", obs_mode="state")
     with pytest.raises(ValueError, match=r"= inf, must be finite .* omega_radps = .* damping ="):
         make_controller("pid", env, omega_radps=omega, damping=damping)
+
+
+@pytest.mark.parametrize("index", [0, 1, 2])
+def test_a_ball_table_pixel_no_camera_reports_is_no_detection(index):
+    """Before: ball_px with 1e308 raised ZeroDivisionError in the geometry stage."""
+    env, obs, info, zero = _first_observation("observer_gym/BallTable-v0")
+    try:
+        pipeline, reference = default_pipeline(env), default_pipeline(env)
+        ball = np.array(obs["ball_px"], dtype=float)
+        ball[index] = 1e308
+        nan = ball.copy()
+        nan[index] = np.nan
+        got = pipeline.observe({**obs, "ball_px": ball}, info, zero)
+        want = reference.observe({**obs, "ball_px": nan}, info, zero)
+        np.testing.assert_array_equal(got.mean, want.mean)
+        assert np.all(np.isfinite(got.mean))
+    finally:
+        env.close()
