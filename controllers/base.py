@@ -80,8 +80,12 @@ class StateFeedbackController:
         """stable-baselines3's signature; ``state`` is passed through, ``deterministic`` is
         ignored (every controller here is deterministic)."""
         try:
+            # complex (its imaginary part dropped), strings, dates, masked: not numbers
+            kind = np.asarray(observation).dtype.kind
+            if kind in "cmMSUV" or isinstance(observation, np.ma.MaskedArray):
+                raise TypeError(f"{type(observation).__name__} of dtype kind {kind!r}")
             obs = np.asarray(observation, dtype=float)
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, OverflowError) as error:  # Overflow: 10**400
             raise ValueError(
                 f"{type(self).__name__}.predict: observation must be an array of numbers of "
                 f"shape ({self.obs_dim},) or (n_envs, {self.obs_dim}), got {observation!r} "

@@ -52,12 +52,16 @@ class PIDController(StateFeedbackController):
             for name, value in (("kp", kp), ("ki", ki), ("kd", kd))
         )
         self.omega_radps, self.damping = omega_radps, damping
-        self.kp = omega_radps**2 if kp is None else kp
+        self.kp = omega_radps * omega_radps if kp is None else kp  # ** raised OverflowError
         self.kd = 2.0 * damping * omega_radps if kd is None else kd
         self.ki = self.kp * omega_radps / 10.0 if ki is None else ki
         for name, value in (("kp", self.kp), ("ki", self.ki), ("kd", self.kd)):
             if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"PIDController: {name} = {value!r}, must be finite and >= 0")
+                raise ValueError(
+                    f"PIDController: {name} = {value!r}, must be finite and >= 0 (the gains "
+                    f"not given follow from omega_radps = {omega_radps!r} and damping = "
+                    f"{damping!r})"
+                )
         self.plant = plant
         self.dt_s = plant.dt_s
         self._G_inv = np.linalg.inv(plant.model.G)

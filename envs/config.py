@@ -78,15 +78,14 @@ def _checked_value(name: str, value: Any, default: Any, meta: dict) -> Any:
     ValueError naming the field, the value and what is allowed."""
     choices = meta["choices"]
     if choices is not None:
-        try:
-            allowed = value in choices
-        except TypeError:  # e.g. an array compared with strings
-            allowed = False
-        if not allowed:
+        # Only a value of a choice's type: ``value in choices`` would take an array that
+        # compares equal elementwise (np.array(["fixed"])) or raise an unnamed ValueError.
+        matches = [c for c in choices if isinstance(value, type(c)) and value == c]
+        if not matches:
             raise ValueError(
                 f"{name}={_short(value)} is not allowed; choose one of {list(choices)}"
             )
-        return value
+        return matches[0]  # the choice itself (np.str_("rgb") becomes "rgb")
     if isinstance(default, bool):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{name}={_short(value)} must be True or False")

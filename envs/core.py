@@ -119,6 +119,10 @@ class CameraEnv(gym.Env):
         """The keys ``reset(options=...)`` takes."""
         return ()
 
+    def _check_reset_options(self, options: dict) -> None:
+        """Raise ValueError naming a bad value of a known reset option (before the reset
+        changes anything; ``_start_episode`` gets only options that passed)."""
+
     def _camera_timings(self, rng: np.random.Generator) -> list[CameraTiming]:
         """Each camera's phase and latency for the episode."""
         return self.rig.default_timings()
@@ -198,17 +202,20 @@ class CameraEnv(gym.Env):
 
     # --- Gymnasium API --------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        # Checked before anything changes: a refused reset leaves the world, the episode
+        # and np_random as they were.
         if options is not None and not isinstance(options, Mapping):
             raise ValueError(
                 f"reset options must be a dict (or None), got {type(options).__name__}: "
                 f"{options!r}; allowed keys: {', '.join(self._reset_options()) or 'none'}"
             )
         options = dict(options or {})
-        unknown = sorted(set(options) - set(self._reset_options()))
+        unknown = sorted(set(options) - set(self._reset_options()), key=repr)  # keys: any type
         if unknown:
             allowed = ", ".join(self._reset_options()) or "none"
             raise ValueError(f"unknown reset options {unknown}; allowed: {allowed}")
+        self._check_reset_options(options)
+        super().reset(seed=seed)
         generator = copy.deepcopy(self.np_random)  # before this episode's first draw
         self._begin_episode(options)
         self._episode = (generator, copy.deepcopy(options))

@@ -15,6 +15,7 @@ use another.
 from __future__ import annotations
 
 import importlib
+import reprlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -83,6 +84,40 @@ def default_pipeline(env: gym.Env, observer: str | None = None, **options: Any) 
             f"{', '.join(observers)}"
         )
     return observers[name](env.unwrapped, **options)
+
+
+def checked_measurement_array(owner: str, name: str, value: Any, shape: tuple) -> np.ndarray:
+    """A measurement's entry ``name`` as a float array of ``shape``; NaN and inf are kept (a
+    pipeline takes them as no detection). ValueError naming ``owner``, the entry and what is
+    allowed for anything but real numbers (bools too) of that shape."""
+    error = ValueError(
+        f"{owner}: measurement {name} must be real numbers of shape {tuple(shape)}, got "
+        f"{reprlib.repr(value)}"
+    )
+    if value is None or isinstance(value, np.ma.MaskedArray):
+        raise error
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError):  # ragged sequences
+        raise error from None
+    if raw.dtype.kind not in "biuf" or raw.shape != tuple(shape):
+        raise error
+    return raw.astype(np.float64)
+
+
+def checked_measurement(owner: str, obs: Any, space: gym.spaces.Dict) -> dict[str, np.ndarray]:
+    """A measurements-mode observation checked against the env's Dict ``space``: every key
+    of ``space`` with real numbers of its shape (see :func:`checked_measurement_array`), as
+    float arrays; ValueError naming ``owner`` and what is wrong otherwise."""
+    if not isinstance(obs, Mapping):
+        raise ValueError(
+            f"{owner}: the measurement must be a dict with keys {list(space.spaces)}, got "
+            f"{type(obs).__name__}: {reprlib.repr(obs)}"
+        )
+    return {
+        key: checked_measurement_array(owner, key, obs.get(key), sub.shape)
+        for key, sub in space.spaces.items()
+    }
 
 
 class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):

@@ -201,6 +201,10 @@ class BallCatcherEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return ("throw",)
 
+    def _check_reset_options(self, options: dict) -> None:
+        if options.get("throw") is not None:
+            self._checked_throw(options["throw"])
+
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         given = options.get("throw")
         throw = sample_throw(self.config, rng) if given is None else self._checked_throw(given)
@@ -351,7 +355,7 @@ class BallCatcherEnv(CameraEnv):
     @staticmethod
     def _checked_throw(given) -> Throw:
         try:
-            pos, vel = (np.asarray(v, dtype=float) for v in given)
+            pos, vel = (_real_vector(v) for v in given)
         except (TypeError, ValueError):
             pos = vel = None
         if pos is None or pos.shape != (3,) or vel.shape != (3,):
@@ -417,3 +421,14 @@ class BallCatcherEnv(CameraEnv):
         if crossing is None:
             return self._miss_m
         return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
+
+
+def _real_vector(value) -> np.ndarray:
+    """``value`` as a float array; ValueError unless it holds real numbers (complex parts
+    were dropped, strings parsed, bools and masked arrays taken before)."""
+    if isinstance(value, np.ma.MaskedArray):
+        raise ValueError("a masked array")
+    raw = np.asarray(value)
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"dtype {raw.dtype}")
+    return raw.astype(float)

@@ -166,6 +166,11 @@ class BallTableEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return RESET_OPTIONS
 
+    def _check_reset_options(self, options: dict) -> None:
+        for name, value in options.items():
+            if value is not None:
+                _checked_ball_option(name, value)
+
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
         ball_pos = options.get("ball_pos_table_m")
@@ -178,8 +183,8 @@ class BallTableEnv(CameraEnv):
             speed = rng.uniform(0.0, cfg.start_speed_mps)
             angle = rng.uniform(0.0, 2.0 * np.pi)
             ball_vel = speed * np.array([np.cos(angle), np.sin(angle)])
-        ball_pos = real_array("reset option ball_pos_table_m", ball_pos, (2,), geo.BALL_TRAVEL_M)
-        ball_vel = real_array("reset option ball_vel_table_mps", ball_vel, (2,), 2.0)
+        ball_pos = _checked_ball_option("ball_pos_table_m", ball_pos)
+        ball_vel = _checked_ball_option("ball_vel_table_mps", ball_vel)
         self.scene.place_ball(ball_pos, ball_vel)
         self.disturbances.reset(rng)
         self._push_impulse = None
@@ -243,3 +248,9 @@ class BallTableEnv(CameraEnv):
             },
             "push_impulse_ns": self._push_impulse,
         }
+
+
+def _checked_ball_option(name: str, value) -> np.ndarray:
+    """The reset option ``name`` (a RESET_OPTIONS key) as a float 2-vector, or ValueError."""
+    bound = geo.BALL_TRAVEL_M if name == "ball_pos_table_m" else 2.0
+    return real_array(f"reset option {name}", value, (2,), bound)

@@ -217,14 +217,24 @@ class TargetFollowerEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return RESET_OPTIONS
 
+    def _check_reset_options(self, options: dict) -> None:
+        self._checked_tilt(options)
+        self._checked_occlusions(options.get("occlusions_s", ()))
+        if options.get("target_pos_world_m") is not None:
+            self._checked_target(options["target_pos_world_m"])
+
+    def _checked_tilt(self, options: dict) -> float:
+        cfg = self.config
+        tilt = options.get("tilt_rad", 0.0)
+        return real_number("reset option tilt_rad", tilt, cfg.tilt_min_rad, cfg.tilt_max_rad)
+
+    @staticmethod
+    def _checked_target(value) -> np.ndarray:
+        return real_array("reset option target_pos_world_m", value, (3,), TARGET_BOUND_M)
+
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
-        tilt = real_number(
-            "reset option tilt_rad",
-            options.get("tilt_rad", 0.0),
-            cfg.tilt_min_rad,
-            cfg.tilt_max_rad,
-        )
+        tilt = self._checked_tilt(options)
         occlusions = np.sort(self._checked_occlusions(options.get("occlusions_s", ())))
         distance = rng.uniform(cfg.start_distance_min_m, cfg.start_distance_max_m)
         bearing = rng.uniform(-cfg.start_bearing_max_rad, cfg.start_bearing_max_rad)
@@ -237,7 +247,7 @@ class TargetFollowerEnv(CameraEnv):
                 eye[1] + distance * math.sin(bearing),
                 height,
             ]
-        target = real_array("reset option target_pos_world_m", target, (3,), TARGET_BOUND_M)
+        target = self._checked_target(target)
         motion = TargetMotion(
             cfg.target_motion,
             target,
@@ -257,7 +267,11 @@ class TargetFollowerEnv(CameraEnv):
     def _checked_occlusions(value) -> np.ndarray:
         """Occlusion start times: finite seconds in [0, OCCLUSION_START_MAX_S]."""
         name = "reset option occlusions_s"
-        if np.ndim(value) != 1:
+        try:
+            ndim = np.ndim(value)
+        except ValueError:  # ragged nested sequences
+            ndim = None
+        if ndim != 1:
             raise ValueError(f"{name} must be a sequence of start times in seconds, got {value!r}")
         times = real_array(name, value, (len(value),), OCCLUSION_START_MAX_S)
         if np.any(times < 0.0):

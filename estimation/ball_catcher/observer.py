@@ -61,7 +61,11 @@ from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
-from observer_gym.estimation.observer import Estimate, checked_rgb_frame
+from observer_gym.estimation.observer import (
+    Estimate,
+    checked_measurement_array,
+    checked_rgb_frame,
+)
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0
@@ -146,20 +150,24 @@ class BallCatcherObserver:
         self.reacquisitions = 0
 
     def detect(self, frame: dict) -> np.ndarray | None:
-        """The ball's pixel (u, v) in one delivered frame, or None (also for NaN/inf)."""
+        """The ball's pixel (u, v) in one delivered frame, or None (also for NaN, inf or beyond
+        MAX_PIXEL_PX)."""
         if self.rgb:
             image = checked_rgb_frame(
-                frame["image"],
+                frame.get("image"),
                 frame.get("image_size_px", self.image_size_px),
                 f"BallCatcherObserver, camera {frame.get('camera_id')!r}",
             )
             uv = self.detector.detect(image)
         else:
-            uv = frame["uv_px"]
+            uv = frame.get("uv_px", "missing")  # None: no detection
+            if uv is not None:
+                uv = checked_measurement_array("BallCatcherObserver", "uv_px", uv, (2,))
         if uv is None:
             return None
         uv = np.asarray(uv, dtype=float)
-        return uv if bool(np.all(np.isfinite(uv))) else None
+        # NaN, inf, or a pixel no camera reports (1e308 overflowed the filter's update)
+        return uv if bool(np.all(np.abs(uv) <= MAX_PIXEL_PX)) else None
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         measurements = []
@@ -207,3 +215,7 @@ class BallCatcherObserver:
         accepted_before = kf.accepted_count
         kf.restart(self.x0, self.P0, 0.0, since_s)
         return kf.accepted_count > accepted_before
+
+
+# Beyond this a pixel is no detection: far outside any image, and its squares overflow.
+MAX_PIXEL_PX = 1e6

@@ -47,7 +47,7 @@ from observer_gym.estimation.ball_table.models import (
 from observer_gym.estimation.ball_table.tracker import TableTracker
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
-from observer_gym.estimation.observer import Estimate, checked_rgb_frame
+from observer_gym.estimation.observer import Estimate, checked_measurement, checked_rgb_frame
 
 
 def _tuned_ball_params() -> RollingBallParams:
@@ -87,6 +87,7 @@ class BallTableObserver:
         self.detector = detector or BallTableDetector()
         cfg = env.config
         self.from_pixels = cfg.obs_mode == "rgb"
+        self.measurement_space = env.observation_space  # measurements mode: its Dict
         self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
         self.ball_model = RollingBallModel(self.params.ball)
         self.tilt_model = TiltLagModel.from_arm(
@@ -116,6 +117,10 @@ class BallTableObserver:
             )
             features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
         else:
+            obs = checked_measurement("BallTableObserver", obs, self.measurement_space)
+            # A pixel no camera reports (1e308: its rays cancel, ZeroDivisionError in the
+            # geometry stage) is a non-finite one: no detection of that part.
+            obs = {k: np.where(np.abs(v) <= MAX_PIXEL_PX, v, np.nan) for k, v in obs.items()}
             features = features_from_measurement(obs)
         return self.detector.detect(features, frame["K"], frame["T_world_cam"])
 
@@ -217,6 +222,9 @@ class BallTableObserver:
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
+
+
+MAX_PIXEL_PX = 1e6  # beyond this a measured pixel is taken as non-finite
 
 
 def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:

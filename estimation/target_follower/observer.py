@@ -39,7 +39,7 @@ from observer_gym.envs.target_follower import (
     TargetFollowerEnv,
 )
 from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
-from observer_gym.estimation.observer import Estimate, checked_rgb_frame
+from observer_gym.estimation.observer import Estimate, checked_measurement, checked_rgb_frame
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
 from observer_gym.estimation.target_follower.models import (
@@ -82,6 +82,7 @@ class TargetFollowerObserver:
         self.delta_y_m = env.calibration["delta_y_m"]
         self.detector = detector or TargetFollowerDetector()
         self.from_pixels = env.config.obs_mode == "rgb"
+        self.measurement_space = env.observation_space  # measurements mode: its Dict
         self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         self.vse = VisualStateEstimator(self.params)
         self.reset()
@@ -99,9 +100,10 @@ class TargetFollowerObserver:
                 obs, frame.get("image_size_px", self.image_size_px), "TargetFollowerObserver"
             )
             z = self.detector.detect(image, frame["K"])
-        elif not obs[DETECTED][0]:
-            return None
         else:
+            obs = checked_measurement("TargetFollowerObserver", obs, self.measurement_space)
+            if not obs[DETECTED][0]:
+                return None
             z = obs[TARGET_PX]
         if z is None:
             return None
