@@ -156,7 +156,7 @@ class BallCatcherObserver:
             image = checked_rgb_frame(
                 frame.get("image"),
                 frame.get("image_size_px", self.image_size_px),
-                f"BallCatcherObserver, camera {frame.get('camera_id')!r}",
+                f"BallCatcherObserver: frame of camera {frame.get('camera_id')!r}",
             )
             uv = self.detector.detect(image)
         else:
