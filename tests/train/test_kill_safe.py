@@ -117,7 +117,14 @@ def test_a_killed_training_run_is_reported_and_its_temps_removed(tmp_path, capfd
     ]  # fmt: skip
     trainer = _start(command)
     checkpoints = out / "checkpoints"
-    _wait_for(trainer, lambda: list(checkpoints.glob(".model_*.zip.tmp-*")), "checkpoint temp")
+    # Stuck in the second checkpoint: the first one is saved (latest.json), a temp is open.
+    _wait_for(
+        trainer,
+        lambda: (
+            (checkpoints / "latest.json").exists() and list(checkpoints.glob(".model_*.zip.tmp-*"))
+        ),
+        "checkpoint temp after a saved checkpoint",
+    )
     _sigkill(trainer)
     (temp,) = checkpoints.glob(".model_*.zip.tmp-*")
     assert temp.name.endswith(f".tmp-{trainer.pid}")
