@@ -7,6 +7,8 @@ Profiles (chosen by the environment variable HYPOTHESIS_PROFILE, default "ci"):
 - "slow": many more examples, random each run; ``HYPOTHESIS_PROFILE=slow pytest
   tests/fuzz``. No database either (nothing written to the work tree): a failure prints
   its ``@reproduce_failure`` blob.
+- "long": as many examples as "slow", derandomized: CI's longer fuzzing step
+  (``.ci/run``), reproducible like "ci".
 - "dev": the ci examples without shrinking (a failure is reported at once, unshrunk).
 
 At the end of the run the table of what was tried per category (accepted, or rejected
@@ -30,6 +32,7 @@ _COMMON = {
 }
 settings.register_profile("ci", max_examples=40, derandomize=True, database=None, **_COMMON)
 settings.register_profile("slow", max_examples=400, database=None, **_COMMON)
+settings.register_profile("long", max_examples=400, derandomize=True, database=None, **_COMMON)
 # While fixing: the ci examples, failures reported unshrunk (fast).
 settings.register_profile(
     "dev", parent=settings.get_profile("ci"), phases=[Phase.explicit, Phase.generate]
