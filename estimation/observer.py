@@ -86,6 +86,11 @@ def default_pipeline(env: gym.Env, observer: str | None = None, **options: Any) 
     return observers[name](env.unwrapped, **options)
 
 
+# Beyond this a measured pixel is no detection, as NaN is: far outside any image, and its
+# squares overflow the filters' arithmetic.
+MAX_PIXEL_PX = 1e6
+
+
 def checked_measurement_array(owner: str, name: str, value: Any, shape: tuple) -> np.ndarray:
     """A measurement's entry ``name`` as a float array of ``shape``; NaN and inf are kept (a
     pipeline takes them as no detection). ValueError naming ``owner``, the entry and what is

@@ -62,6 +62,7 @@ from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.estimation.observer import (
+    MAX_PIXEL_PX,
     Estimate,
     checked_measurement_array,
     checked_rgb_frame,
@@ -215,7 +216,3 @@ class BallCatcherObserver:
         accepted_before = kf.accepted_count
         kf.restart(self.x0, self.P0, 0.0, since_s)
         return kf.accepted_count > accepted_before
-
-
-# Beyond this a pixel is no detection: far outside any image, and its squares overflow.
-MAX_PIXEL_PX = 1e6

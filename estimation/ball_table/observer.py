@@ -47,7 +47,12 @@ from observer_gym.estimation.ball_table.models import (
 from observer_gym.estimation.ball_table.tracker import TableTracker
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
-from observer_gym.estimation.observer import Estimate, checked_measurement, checked_rgb_frame
+from observer_gym.estimation.observer import (
+    MAX_PIXEL_PX,
+    Estimate,
+    checked_measurement,
+    checked_rgb_frame,
+)
 
 
 def _tuned_ball_params() -> RollingBallParams:
@@ -222,9 +227,6 @@ class BallTableObserver:
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
-
-
-MAX_PIXEL_PX = 1e6  # beyond this a measured pixel is taken as non-finite
 
 
 def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:
