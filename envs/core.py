@@ -119,9 +119,11 @@ class CameraEnv(gym.Env):
         """The keys ``reset(options=...)`` takes."""
         return ()
 
-    def _check_reset_options(self, options: dict) -> None:
-        """Raise ValueError naming a bad value of a known reset option (before the reset
-        changes anything; ``_start_episode`` gets only options that passed)."""
+    def _checked_reset_options(self, options: dict) -> dict:
+        """The reset options as ``_start_episode`` takes them (numbers as floats and
+        arrays), or ValueError naming a bad value; called before the reset changes
+        anything."""
+        return options
 
     def _camera_timings(self, rng: np.random.Generator) -> list[CameraTiming]:
         """Each camera's phase and latency for the episode."""
@@ -214,7 +216,7 @@ class CameraEnv(gym.Env):
         if unknown:
             allowed = ", ".join(self._reset_options()) or "none"
             raise ValueError(f"unknown reset options {unknown}; allowed: {allowed}")
-        self._check_reset_options(options)
+        options = self._checked_reset_options(options)
         super().reset(seed=seed)
         generator = copy.deepcopy(self.np_random)  # before this episode's first draw
         self._begin_episode(options)

@@ -201,13 +201,14 @@ class BallCatcherEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return ("throw",)
 
-    def _check_reset_options(self, options: dict) -> None:
-        if options.get("throw") is not None:
-            self._checked_throw(options["throw"])
+    def _checked_reset_options(self, options: dict) -> dict:
+        given = options.get("throw")
+        return {"throw": None if given is None else self._checked_throw(given)}
 
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
-        given = options.get("throw")
-        throw = sample_throw(self.config, rng) if given is None else self._checked_throw(given)
+        throw = options["throw"]
+        if throw is None:
+            throw = sample_throw(self.config, rng)
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
         self._ball_box = self.scene.ball_in_box()
         self._approach_clean = self._entered_clean = None

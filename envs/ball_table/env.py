@@ -166,10 +166,11 @@ class BallTableEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return RESET_OPTIONS
 
-    def _check_reset_options(self, options: dict) -> None:
-        for name, value in options.items():
-            if value is not None:
-                _checked_ball_option(name, value)
+    def _checked_reset_options(self, options: dict) -> dict:
+        return {
+            name: None if value is None else _checked_ball_option(name, value)
+            for name, value in options.items()
+        }
 
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
@@ -183,8 +184,6 @@ class BallTableEnv(CameraEnv):
             speed = rng.uniform(0.0, cfg.start_speed_mps)
             angle = rng.uniform(0.0, 2.0 * np.pi)
             ball_vel = speed * np.array([np.cos(angle), np.sin(angle)])
-        ball_pos = _checked_ball_option("ball_pos_table_m", ball_pos)
-        ball_vel = _checked_ball_option("ball_vel_table_mps", ball_vel)
         self.scene.place_ball(ball_pos, ball_vel)
         self.disturbances.reset(rng)
         self._push_impulse = None

@@ -217,37 +217,37 @@ class TargetFollowerEnv(CameraEnv):
     def _reset_options(self) -> tuple[str, ...]:
         return RESET_OPTIONS
 
-    def _check_reset_options(self, options: dict) -> None:
-        self._checked_tilt(options)
-        self._checked_occlusions(options.get("occlusions_s", ()))
-        if options.get("target_pos_world_m") is not None:
-            self._checked_target(options["target_pos_world_m"])
-
-    def _checked_tilt(self, options: dict) -> float:
+    def _checked_reset_options(self, options: dict) -> dict:
         cfg = self.config
         tilt = options.get("tilt_rad", 0.0)
-        return real_number("reset option tilt_rad", tilt, cfg.tilt_min_rad, cfg.tilt_max_rad)
-
-    @staticmethod
-    def _checked_target(value) -> np.ndarray:
-        return real_array("reset option target_pos_world_m", value, (3,), TARGET_BOUND_M)
+        target = options.get("target_pos_world_m")
+        return {
+            "tilt_rad": real_number(
+                "reset option tilt_rad", tilt, cfg.tilt_min_rad, cfg.tilt_max_rad
+            ),
+            "occlusions_s": self._checked_occlusions(options.get("occlusions_s", ())),
+            "target_pos_world_m": None
+            if target is None
+            else real_array("reset option target_pos_world_m", target, (3,), TARGET_BOUND_M),
+        }
 
     def _start_episode(self, rng: np.random.Generator, options: dict) -> None:
         cfg = self.config
-        tilt = self._checked_tilt(options)
-        occlusions = np.sort(self._checked_occlusions(options.get("occlusions_s", ())))
+        tilt = options["tilt_rad"]
+        occlusions = options["occlusions_s"]
         distance = rng.uniform(cfg.start_distance_min_m, cfg.start_distance_max_m)
         bearing = rng.uniform(-cfg.start_bearing_max_rad, cfg.start_bearing_max_rad)
         height = rng.uniform(cfg.start_height_min_m, cfg.start_height_max_m)
         target = options.get("target_pos_world_m")
         if target is None:
             eye = geo.camera_pose(np.zeros(2), 0.0, tilt, cfg.delta_y_m)[:3, 3]
-            target = [
-                eye[0] + distance * math.cos(bearing),
-                eye[1] + distance * math.sin(bearing),
-                height,
-            ]
-        target = self._checked_target(target)
+            target = np.array(
+                [
+                    eye[0] + distance * math.cos(bearing),
+                    eye[1] + distance * math.sin(bearing),
+                    height,
+                ]
+            )
         motion = TargetMotion(
             cfg.target_motion,
             target,
