@@ -35,6 +35,12 @@ class Estimate:
     measurement_used: bool  # a new measurement updated the estimate this step
     measurement: Any  # the raw detection (None when no new frame arrived)
     time_s: float
+    # The normalised innovation squared d^T S^-1 d of this step's measurement update
+    # (the sum over the updates when several measurements were fused, with their
+    # dimensions summed in ``nis_dof``); None when nothing was fused or the observer
+    # has no innovation covariance.
+    nis: float | None = None
+    nis_dof: int = 0
 
     def as_info(self) -> dict[str, Any]:
         return {
@@ -43,6 +49,8 @@ class Estimate:
             "measurement_used": self.measurement_used,
             "measurement": self.measurement,
             "time_s": self.time_s,
+            "nis": self.nis,
+            "nis_dof": self.nis_dof,
         }
 
 
