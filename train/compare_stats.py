@@ -15,6 +15,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
+from observer_gym.train.consistency import episode_consistency
+
 CONFIDENCE = 0.95  # of every interval
 PERCENT = f"{CONFIDENCE * 100:g} %"  # as the tables write it
 ORACLE = "oracle"
@@ -148,9 +150,11 @@ def analyse_pairs(
 ) -> Analysis:
     """Per pair (``records`` holds the episodes of ``pairs[0]`` on ``seeds``, then those of
     ``pairs[1]``, ...): each episode's metrics (the task's ``episode_metrics`` and, if it
-    has one, ``compare_extras``), the task's summary, the statistics of every metric of
-    :func:`compare_metrics` and, with "oracle" among the observers, the paired difference
-    of the primary metric from the oracle with the same controller."""
+    has one, ``compare_extras``; and the filter's consistency,
+    :func:`~observer_gym.train.consistency.episode_consistency`), the task's summary,
+    the statistics of every metric of :func:`compare_metrics` and, with "oracle" among
+    the observers, the paired difference of the primary metric from the oracle with the
+    same controller."""
     metrics = compare_metrics(task)
     primary = next(iter(metrics))
     n = len(seeds)
@@ -160,7 +164,7 @@ def analyse_pairs(
     for (observer, controller), folder in zip(pairs, folders, strict=True):
         episodes = []
         for i, (seed, record) in enumerate(zip(seeds, by_pair[observer, controller], strict=True)):
-            values = task.episode_metrics(record)
+            values = {**task.episode_metrics(record), **episode_consistency(record)}
             if extras is not None:
                 values.update(extras(values))
             episodes.append({"episode": i, "seed": seed, **values})

@@ -27,6 +27,7 @@ from observer_gym.controllers import check_controller_fits, make_controller
 from observer_gym.envs import system_for_id
 from observer_gym.train.agent import Agent
 from observer_gym.train.checks import AGENT_FORMS, check_agent, frames_message
+from observer_gym.train.consistency import episode_consistency, nees_per_step
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
@@ -134,7 +135,9 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """Run one episode; its record (arrays, T steps).
 
     Returns ``time_s`` (T + 1,), ``state`` (T + 1, n) ground truth, ``estimate`` and
-    ``estimate_std`` (T + 1, n; None for the oracle), ``actions`` (T, m), ``rewards``
+    ``estimate_std`` (T + 1, n; None for the oracle), for an observer also ``nees``,
+    ``nees_dof``, ``nis``, ``nis_dof`` (T + 1,; :mod:`observer_gym.train.consistency`;
+    NaN where a step has none), ``actions`` (T, m), ``rewards``
     (T,), ``terminated``, ``truncated``, ``final_info`` (the scalar entries of the last
     step's info, e.g. an episode's outcome), ``solver_failures``, ``controller``
     (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
@@ -185,8 +188,16 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
         if "estimate" in samples[0]:
             estimates = [s["estimate"] for s in samples]
             record["estimate"] = np.array([e["mean"] for e in estimates], dtype=float)
-            variances = np.array([np.diag(e["covariance"]) for e in estimates], dtype=float)
+            covariances = [e["covariance"] for e in estimates]
+            variances = np.array([np.diag(P) for P in covariances], dtype=float)
             record["estimate_std"] = np.sqrt(np.maximum(variances, 0.0))
+            record["nees"], record["nees_dof"] = nees_per_step(
+                record["estimate"], covariances, record["state"]
+            )
+            record["nis"] = np.array(
+                [np.nan if e.get("nis") is None else e["nis"] for e in estimates], dtype=float
+            )
+            record["nis_dof"] = np.array([e.get("nis_dof", 0) for e in estimates], dtype=int)
         return record
     finally:
         env.close()
@@ -285,7 +296,12 @@ def _run_into(
     wall_time_s = time.perf_counter() - tic_s
 
     per_episode = [
-        {"episode": i, "seed": spec.seed, **task.episode_metrics(record)}
+        {
+            "episode": i,
+            "seed": spec.seed,
+            **task.episode_metrics(record),
+            **episode_consistency(record),
+        }
         for i, (spec, record) in enumerate(zip(specs, records, strict=True))
     ]
     summary = task.summarize(per_episode)

@@ -1,0 +1,56 @@
+"""NEES and NIS per episode (train/consistency.py): chi-square means on samples drawn from
+the claimed covariance, a singular covariance counted by its rank."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer_gym.train.consistency import episode_consistency, nees_per_step
+
+
+def test_errors_drawn_from_the_covariance_give_a_mean_nees_of_its_dimension():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(4, 4))
+    P = A @ A.T + 0.1 * np.eye(4)
+    P = np.diag([1e-6, 1e-2, 1.0, 10.0]) @ P @ np.diag([1e-6, 1e-2, 1.0, 10.0])  # mixed units
+    steps = 4000
+    truth = rng.normal(size=(steps, 4))
+    errors = rng.multivariate_normal(np.zeros(4), P, size=steps)
+    nees, dof = nees_per_step(truth + errors, [P] * steps, truth)
+    assert np.all(dof == 4)
+    # mean of chi2(4) over 4000 samples: 4 +- 3 * sqrt(8 / 4000) = 4 +- 0.13
+    assert nees.mean() == pytest.approx(4.0, abs=0.15)
+
+
+def test_a_direction_known_exactly_is_left_out_of_the_dof():
+    # rate = -theta / tau exactly: the (theta, rate) block has rank 1.
+    tau = 0.05
+    P = np.array([[1e-4, -1e-4 / tau], [-1e-4 / tau, 1e-4 / tau**2]])
+    rng = np.random.default_rng(1)
+    theta_err = rng.normal(scale=1e-2, size=2000)
+    errors = np.column_stack([theta_err, -theta_err / tau + 1e-3 * rng.normal(size=2000)])
+    nees, dof = nees_per_step(errors, [P] * 2000, np.zeros((2000, 2)))
+    assert np.all(dof == 1)
+    assert nees.mean() == pytest.approx(1.0, abs=0.1)
+
+
+def test_entries_with_zero_variance_are_not_counted_and_nan_gives_no_nees():
+    P = np.diag([1.0, 0.0, 4.0])
+    nees, dof = nees_per_step(np.array([[1.0, 5.0, 2.0]]), [P], np.zeros((1, 3)))
+    assert dof[0] == 2 and nees[0] == pytest.approx(1.0 + 1.0)
+    nees, dof = nees_per_step(np.array([[np.nan, 0.0, 0.0]]), [P], np.zeros((1, 3)))
+    assert np.isnan(nees[0]) and dof[0] == 0
+
+
+def test_episode_means_skip_steps_without_a_value():
+    record = {
+        "nees": np.array([np.nan, 2.0, 4.0]),
+        "nees_dof": np.array([0, 2, 2]),
+        "nis": np.array([np.nan, np.nan, np.nan]),
+        "nis_dof": np.array([0, 0, 0]),
+    }
+    out = episode_consistency(record)
+    assert out["nees_mean"] == 3.0 and out["nees_ratio"] == 1.5
+    assert out["nis_mean"] is None
+    assert episode_consistency({"nees": None}) == {}

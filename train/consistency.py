@@ -1,0 +1,79 @@
+"""Filter consistency per episode: NEES against the simulator's truth, and NIS.
+
+    NEES(k) = e(k)^T P(k)^-1 e(k),   e(k) = x_hat(k) - x(k)                  (over n_k dof)
+    NIS(k)  = sum over the step's updates of d^T S^-1 d                    (over m_k dof)
+
+A consistent filter has E[NEES] = n_k and E[NIS] = m_k (Bar-Shalom, Li & Kirubarajan,
+"Estimation with Applications to Tracking and Navigation", 2001, sec. 5.4). NEES is taken
+over the state entries the observer is uncertain about: those with a finite, positive
+variance (entries it knows exactly, e.g. the robot's own joints, have zero variance and
+no error to normalise), in the directions the covariance does not claim to know exactly
+(:func:`nees_per_step`); a step whose covariance is not finite has no NEES. NIS comes
+from the observer (``Estimate.nis``, ``nis_dof``); observers without an innovation
+covariance report none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["episode_consistency", "nees_per_step"]
+
+# Correlation eigenvalues below this are directions the covariance holds exactly known.
+RANK_TOL = 1e-9
+
+
+def nees_per_step(
+    estimates: np.ndarray, covariances: Sequence[np.ndarray], truth: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """NEES and its degrees of freedom at each step (NaN and 0 where it has none).
+
+    Over the entries with a finite, positive variance, in the eigenbasis of their
+    correlation matrix: directions whose correlation eigenvalue is below
+    :data:`RANK_TOL` are ones the observer claims to know exactly (e.g. BallTable's tilt
+    rate, computed from the tilt and the known command) and are left out, so the dof is
+    the covariance's numerical rank. numpy.linalg.eigh, not a Cholesky solve, for that."""
+    nees = np.full(len(estimates), np.nan)
+    dof = np.zeros(len(estimates), dtype=int)
+    for k, (mean, P, x) in enumerate(zip(estimates, covariances, truth, strict=True)):
+        P = np.asarray(P, dtype=float)
+        variances = np.diag(P)
+        uncertain = np.isfinite(variances) & (variances > 0.0)
+        if not uncertain.any():
+            continue
+        error = np.asarray(mean, dtype=float)[uncertain] - np.asarray(x, dtype=float)[uncertain]
+        block = P[np.ix_(uncertain, uncertain)]
+        if not (np.all(np.isfinite(block)) and np.all(np.isfinite(error))):
+            continue
+        # Correlation matrix D^-1/2 P D^-1/2 and the error in the same scaling.
+        scale = 1.0 / np.sqrt(np.diag(block))
+        eigenvalues, eigenvectors = np.linalg.eigh(block * np.outer(scale, scale))
+        kept = eigenvalues > RANK_TOL
+        # NEES = sum over kept directions of (v_i^T D^-1/2 e)^2 / lambda_i
+        projected = eigenvectors[:, kept].T.dot(error * scale)
+        nees[k] = float(np.sum(projected**2 / eigenvalues[kept]))
+        dof[k] = int(kept.sum())
+    return nees, dof
+
+
+def episode_consistency(record: Mapping[str, Any]) -> dict[str, float | None]:
+    """The episode's mean NEES and mean NIS with their mean degrees of freedom, from a
+    :func:`observer_gym.train.run.run_episode` record; {} for the oracle (no estimate).
+    ``nees_ratio`` = mean NEES / mean dof (1 for a consistent filter); None where the
+    observer gave none."""
+    if record.get("nees") is None:
+        return {}
+    out = {}
+    for name in ("nees", "nis"):
+        values, dof = np.asarray(record[name], float), np.asarray(record[f"{name}_dof"], float)
+        has = np.isfinite(values) & (dof > 0)
+        if not has.any():
+            out.update({f"{name}_mean": None, f"{name}_dof": None, f"{name}_ratio": None})
+            continue
+        mean, mean_dof = float(values[has].mean()), float(dof[has].mean())
+        ratio = mean / mean_dof
+        out.update({f"{name}_mean": mean, f"{name}_dof": mean_dof, f"{name}_ratio": ratio})
+    return out
