@@ -31,6 +31,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import FrameStackObservation, RescaleAction
 
+from observer_gym.train.checks import agent_observer
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.tasks import task_for
 
@@ -62,14 +63,21 @@ class ImageOptions:
             )
 
 
-def observer_for(env_id: str, obs: str, estimate_from: str = "measurements") -> str:
-    """The ``observer-gym run`` observer that feeds an agent trained with ``obs``."""
+def observer_for(
+    env_id: str, obs: str, estimate_from: str = "measurements", observer: str | None = None
+) -> str:
+    """The ``observer-gym run`` observer that feeds an agent trained with ``obs``:
+    ``observer`` if given (``obs="estimate"`` only: any of the task's observers with a
+    pipeline), else the task's ``ESTIMATE_OBSERVERS[estimate_from]`` for an estimate."""
     if obs not in OBS_TYPES:
         raise ValueError(f"unknown obs {obs!r}; allowed: {', '.join(OBS_TYPES)}")
     if estimate_from not in ESTIMATE_SOURCES:
         raise ValueError(
             f"unknown estimate_from {estimate_from!r}; allowed: {', '.join(ESTIMATE_SOURCES)}"
         )
+    if observer is not None:
+        # the light copy of the task's names checks it (the same message as the CLI's)
+        return agent_observer(env_id, obs, estimate_from, observer)
     if obs == "state":
         return "oracle"
     if obs == "rgb":
@@ -129,13 +137,14 @@ def make_agent_env(
     estimate_from: str = "measurements",
     env_kwargs: Mapping[str, Any] | None = None,
     image: Mapping[str, Any] | None = None,
+    observer: str | None = None,
 ) -> gym.Env:
-    """The training env of an agent: ``observer_for(env_id, obs, estimate_from)``'s env
+    """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
     (``observer_gym.train.observer_env.make_env``), for ``rgb`` with :func:`wrap_images` (``image``:
     :class:`ImageOptions` fields), and the action space rescaled to [-1, 1]. A top-level
     function of plain arguments, so ``functools.partial`` of it pickles into spawned
     SubprocVecEnv workers."""
-    env = make_env(env_id, observer_for(env_id, obs, estimate_from), env_kwargs)
+    env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
     try:
         if obs == "rgb":
             env = wrap_images(env, ImageOptions(**dict(image or {})))

@@ -182,14 +182,31 @@ def check_env_options(
         raise ValueError(f"bad env option for {system.short_id}: {exc}") from None
 
 
-def agent_observer(env_id: str, obs: str, estimate_from: str) -> str:
+def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | None = None) -> str:
     """The observer that feeds an agent trained with ``obs`` (as
-    :func:`observer_gym.train.agent_env.observer_for`)."""
+    :func:`observer_gym.train.agent_env.observer_for`): ``observer`` if given (with
+    ``obs="estimate"`` only, one of the system's observers that estimate), else the one
+    ``estimate_from`` picks."""
+    names = names_for(env_id)
+    if observer is not None:
+        estimating = [
+            name
+            for name, mode in names.observers.items()
+            if mode != "state" and name not in names.frame_observers
+        ]
+        if obs != "estimate":
+            raise ValueError(f"an observer ({observer!r}) applies to --obs estimate only")
+        if observer not in estimating:
+            raise ValueError(
+                f"unknown estimating observer {observer!r} for {system_for_id(env_id).short_id}; "
+                f"allowed: {', '.join(estimating)}"
+            )
+        return observer
     if obs == "state":
         return "oracle"
     if obs == "rgb":
         return "pixels"
-    return names_for(env_id).estimate_observers[estimate_from]
+    return names.estimate_observers[estimate_from]
 
 
 def training_overrides(
@@ -216,6 +233,7 @@ def check_training_request(
     overrides: Mapping[str, Any],
     env_options: Mapping[str, Any],
     tensorboard: bool,
+    observer: str | None = None,
 ) -> dict[str, Any]:
     """The hyperparameters of a new ``observer-gym train`` run resolved from the YAML
     and ``overrides`` (:func:`~observer_gym.train.hyperparams.resolve_hyperparams`: the
@@ -225,7 +243,7 @@ def check_training_request(
     env_id = system_for_id(env_id).env_id
     params = resolve_hyperparams(env_id, algo, obs, overrides)
     env_kwargs = {**params["env_kwargs"], **dict(env_options)}
-    obs_mode = names_for(env_id).observers[agent_observer(env_id, obs, estimate_from)]
+    obs_mode = names_for(env_id).observers[agent_observer(env_id, obs, estimate_from, observer)]
     check_env_options(env_id, obs_mode, env_kwargs, decided_by="--obs")
     if (Path(out_dir) / CONFIG_FILE).exists():
         raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")

@@ -253,6 +253,15 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         help="for --obs estimate: the observer's input (default: %(default)s, no rendering)",
     )
     parser.add_argument(
+        "--observer",
+        default=None,
+        metavar="NAME",
+        help=(
+            "for --obs estimate: the observer by name, as run and compare take it (e.g. "
+            "kf-latency-measurements; default: the system's filter on --estimate-from)"
+        ),
+    )
+    parser.add_argument(
         "--timesteps",
         type=positive_int,
         default=None,
@@ -309,7 +318,16 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 # options a resumed run takes from its config.json instead
-_TRAIN_RUN_OPTIONS = ("algo", "obs", "n_envs", "vec_env", "hyperparam", "env_option", "out")
+_TRAIN_RUN_OPTIONS = (
+    "algo",
+    "obs",
+    "observer",
+    "n_envs",
+    "vec_env",
+    "hyperparam",
+    "env_option",
+    "out",
+)
 
 
 def _train_run(args: argparse.Namespace) -> int:
@@ -345,6 +363,7 @@ def _train_run(args: argparse.Namespace) -> int:
             "timesteps": args.timesteps,
             "seed": args.seed,
             "estimate_from": args.estimate_from,
+            "observer": args.observer,
             "n_envs": args.n_envs,
             "vec_env": args.vec_env,
             "hyperparams": dict(args.hyperparam),
@@ -364,6 +383,7 @@ def _train_run(args: argparse.Namespace) -> int:
                 overrides,
                 options["env_kwargs"],
                 args.tensorboard,
+                args.observer,
             )
             # deferred: PyTorch; the hyperparameters' names come from stable-baselines3
             from observer_gym.train.training import check_training

@@ -81,6 +81,7 @@ def train_agent(
     timesteps: int | None = None,
     seed: int = 0,
     estimate_from: str = "measurements",
+    observer: str | None = None,
     n_envs: int | None = None,
     vec_env: str | None = None,
     hyperparams: Mapping[str, Any] | None = None,
@@ -98,7 +99,10 @@ def train_agent(
         out_dir: the run's folder; it must not hold a run already (use ``resume``).
         timesteps: env steps to train for (None: the YAML's ``n_timesteps``).
         seed: the run's seed (>= 0).
-        estimate_from: for ``obs="estimate"``, measurements or rgb.
+        estimate_from: for ``obs="estimate"``, measurements or rgb: picks the system's
+            default estimating observer for that input.
+        observer: for ``obs="estimate"``, the observer by name instead (any of the task's
+            ``OBSERVERS`` that estimate: kf, kf-latency-measurements, ...).
         n_envs, vec_env: override the YAML's.
         hyperparams: dotted-key overrides of the YAML's values.
         env_kwargs: ``gym.make`` options (not obs_mode: ``obs`` decides it), over the
@@ -110,7 +114,7 @@ def train_agent(
     Raises:
         ValueError: any bad argument or hyperparameter, before anything is written.
     """
-    env_id, observer, params, env_kwargs = check_training(
+    env_id, feeding, params, env_kwargs = check_training(
         env_id,
         algo,
         obs,
@@ -118,6 +122,7 @@ def train_agent(
         timesteps=timesteps,
         seed=seed,
         estimate_from=estimate_from,
+        observer=observer,
         n_envs=n_envs,
         vec_env=vec_env,
         hyperparams=hyperparams,
@@ -125,7 +130,7 @@ def train_agent(
         tensorboard=tensorboard,
     )
     out_dir = Path(out_dir)
-    probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"])
+    probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"], observer)
     try:  # the action bounds a loaded agent maps back to, and a check that the env builds
         action_space = probe.unwrapped.action_space
     finally:
@@ -136,7 +141,7 @@ def train_agent(
             "algo": algo,
             "obs": obs,
             "estimate_from": estimate_from if obs == "estimate" else None,
-            "observer": observer,
+            "observer": feeding,
             "env_kwargs": env_kwargs,
             "seed": int(seed),
             "hyperparams": params,
@@ -161,6 +166,7 @@ def check_training(
     timesteps: int | None = None,
     seed: int = 0,
     estimate_from: str = "measurements",
+    observer: str | None = None,
     n_envs: int | None = None,
     vec_env: str | None = None,
     hyperparams: Mapping[str, Any] | None = None,
@@ -186,12 +192,20 @@ def check_training(
     from observer_gym.train.systems import resolve_env_id
 
     env_id = resolve_env_id(env_id)
-    observer = observer_for(env_id, obs, estimate_from)
+    feeding = observer_for(env_id, obs, estimate_from, observer)
     if int(seed) != seed or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     overrides = training_overrides(hyperparams, timesteps, n_envs, vec_env)
     params = check_training_request(
-        env_id, algo, obs, estimate_from, out_dir, overrides, env_kwargs or {}, tensorboard
+        env_id,
+        algo,
+        obs,
+        estimate_from,
+        out_dir,
+        overrides,
+        env_kwargs or {},
+        tensorboard,
+        observer,
     )
     check_algorithm_keys(params, algo)
     if obs == "rgb":
@@ -202,7 +216,7 @@ def check_training(
             raise ValueError(
                 f"hyperparameter image must have only {fields}, got {params['image']!r}"
             ) from None
-    return env_id, observer, params, {**params["env_kwargs"], **dict(env_kwargs or {})}
+    return env_id, feeding, params, {**params["env_kwargs"], **dict(env_kwargs or {})}
 
 
 def resume_training(
@@ -253,6 +267,9 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
         config["estimate_from"] or "measurements",
         config["env_kwargs"],
         config["hyperparams"]["image"],
+        # the observer by name for an estimate (runs written before config.json recorded
+        # it as chosen are the estimate_from default, which is what observer_for gives)
+        config.get("observer") if config["obs"] == "estimate" else None,
     )
     subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
     return make_vec_env(

@@ -30,6 +30,16 @@ def test_observer_for_each_obs():
         observer_for(env_id, "estimate", "depth")
 
 
+def test_an_estimating_observer_can_be_named():
+    env_id = "observer_gym/BallTable-v0"
+    assert observer_for(env_id, "estimate", observer="kf") == "kf"
+    for wrong in ("oracle", "pixels", "nope"):
+        with pytest.raises(ValueError, match="allowed: kf, kf-measurements"):
+            observer_for(env_id, "estimate", observer=wrong)
+    with pytest.raises(ValueError, match="--obs estimate only"):
+        observer_for(env_id, "state", observer="kf")
+
+
 def test_agent_actions_map_back_as_rescale_action_does():
     """to_env_action inverts the [-1, 1] rescaling the agent trained through."""
     env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state")

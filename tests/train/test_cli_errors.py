@@ -314,7 +314,7 @@ def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.Argume
 def test_train_usage_shows_algo_and_obs_as_required():
     usage = " ".join(_subparser(build_parser(), "train").format_usage().split())
     assert "--algo {ppo,sac,td3} --obs {state,estimate,rgb}" in usage
-    assert "[--algo" not in usage and "[--obs" not in usage
+    assert "[--algo" not in usage and "[--obs {" not in usage
     assert "[--resume DIR]" in usage
 
 
@@ -348,6 +348,10 @@ def test_the_checks_feed_an_agent_from_the_observer_train_uses():
                 assert checks.agent_observer(system.env_id, obs, source) == observer_for(
                     system.env_id, obs, source
                 )
+        for observer in (*checks.names_for(system.env_id).observers, "nope"):
+            assert _message(checks.agent_observer, system.env_id, "estimate", "rgb", observer) == (
+                _message(observer_for, system.env_id, "estimate", "rgb", observer)
+            )
 
 
 def _message(check, *args) -> str | None:
