@@ -9,6 +9,7 @@ else it writes passes on), and every ``connect`` an "argv[0]=" line to stdout
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import tempfile
@@ -61,6 +62,24 @@ def _import_without_banner():
 
 pybullet = _import_without_banner()
 import pybullet_data  # noqa: E402  (after pybullet's quiet import)
-from pybullet_utils.bullet_client import BulletClient  # noqa: E402
+from pybullet_utils.bullet_client import BulletClient as _PybulletUtilsClient  # noqa: E402
 
 __all__ = ["BulletClient", "pybullet", "pybullet_data", "silenced"]
+
+
+class BulletClient(_PybulletUtilsClient):
+    """pybullet_utils' BulletClient (every pybullet function with this client's
+    ``physicsClientId``) that binds each function once: the original builds a new
+    ``functools.partial`` and runs ``inspect.isbuiltin`` on every call, about 2.5 us, 7 %
+    of a BallCatcher state-mode step (benchmarks/bench_envs.py). ``disconnect`` drops
+    the bound functions, so a closed client's calls fail as the original's do instead of
+    reaching a later client that PyBullet gave the same id."""
+
+    def __getattr__(self, name: str):
+        attribute = super().__getattr__(name)
+        if name == "disconnect":
+            for bound in [k for k, v in vars(self).items() if isinstance(v, functools.partial)]:
+                del self.__dict__[bound]
+        elif isinstance(attribute, functools.partial):
+            self.__dict__[name] = attribute
+        return attribute
