@@ -27,6 +27,7 @@ HELP_COMMANDS = (
     ["demo"],
     ["run"],
     ["compare"],
+    ["sweep"],
     ["train"],
     ["evaluate"],
     ["reproduce"],

@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 
-from observer_gym.train import compare_cli
+from observer_gym.train import compare_cli, sweep_cli
 from observer_gym.train.cli_args import (
     Parser,
     UsageError,
@@ -544,6 +544,23 @@ COMMANDS: dict[str, Command] = {
         add_arguments=compare_cli.add_arguments,
         run=compare_cli.run,
     ),
+    "sweep": Command(
+        help="run observers x controllers over a grid of env options (resumable) and plot them",
+        description=(
+            "Run every observer x controller of --observers and --controllers at every point "
+            "of a grid of env options (--vary KEY=V1,V2,..., repeatable: the grid is every "
+            "combination) on the same seeds: episode i of every cell resets with seed S + i. "
+            "Locally in worker processes (--workers) or as Ray tasks (--backend ray). Each "
+            "finished cell is saved under DIR/cells/ at once; running the same command again "
+            "skips the finished cells (another command into the same --out is refused). Writes "
+            "results.json, episodes.csv (one row per episode), table.md (per cell: the env's "
+            "primary metric and a second one with 95 % intervals, and the paired difference "
+            "from the first grid point) and <key>.png per varied key into --out, and prints "
+            "the table."
+        ),
+        add_arguments=sweep_cli.add_arguments,
+        run=sweep_cli.run,
+    ),
     "train": Command(
         help="train a stable-baselines3 agent (PPO, SAC, TD3) on the state, an estimate or pixels",
         description=(
@@ -619,7 +636,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     :class:`~observer_gym.train.cli_args.UsageError` (a ``SystemExit`` with code 2) after
     printing its one line, one found by a command's checks returns 2 after printing its.
     What a command finds left by a killed run in a folder it uses (an
-    :class:`~observer_gym.train.outputs.OutputFolderWarning`) is one line on stderr,
+    :class:`~observer_gym.train.outputs.OutputFolderWarning`), and any other
+    :class:`~observer_gym.train.outputs.OneLineWarning`, is one line on stderr,
     ``observer-gym COMMAND: warning: ...``; other warnings show as Python shows them.
     """
     args = build_parser().parse_args(argv)
@@ -629,9 +647,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         def show(message, category, filename, lineno, file=None, line=None) -> None:
             # deferred: the warning comes from outputs, loaded by then; --help stays light
-            from observer_gym.train.outputs import OutputFolderWarning
+            from observer_gym.train.outputs import OneLineWarning
 
-            if issubclass(category, OutputFolderWarning):
+            if issubclass(category, OneLineWarning):
                 print(f"{prog}: warning: {one_line(message)}", file=sys.stderr)
             else:
                 shown(message, category, filename, lineno, file, line)

@@ -83,12 +83,37 @@ def check_comparison(
     """Check a comparison's inputs; return them normalised (``env_id`` registered,
     ``observers``, ``controllers`` and ``seeds`` as lists, ``env_kwargs`` a dict).
 
-    The cheap checks come first and build no env: the env, the observers (the task's
-    ``OBSERVERS``), the controllers (:func:`observer_gym.train.run.check_controller` for
-    every pair), non-empty lists without duplicates, seeds, ``workers``, ``steps``,
-    ``backend`` and ``address``. Then each baseline controller is designed once on the
-    env's state version with ``env_kwargs`` (a BallCatcher controller on BallTable, or a
-    bad env option, fails here rather than in every episode).
+    The cheap checks come first and build no env (:func:`check_request`); then each
+    baseline controller is designed once on the env's state version with ``env_kwargs``
+    (:func:`check_designs`: a BallCatcher controller on BallTable, or a bad env option,
+    fails here rather than in every episode).
+
+    Raises:
+        ValueError: naming the bad value and what is allowed.
+    """
+    checked = check_request(
+        env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs
+    )
+    check_designs(checked["env_id"], checked["controllers"], checked["env_kwargs"])
+    return checked
+
+
+def check_request(
+    env_id: str,
+    observers: Sequence[str] | str,
+    controllers: Sequence[str] | str,
+    seeds: Sequence[int],
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    steps: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """:func:`check_comparison`'s checks that build no env: the env, the observers (the
+    task's ``OBSERVERS``), the controllers (:func:`observer_gym.train.run.check_controller`
+    for every pair), non-empty lists without duplicates, seeds, ``workers``, ``steps``,
+    ``backend``, ``address`` and no ``obs_mode`` in ``env_kwargs``. Returns the inputs
+    normalised as :func:`check_comparison` does.
 
     Raises:
         ValueError: naming the bad value and what is allowed.
@@ -127,7 +152,6 @@ def check_comparison(
     env_kwargs = dict(env_kwargs or {})
     if "obs_mode" in env_kwargs:
         raise ValueError("env_kwargs must not set obs_mode: each observer decides it")
-    _check_designs(env_id, controllers, env_kwargs)
     return {
         "env_id": env_id,
         "observers": observers,
@@ -137,9 +161,10 @@ def check_comparison(
     }
 
 
-def _check_designs(env_id: str, controllers: Sequence[str], env_kwargs: Mapping[str, Any]) -> None:
-    """Design every baseline controller once on the state env (trained agents were checked
-    against the env by check_controller); ValueError if the env or a design fails."""
+def check_designs(env_id: str, controllers: Sequence[str], env_kwargs: Mapping[str, Any]) -> None:
+    """Design every baseline controller once on the state env with ``env_kwargs`` (trained
+    agents were checked against the env by check_controller); ValueError if the env or a
+    design fails."""
     baselines = [c for c in controllers if parse_agent_spec(c) is None]
     if not baselines:
         return
@@ -160,7 +185,7 @@ def _check_designs(env_id: str, controllers: Sequence[str], env_kwargs: Mapping[
 
 
 # --- the command line that repeats a comparison ---------------------------------------
-def _option_text(key: str, value: Any) -> str:
+def option_text(key: str, value: Any) -> str:
     """``KEY=VALUE`` that ``observer_gym.train.cli.env_option`` reads back as ``value``."""
     if isinstance(value, str):
         try:
@@ -205,7 +230,7 @@ def command_line(
     if address is not None:
         words += ["--address", address]
     for key, value in (env_kwargs or {}).items():
-        words += ["--env-option", _option_text(key, value)]
+        words += ["--env-option", option_text(key, value)]
     return shlex.join(words)
 
 

@@ -134,6 +134,26 @@ def compare_metrics(task: Any) -> dict[str, MetricSpec]:
     return metrics
 
 
+def episode_values(task: Any, record: Mapping[str, Any]) -> dict[str, Any]:
+    """One episode's metrics from its record: the task's ``episode_metrics``, the
+    observer's consistency (:func:`~observer_gym.train.consistency.episode_consistency`:
+    NEES and NIS) and, if the task has one, its ``compare_extras`` (numbers derived for
+    the tables)."""
+    values = {**task.episode_metrics(record), **episode_consistency(record)}
+    extras = getattr(task, "compare_extras", None)
+    if extras is not None:
+        values.update(extras(values))
+    return values
+
+
+def metrics_statistics(
+    episodes: Sequence[Mapping[str, Any]], metrics: Mapping[str, MetricSpec]
+) -> dict[str, dict[str, Any]]:
+    """:func:`metric_statistics` of every metric of ``metrics`` over ``episodes`` (dicts
+    of :func:`episode_values`; a missing value counts as None)."""
+    return {key: metric_statistics([e.get(key) for e in episodes]) for key in metrics}
+
+
 class Analysis(NamedTuple):
     """What :func:`analyse_pairs` finds."""
 
@@ -159,15 +179,13 @@ def analyse_pairs(
     primary = next(iter(metrics))
     n = len(seeds)
     by_pair = {pair: records[k * n : (k + 1) * n] for k, pair in enumerate(pairs)}
-    extras = getattr(task, "compare_extras", None)
     results_pairs = []
     for (observer, controller), folder in zip(pairs, folders, strict=True):
-        episodes = []
-        for i, (seed, record) in enumerate(zip(seeds, by_pair[observer, controller], strict=True)):
-            values = {**task.episode_metrics(record), **episode_consistency(record)}
-            if extras is not None:
-                values.update(extras(values))
-            episodes.append({"episode": i, "seed": seed, **values})
+        pair_records = by_pair[observer, controller]
+        episodes = [
+            {"episode": i, "seed": seed, **episode_values(task, record)}
+            for i, (seed, record) in enumerate(zip(seeds, pair_records, strict=True))
+        ]
         results_pairs.append(
             {
                 "observer": observer,
@@ -178,9 +196,7 @@ def analyse_pairs(
                 "controller_config": by_pair[observer, controller][0]["controller"],
                 "episodes": episodes,
                 "summary": task.summarize(episodes),
-                "statistics": {
-                    key: metric_statistics([e.get(key) for e in episodes]) for key in metrics
-                },
+                "statistics": metrics_statistics(episodes, metrics),
                 "vs_oracle": None,
             }
         )

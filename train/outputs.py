@@ -78,7 +78,12 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
-class OutputFolderWarning(UserWarning):
+class OneLineWarning(UserWarning):
+    """A warning the ``observer-gym`` command shows as one line,
+    ``observer-gym COMMAND: warning: ...`` (without Python's file and line)."""
+
+
+class OutputFolderWarning(OneLineWarning):
     """What a command found in a folder it uses that an earlier, killed run left there:
     temp files it removed, a run that never finished."""
 

@@ -15,7 +15,7 @@ import concurrent.futures
 import dataclasses
 import multiprocessing
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -356,37 +356,52 @@ def results_text(results: Mapping[str, Any]) -> str:
     )
 
 
+def iter_episodes(
+    specs: Sequence[EpisodeSpec],
+    workers: int = 1,
+    run: Callable[[EpisodeSpec], Any] = run_episode,
+) -> Iterator[tuple[int, Any]]:
+    """``(index, run(specs[index]))`` for every spec, as each finishes: in order in this
+    process for ``workers`` == 1, else in ``workers`` spawned processes (``run`` must then
+    be a module-level function), in the order they finish. The first episode that fails
+    raises at once (with a note naming it), and the episodes not started are dropped; so
+    are they when the caller stops iterating (Ctrl-C, or an error of its own)."""
+    if workers == 1:
+        for index, spec in enumerate(specs):
+            yield index, run(spec)
+        return
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(
+        max_workers=min(workers, len(specs)), mp_context=context
+    ) as pool:
+        futures = {pool.submit(run, spec): index for index, spec in enumerate(specs)}
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                error = future.exception()
+                if error is not None:  # ends the run now, not after the other episodes
+                    error.add_note(f"in the episode {specs[futures[future]]}")
+                    raise error
+                yield futures[future], future.result()
+        except BaseException:  # a failed episode, Ctrl-C, or the caller stopped iterating
+            for pending in futures:
+                pending.cancel()  # the episodes not started yet are dropped
+            raise
+
+
 def run_episodes(
     specs: Sequence[EpisodeSpec], workers: int = 1, progress: bool = True, desc: str = "run"
 ) -> list[dict]:
     """The records of ``specs`` (:func:`run_episode`), in order; in ``workers`` spawned
-    processes if > 1, with the same results. With workers, the first episode that fails
-    raises at once (with a note naming it), and the episodes not started are dropped."""
-    bar = tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress)
-    with bar:
-        if workers == 1:
-            records = []
-            for spec in specs:
-                records.append(run_episode(spec))
-                bar.update(1)
-            return records
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(workers, len(specs)), mp_context=context
-        ) as pool:
-            futures = {pool.submit(run_episode, spec): spec for spec in specs}
-            try:
-                for future in concurrent.futures.as_completed(futures):
-                    error = future.exception()
-                    if error is not None:  # ends the run now, not after the other episodes
-                        error.add_note(f"in the episode {futures[future]}")
-                        raise error
-                    bar.update(1)
-            except BaseException:  # a failed episode, or Ctrl-C
-                for pending in futures:
-                    pending.cancel()  # the episodes not started yet are dropped
-                raise
-            return [future.result() for future in futures]
+    processes if > 1, with the same results (:func:`iter_episodes`: the first episode
+    that fails raises at once, naming it)."""
+    records: list[Any] = [None] * len(specs)
+    if not specs:
+        return []
+    with tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress) as bar:
+        for index, record in iter_episodes(specs, workers):
+            records[index] = record
+            bar.update(1)
+    return records
 
 
 def summary_table(

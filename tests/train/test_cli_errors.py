@@ -292,7 +292,10 @@ def test_mistakes_are_found_before_the_heavy_imports(case, pybullet, runs, tmp_p
 @pytest.mark.parametrize(
     "argv",
     [
-        *([command] for command in ("demo", "run", "compare", "train", "evaluate", "reproduce")),
+        *(
+            [command]
+            for command in ("demo", "run", "compare", "sweep", "train", "evaluate", "reproduce")
+        ),
         [],
         ["reproduce", "linderoth2010"],
         ["reproduce", "tsai2009"],

@@ -1,0 +1,395 @@
+"""``observer-gym sweep``: the grid, the outputs and their numbers, the pairing of cells
+(and that a sensor option leaves the world's draws alone), resuming, Ray, and mistakes."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy import stats
+
+from observer_gym.train import sweep
+from observer_gym.train.cli import build_parser, main
+from observer_gym.train.sweep import SweepWarning, run_sweep
+from observer_gym.train.sweep_grid import TIMING_DRAWS, check_grid, world_draw_notes
+from observer_gym.train.sweep_plan import check_sweep
+from observer_gym.train.tasks.ball_table import COMPARE_METRICS
+
+CLI = [sys.executable, "-m", "observer_gym.train.cli"]
+KEY = "measurement_noise_px"  # a sensor option: it changes what kf-measurements sees only
+VALUES = [0.0, 2.0]
+OBSERVERS = ["oracle", "kf-measurements"]
+CONTROLLERS = ["lqr", "pid"]
+EPISODES, SEED, STEPS = 3, 5, 30
+FIXED = {"push_rate_hz": 3.0}  # pushes: the world's draws that must not change with KEY
+PRIMARY, SECOND = "mean_distance_m", "final_distance_m"
+OUTPUTS = ("results.json", "episodes.csv", "table.md")
+ARGS = {
+    "env_id": "BallTable-v0",
+    "vary": {KEY: VALUES},
+    "observers": OBSERVERS,
+    "controllers": CONTROLLERS,
+    "episodes": EPISODES,
+    "seed": SEED,
+    "steps": STEPS,
+    "env_kwargs": FIXED,
+    "progress": False,
+}
+ARGV = [
+    "sweep", "--vary", f"{KEY}=0,2", "--observers", ",".join(OBSERVERS), "--controllers",
+    ",".join(CONTROLLERS), "--episodes", str(EPISODES), "--seed", str(SEED), "--steps",
+    str(STEPS), "--env-option", "push_rate_hz=3.0", "--no-progress",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory) -> tuple[Path, sweep.SweepResult]:
+    """The 2 x 2 x 2 sweep, uninterrupted."""
+    out_dir = tmp_path_factory.mktemp("sweep") / "out"
+    return out_dir, run_sweep(**ARGS, out_dir=out_dir)
+
+
+def table_rows(markdown: str) -> list[list[str]]:
+    lines = [line for line in markdown.splitlines() if line.startswith("|")]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in lines if "---" not in line]
+
+
+def csv_rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# --- outputs ---------------------------------------------------------------------------------
+def test_a_2x2x2_sweep_writes_its_outputs_with_the_episodes_numbers(swept):
+    out_dir, result = swept
+    assert (result.cells_run, result.cells_reused) == (8, 0)
+    assert json.loads((out_dir / "results.json").read_text()) == result.results
+    assert result.files == ["table.md", "episodes.csv", f"{KEY}.png", "results.json"]
+    assert len(list((out_dir / "cells").glob("*.json"))) == 8
+    assert not [p for p in out_dir.rglob(".*") if p.is_file()]  # no temp, no marker left
+    image = cv2.imread(str(out_dir / f"{KEY}.png"))
+    assert image is not None and image.shape[0] > 300 and image.shape[1] > 600
+    timing = json.loads((out_dir / "timing.json").read_text())
+    assert timing["episodes_run"] == 8 * EPISODES and timing["episode_time_s_sum"] > 0
+
+    rows = csv_rows(out_dir / "episodes.csv")
+    assert len(rows) == 8 * EPISODES
+    assert list(rows[0])[:5] == [KEY, "observer", "controller", "episode", "seed"]
+    header, *table = table_rows((out_dir / "table.md").read_text())
+    assert header[:3] == [KEY, "observer", "controller"] and len(table) == 8
+    for row in table:
+        episodes = [
+            r
+            for r in rows
+            if (float(r[KEY]), r["observer"], r["controller"]) == (float(row[0]), row[1], row[2])
+        ]
+        assert [int(r["seed"]) for r in episodes] == list(range(SEED, SEED + EPISODES))
+        for column, metric in ((3, PRIMARY), (4, SECOND)):
+            values = np.array([float(r[metric]) for r in episodes])
+            _, _, scale, digits, _ = COMPARE_METRICS[metric]
+            half = stats.t.ppf(0.975, len(values) - 1) * stats.sem(values)
+            assert row[column] == f"{values.mean() * scale:.{digits}f} ± {half * scale:.{digits}f}"
+
+
+def test_the_command_line_in_the_results_repeats_the_sweep(swept, tmp_path):
+    out_dir, result = swept
+    command = result.results["config"]["command"]
+    assert (out_dir / "table.md").read_text().splitlines()[0] == f"`{command}`"
+    args = build_parser().parse_args([*shlex.split(command)[1:], "--out", str(tmp_path / "x")])
+    plan = check_sweep(
+        args.env, args.vary, args.observers, args.controllers, args.episodes, args.seed,
+        steps=args.steps, env_kwargs=dict(args.env_option), second_metric=args.second_metric,
+    )  # fmt: skip
+    assert plan.arguments() == json.loads((out_dir / "sweep.json").read_text())["arguments"]
+
+
+# --- pairing ---------------------------------------------------------------------------------
+def test_cells_are_paired_and_a_sensor_option_leaves_the_world_alone(swept):
+    _, result = swept
+    results = result.results
+    assert results["starts_match"] and results["starts_match_across_grid"]
+    cells = {(c["point"][KEY], c["observer"], c["controller"]): c for c in results["cells"]}
+    by_cell: dict[tuple, list[dict]] = {}
+    for row in results["episodes"]:
+        by_cell.setdefault((row[KEY], row["observer"], row["controller"]), []).append(row)
+    assert set(by_cell) == set(cells)
+    for rows in by_cell.values():
+        assert [r["seed"] for r in rows] == list(range(SEED, SEED + EPISODES))
+    for controller in CONTROLLERS:
+        # The oracle does not see the pixel noise: with the same pushes, the same episodes.
+        oracle = [by_cell[v, "oracle", controller] for v in VALUES]
+        assert [[r[PRIMARY] for r in rows] for rows in oracle] == [
+            [r[PRIMARY] for r in oracle[0]]
+        ] * 2
+        assert cells[VALUES[1], "oracle", controller]["vs_reference"]["mean"] == 0.0
+        # The filter does.
+        filtered = [[r[PRIMARY] for r in by_cell[v, "kf-measurements", controller]] for v in VALUES]
+        assert filtered[0] != filtered[1]
+        assert cells[VALUES[0], "kf-measurements", controller]["vs_reference"] is None
+
+
+def _world(env_id: str, steps: int, **options) -> np.ndarray:
+    """What the world drew over ``steps`` steps of zero action from seed 11: BallTable's
+    state and pushes, TargetFollower's target position and occlusion."""
+    env = gym.make(env_id, **options)
+    try:
+        env.reset(seed=11)
+        drawn = []
+        for _ in range(steps):
+            *_, info = env.step(np.zeros(env.action_space.shape))
+            if "target_pos_world" in info:
+                drawn.append(np.r_[info["target_pos_world"], info["occluded"]])
+            else:
+                push = info["push_impulse_ns"]
+                drawn.append(np.r_[info["state"], np.zeros(3) if push is None else push])
+        return np.array(drawn)
+    finally:
+        env.close()
+
+
+BALL_TABLE = ("observer_gym/BallTable-v0", {"push_rate_hz": 5.0, "occluder_rate_hz": 1.0})
+FOLLOWER = ("observer_gym/TargetFollower-v0", {})
+
+
+@pytest.mark.parametrize(
+    ("system", "key", "values"),
+    [
+        (BALL_TABLE, "measurement_noise_px", (0.0, 2.0)),
+        (BALL_TABLE, "latency_s", (0.0, 0.1)),
+        (BALL_TABLE, "calib_rotation_error_deg", (0.0, 2.0)),
+        (BALL_TABLE, "frame_drop_prob", (1e-9, 0.3)),  # both draw one number per frame
+        (FOLLOWER, "measurement_noise_px", (0.0, 2.0)),
+        (FOLLOWER, "latency_s", (0.0, 0.2)),
+        (FOLLOWER, "calib_focal_error", (0.0, 0.05)),
+        (FOLLOWER, "frame_drop_prob", (0.0, 0.3)),  # always draws every frame's drop
+    ],
+)
+def test_a_sensor_option_does_not_change_the_worlds_draws(system, key, values):
+    env_id, options = system
+    worlds = [_world(env_id, 80, obs_mode="measurements", **options, **{key: v}) for v in values]
+    assert np.array_equal(worlds[0], worlds[1])
+    assert not world_draw_notes(env_id, check_grid(env_id, {key: list(values)}, options))
+
+
+def test_a_timing_option_does_change_them_and_the_sweep_says_so():
+    env_id, options = BALL_TABLE
+    worlds = [_world(env_id, 80, obs_mode="state", **options, frame_drop_prob=p) for p in (0, 0.3)]
+    assert not np.array_equal(worlds[0], worlds[1])  # docs/sweep.md says so
+    assert set(TIMING_DRAWS) >= {"frame_drop_prob", "jitter_s", "latency_jitter_s"}
+    grid = check_grid(env_id, {"frame_drop_prob": ["0", "0.3"]}, options)
+    (note,) = world_draw_notes(env_id, grid)
+    assert "frame_drop_prob" in note and "1e-9" in note
+
+
+# --- resuming --------------------------------------------------------------------------------
+class Interrupted(Exception):
+    pass
+
+
+def test_an_interrupted_sweep_resumes_without_rerunning_cells(swept, tmp_path, monkeypatch):
+    reference, _ = swept
+    calls = []
+    real = sweep.sweep_episode
+
+    def counted(spec, stop_after=None):
+        if stop_after is not None and len(calls) == stop_after:
+            raise Interrupted
+        calls.append(spec)
+        return real(spec)
+
+    out_dir = tmp_path / "out"
+    monkeypatch.setattr(sweep, "sweep_episode", lambda spec: counted(spec, 3 * EPISODES))
+    with pytest.raises(Interrupted):
+        run_sweep(**ARGS, out_dir=out_dir)
+    assert len(list((out_dir / "cells").glob("*.json"))) == 3
+    assert not (out_dir / "results.json").exists()
+
+    calls.clear()
+    monkeypatch.setattr(sweep, "sweep_episode", counted)
+    result = run_sweep(**ARGS, out_dir=out_dir)
+    assert (result.cells_run, result.cells_reused) == (5, 3)
+    assert len(calls) == 5 * EPISODES
+    ran = {(s.observer, s.controller, s.env_kwargs[KEY]) for s in calls}
+    assert len(ran) == 5  # no finished cell ran again
+    for name in OUTPUTS:
+        assert (out_dir / name).read_bytes() == (reference / name).read_bytes(), name
+
+    calls.clear()
+    again = run_sweep(**ARGS, out_dir=out_dir)  # all finished: nothing runs
+    assert calls == [] and (again.cells_run, again.cells_reused) == (0, 8)
+    for name in OUTPUTS:
+        assert (out_dir / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+@pytest.mark.slow
+def test_a_killed_sweep_resumes_to_the_outputs_of_an_uninterrupted_one(swept, tmp_path):
+    reference, _ = swept
+    out_dir = tmp_path / "out"
+    argv = [*CLI, *ARGV, "--out", str(out_dir)]
+    process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not list((out_dir / "cells").glob("*.json")) and time.monotonic() < deadline:
+        assert process.poll() is None, "the sweep ended before its first cell"
+        time.sleep(0.01)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    finished = len(list((out_dir / "cells").glob("*.json")))
+    assert 1 <= finished < 8
+
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert f"{8 - finished} cell(s) run, {finished} reused" in result.stdout
+    assert "was killed before it finished" in result.stderr  # the marker it left
+    for name in OUTPUTS:
+        assert (out_dir / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+def test_other_arguments_into_the_same_folder_are_refused(swept, capsys):
+    out_dir, _ = swept
+    before = {p: p.read_bytes() for p in out_dir.rglob("*") if p.is_file()}
+    argv = [*ARGV, "--out", str(out_dir)]
+    argv[argv.index(f"{KEY}=0,2")] = f"{KEY}=0,3"
+    argv[argv.index("--episodes") + 1] = "4"
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("observer-gym sweep: error: ") and "holds a sweep with other" in line
+    assert f'vary {{"{KEY}":[0.0,2.0]}} there, {{"{KEY}":[0.0,3.0]}} here' in line
+    assert "episodes 3 there, 4 here" in line
+    assert {p: p.read_bytes() for p in out_dir.rglob("*") if p.is_file()} == before
+
+
+# --- backends --------------------------------------------------------------------------------
+@pytest.mark.slow  # a local Ray instance takes 10-20 s to start on two busy cores
+def test_ray_gives_the_local_numbers(tmp_path):
+    pytest.importorskip("ray")
+    args = {**ARGS, "controllers": ["lqr"], "episodes": 2, "steps": 20}
+    local = run_sweep(**args, out_dir=tmp_path / "local")
+    remote = run_sweep(**args, out_dir=tmp_path / "ray", backend="ray")
+    assert remote.results["cells"] == local.results["cells"]
+    assert remote.results["episodes"] == local.results["episodes"]
+    for name in ("episodes.csv", "table.md"):
+        assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "local" / name).read_bytes()
+
+
+@pytest.mark.slow  # two spawned workers import the layers: about 10 s of CPU
+def test_two_workers_give_the_numbers_of_one(swept, tmp_path):
+    reference, _ = swept
+    run_sweep(**ARGS, out_dir=tmp_path / "out", workers=2)
+    for name in OUTPUTS:
+        assert (tmp_path / "out" / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+# --- mistakes --------------------------------------------------------------------------------
+BASE = ["sweep", "--observers", "oracle", "--controllers", "lqr", "--no-progress"]
+MISTAKES = {
+    "unknown-key": (
+        ["--vary", "latency=0,0.1"],
+        "has no option 'latency' (did you mean 'latency_s'?); allowed: image_width_px,",
+    ),
+    "out-of-range": (
+        ["--vary", "latency_s=0,0.9"],
+        "latency_s=0.9 is out of range; allowed: [0.0, 0.5]",
+    ),
+    "wrong-type": (
+        ["--vary", "latency_s=0,fast"],
+        "latency_s='fast' is not a number; allowed: [0.0, 0.5]",
+    ),
+    "not-an-integer": (
+        ["--vary", "physics_substeps=2.5"],
+        "physics_substeps='2.5' is not an integer; allowed: [1, 50]",
+    ),
+    "not-a-choice": (["--vary", "camera_motion=fixed,spin"], "choose one of ['fixed', 'head']"),
+    "between-options": (["--vary", "frame_phase_s=0,0.03"], "must be below one frame period"),
+    "empty-list": (["--vary", "latency_s="], "argument --vary: latency_s has an empty value list"),
+    "empty-value": (["--vary", "latency_s=0,,1"], "argument --vary: latency_s has an empty value"),
+    "duplicate-key": (
+        ["--vary", "latency_s=0", "--vary", "latency_s=0.1"],
+        "vary names latency_s more than once",
+    ),
+    "duplicate-value": (["--vary", "latency_s=0,0.0"], "the value 0.0 appears more than once"),
+    "also-fixed": (
+        ["--vary", "latency_s=0", "--env-option", "latency_s=0.1"],
+        "latency_s is also set as an env option",
+    ),
+    "obs-mode": (["--vary", "obs_mode=rgb"], "obs_mode cannot vary"),
+    "unknown-observer": (
+        ["--vary", "latency_s=0", "--observers", "oracle,ekf-magic"],
+        "unknown observer 'ekf-magic'",
+    ),
+    "unknown-controller": (
+        ["--vary", "latency_s=0", "--controllers", "lqg"],
+        "unknown controller 'lqg'; allowed: lqr, mpc, pid",
+    ),
+    "no-episodes": (
+        ["--vary", "latency_s=0", "--episodes", "0"],
+        "argument --episodes: must be an integer >= 1",
+    ),
+    "negative-seed": (
+        ["--vary", "latency_s=0", "--seed", "-1"],
+        "argument --seed: must be an integer >= 0",
+    ),
+    "unknown-metric": (
+        ["--vary", "latency_s=0", "--second-metric", "speed"],
+        "unknown metric 'speed'",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MISTAKES))
+def test_a_mistake_is_one_line_exit_code_2_and_writes_nothing(case, tmp_path, capsys):
+    extra, message = MISTAKES[case]
+    out_dir = tmp_path / "out"
+    argv = [*BASE, *extra, "--out", str(out_dir)]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own checks
+        code = exc.code
+    captured = capsys.readouterr()
+    assert code == 2
+    (line,) = captured.err.splitlines()
+    assert line.startswith("observer-gym sweep: error: ") and message in line, line
+    assert captured.out == ""
+    assert not out_dir.exists()
+
+
+def test_a_mistake_is_found_before_the_heavy_imports(tmp_path):
+    probe = (
+        "import sys\nfrom observer_gym.train.cli import main\ncode = main(sys.argv[1:])\n"
+        "heavy = ('torch', 'ray', 'matplotlib', 'observer_gym.estimation', "
+        "'observer_gym.controllers', 'observer_gym.train.tasks', 'observer_gym.train.sweep.')\n"
+        "loaded = sorted(m for m in sys.modules if m.startswith(heavy))\n"
+        "print(code, loaded, 'observer_gym.train.sweep' in sys.modules)\n"
+    )
+    argv = [*BASE, "--vary", "latency=0", "--out", str(tmp_path / "out")]
+    result = subprocess.run(
+        [sys.executable, "-c", probe, *argv], capture_output=True, text=True, timeout=120
+    )
+    assert result.stdout.strip() == "2 [] False", result.stdout + result.stderr
+    assert "observer-gym sweep: error: vary: BallTable-v0 has no option 'latency'" in result.stderr
+
+
+def test_the_library_refuses_bad_counts_and_warns_of_world_draws(tmp_path):
+    for changes, message in (
+        ({"episodes": 0}, "episodes must be an integer >= 1, got 0"),
+        ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+        ({"vary": {}}, "vary must name at least one env option"),
+        ({"vary": {KEY: []}}, f"vary {KEY}: no values given"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            run_sweep(**{**ARGS, **changes}, out_dir=tmp_path / "out")
+        assert not (tmp_path / "out").exists()
+    args = {**ARGS, "vary": {"jitter_s": [0.0, 0.001]}, "observers": ["oracle"], "episodes": 1}
+    with pytest.warns(SweepWarning, match="varying jitter_s changes the camera's timing draws"):
+        run_sweep(**{**args, "controllers": ["lqr"], "steps": 5}, out_dir=tmp_path / "out")
+    assert (tmp_path / "out" / "results.json").exists()

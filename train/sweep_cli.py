@@ -1,0 +1,190 @@
+"""The ``observer-gym sweep`` command's arguments and action (the library function is
+:func:`observer_gym.train.sweep.run_sweep`).
+
+:func:`run` checks what it can without the heavy imports first: the observers,
+controllers and env options (:func:`observer_gym.train.compare_cli.check_pairs`) and the
+grid (:func:`observer_gym.train.sweep_grid.check_grid`: keys, values, every grid point's
+configuration). Then it loads the library, which checks the rest and the output folder
+(:func:`~observer_gym.train.sweep_plan.check_sweep`), runs the sweep and prints what it did.
+Every mistake is one line on stderr and exit code 2, with nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from observer_gym.train.cli_args import (
+    env_name,
+    env_option,
+    error_line,
+    folder_path,
+    nonnegative_int,
+    positive_int,
+    recorded_args,
+)
+from observer_gym.train.compare_cli import check_pairs, name_list
+from observer_gym.train.sweep_grid import vary_option
+
+DEFAULT_EPISODES = 10
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``observer-gym sweep``."""
+    from observer_gym.train.checks import per_env
+
+    parser.add_argument(
+        "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--vary",
+        type=vary_option,
+        action="append",
+        required=True,
+        metavar="KEY=V1,V2,...",
+        help=(
+            "an env option and its values, repeatable; the grid is every combination "
+            "(latency_s=0,0.02,0.05; any field of the env's config, e.g. frame_drop_prob, "
+            "measurement_noise_px, calib_focal_error, push_rate_hz)"
+        ),
+    )
+    parser.add_argument(
+        "--observers",
+        type=name_list,
+        required=True,
+        metavar="LIST",
+        help="comma-separated observers, per env: " + per_env("observers"),
+    )
+    parser.add_argument(
+        "--controllers",
+        type=name_list,
+        required=True,
+        metavar="LIST",
+        help=(
+            "comma-separated controllers, per env: "
+            + per_env("controllers")
+            + "; or a trained agent ALGO:DIR"
+        ),
+    )
+    parser.add_argument(
+        "--episodes",
+        type=positive_int,
+        default=DEFAULT_EPISODES,
+        metavar="N",
+        help="episodes per cell (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=nonnegative_int,
+        default=0,
+        metavar="S",
+        help="episode i of every cell resets with S + i (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--out",
+        type=folder_path,
+        required=True,
+        metavar="DIR",
+        help="output folder; run again with the same arguments to resume it",
+    )
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        default=1,
+        metavar="W",
+        help="local backend: run episodes in W processes; same results (default: 1)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local processes or Ray tasks, same results (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help="with --backend ray: the cluster ('auto' or HOST:PORT) (default: a local instance)",
+    )
+    parser.add_argument(
+        "--steps",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="cap each episode at K steps (default: the env's time limit)",
+    )
+    parser.add_argument(
+        "--env-option",
+        type=env_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a fixed gym.make option for every cell, repeatable (e.g. push_rate_hz=0.5)",
+    )
+    parser.add_argument(
+        "--second-metric",
+        default=None,
+        metavar="METRIC",
+        help="the metric beside the primary one in the table and plots (default: the env's second)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def _error(message: object) -> int:
+    print(error_line("observer-gym sweep", message), file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the sweep of ``args``; 0 on success, 2 (with a one-line message on stderr) for
+    an input rejected before anything runs. The progress bar shows only on a terminal."""
+    from observer_gym.train.checks import names_for
+    from observer_gym.train.sweep_grid import check_grid
+
+    env_options = dict(args.env_option)
+    try:
+        check_pairs(args.env, args.observers, args.controllers, env_options)
+        modes = names_for(args.env).observers
+        check_grid(args.env, args.vary, env_options, [modes[o] for o in args.observers])
+    except ValueError as exc:
+        return _error(exc)
+
+    # deferred: PyBullet's worlds, the controllers, SciPy, matplotlib
+    from observer_gym.train.sweep import run_sweep
+    from observer_gym.train.sweep_plan import check_sweep
+    from observer_gym.train.sweep_report import sweep_text
+
+    options = {
+        "env_id": args.env,
+        "vary": args.vary,
+        "observers": args.observers,
+        "controllers": args.controllers,
+        "episodes": args.episodes,
+        "seed": args.seed,
+        "workers": args.workers,
+        "backend": args.backend,
+        "address": args.address,
+        "steps": args.steps,
+        "env_kwargs": env_options,
+        "second_metric": args.second_metric,
+    }
+    try:
+        check_sweep(**options, out_dir=args.out)
+    except ValueError as exc:
+        return _error(exc)
+    result = run_sweep(
+        **options,
+        out_dir=args.out,
+        progress=not args.no_progress and sys.stderr.isatty(),
+        cli_args=recorded_args(args),
+    )
+    print(
+        sweep_text(
+            result.results,
+            result.out_dir,
+            result.cells_run,
+            result.cells_reused,
+            result.wall_time_s,
+        )
+    )
+    return 0
