@@ -48,7 +48,20 @@ SYSTEM_NAMES: dict[str, SystemNames] = {
         ("lqr", "mpc", "pid"),
     ),
     "ball_catcher": SystemNames(
-        _OBSERVERS, ("pixels",), {"measurements": "kf-measurements", "rgb": "kf"}, ("intercept",)
+        {
+            **_OBSERVERS,
+            "raw": "rgb",
+            "raw-measurements": "measurements",
+            "kf-latency": "rgb",
+            "kf-latency-measurements": "measurements",
+            "ekf": "rgb",
+            "ekf-measurements": "measurements",
+            "oracle-visible": "rgb",
+            "oracle-visible-measurements": "measurements",
+        },
+        ("pixels",),
+        {"measurements": "kf-measurements", "rgb": "kf"},
+        ("intercept",),
     ),
     "target_follower": SystemNames(
         {

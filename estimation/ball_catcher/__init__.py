@@ -1,12 +1,39 @@
-"""BallCatcher's observers: the ball detector, the ballistic model, the viewline Kalman
-filter and the observer pipeline (docs/spec/catcher.md).
+"""BallCatcher's observers: the ball detector, the ballistic models, the viewline Kalman
+filter and the observer pipelines (docs/spec/catcher.md).
 
 ``OBSERVERS``: observer name -> pipeline factory, read by
 :func:`observer_gym.estimation.default_pipeline`; the first is the default.
+
+- ``kf``: the viewline Kalman filter (:class:`BallCatcherObserver`).
+- ``kf-latency``: the same pipeline as ``kf``, registered under both names: ``kf``
+  already fuses every frame at its capture time (late and out-of-order frames by exact
+  re-filtering) and reports the prediction to the step's time, the time the next action
+  is applied (see :mod:`~observer_gym.estimation.ball_catcher.observer`), so there is no
+  latency gap for a second pipeline to close.
+- ``raw``: triangulation of the two newest detections, no filter (:class:`BallCatcherRaw`).
+- ``ekf``: an iterated EKF on the pixels through each frame's pinhole model, fused at
+  capture time (:class:`BallCatcherPixelEKF`).
+- ``oracle-visible``: ground truth while the ball is detected, predicted otherwise; reads
+  the truth, for analysis only (:class:`BallCatcherOracleVisible`).
 """
 
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
+from observer_gym.estimation.ball_catcher.oracle_visible import BallCatcherOracleVisible
+from observer_gym.estimation.ball_catcher.pixel_ekf import BallCatcherPixelEKF
+from observer_gym.estimation.ball_catcher.raw import BallCatcherRaw
 
-OBSERVERS = {"kf": BallCatcherObserver}
+OBSERVERS = {
+    "kf": BallCatcherObserver,
+    "kf-latency": BallCatcherObserver,  # kf is already latency-aware (see above)
+    "raw": BallCatcherRaw,
+    "ekf": BallCatcherPixelEKF,
+    "oracle-visible": BallCatcherOracleVisible,
+}
 
-__all__ = ["OBSERVERS", "BallCatcherObserver"]
+__all__ = [
+    "OBSERVERS",
+    "BallCatcherObserver",
+    "BallCatcherOracleVisible",
+    "BallCatcherPixelEKF",
+    "BallCatcherRaw",
+]

@@ -1,13 +1,19 @@
-"""BallCatcher's process model: the ball in free flight (docs/spec/catcher.md (19)-(20))."""
+"""BallCatcher's process models: the ball in free flight (docs/spec/catcher.md (19)-(20)),
+linear (:class:`BallisticModel`, the viewline filter's) and nonlinear with optional air drag
+(:class:`BallFlight`, the pixel EKF's and the visible-oracle's)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from observer_gym.envs.ball_catcher.geometry import BALL_RADIUS_M
+from observer_gym.envs.ball_catcher.scene import AIR_DENSITY_KGPM3, DRAG_COEFFICIENT
 from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation.models import LinearModel, readonly
 
-__all__ = ["BallisticModel"]
+__all__ = ["BALL_MASS_KG", "BallFlight", "BallisticModel", "env_drag_per_m"]
+
+BALL_MASS_KG = 0.05  # envs/assets/ball.urdf
 
 
 class BallisticModel(LinearModel):
@@ -70,3 +76,103 @@ class BallisticModel(LinearModel):
         Q[:3, 3:] = Q[3:, :3] = q * h**2 / 2.0 * eye
         Q[3:, 3:] = q * h * eye
         return readonly(Phi), readonly(Gamma), readonly(Q)
+
+
+class BallFlight:
+    """The ball's flight as a nonlinear model, for the EKF and the oracle's prediction:
+    gravity and, optionally, quadratic air drag, world frame z up.
+
+        p' = v,   v' = (0, 0, -g) - k |v| v + w,   k = ``drag_per_m`` (1/m)
+
+    with w white acceleration noise as in :class:`BallisticModel` (intensity
+    ``accel_noise_std``^2 per axis). The env's drag (``air_drag=True``) is
+    F = -1/2 rho C_d A |v| v on a ball of mass m, so k = rho C_d A / (2 m)
+    (:func:`env_drag_per_m`).
+
+    :meth:`propagate` over ``dt_s``: without drag (k = 0) exactly BallisticModel's
+    Phi x + Gamma, F = Phi and its R1 (so the EKF's prediction is the linear filter's);
+    with drag the classical Runge-Kutta (RK4) in substeps of at most ``max_substep_s``,
+    F = I + A h + A^2 h^2 / 2 per substep with A = df/dx at the substep's start (second
+    order in h, enough for a covariance over a few ms), and R1 still BallisticModel's.
+    """
+
+    def __init__(
+        self,
+        drag_per_m: float = 0.0,
+        accel_noise_std: float = 0.5,
+        gravity_mps2: float = GRAVITY_MPS2,
+        max_substep_s: float = 0.005,
+    ) -> None:
+        if not (np.isfinite(drag_per_m) and drag_per_m >= 0.0):
+            raise ValueError(f"BallFlight: drag_per_m = {drag_per_m!r}, must be >= 0")
+        if not max_substep_s > 0.0:
+            raise ValueError(f"BallFlight: max_substep_s = {max_substep_s!r}, must be > 0")
+        self.drag_per_m = float(drag_per_m)
+        self.linear = BallisticModel(accel_noise_std, gravity_mps2)
+        self.gravity_mps2 = float(gravity_mps2)
+        self.max_substep_s = float(max_substep_s)
+
+    def derivative(self, x: np.ndarray) -> np.ndarray:
+        """x' = (v, (0, 0, -g) - k |v| v)."""
+        v = x[3:]
+        # v' = -g e_z - k |v| v
+        accel = -self.drag_per_m * float(np.sqrt(v @ v)) * v
+        accel[2] -= self.gravity_mps2
+        return np.concatenate([v, accel])
+
+    def _jacobian(self, x: np.ndarray) -> np.ndarray:
+        """A = df/dx: [[0, I], [0, -k (|v| I + v v^T / |v|)]]."""
+        A = np.zeros((6, 6))
+        A[:3, 3:] = np.eye(3)
+        v = x[3:]
+        speed = float(np.sqrt(v @ v))
+        if speed > 0.0:
+            # d(-k |v| v)/dv = -k (|v| I + v v^T / |v|)
+            A[3:, 3:] = -self.drag_per_m * (speed * np.eye(3) + np.outer(v, v) / speed)
+        return A
+
+    def state_at(self, x: np.ndarray, dt_s: float) -> np.ndarray:
+        """The state ``dt_s`` (>= 0) later, without noise."""
+        return self.propagate(x, dt_s, with_jacobian=False)[0]
+
+    def propagate(
+        self, x: np.ndarray, dt_s: float, with_jacobian: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(f(x), F = df/dx, R1) over ``dt_s`` >= 0; with drag, F and R1 are None unless
+        ``with_jacobian``. Over dt_s = 0: (x, I, 0)."""
+        x = np.asarray(x, dtype=float)
+        h = float(dt_s)
+        if not h >= 0.0:
+            raise ValueError(f"BallFlight.propagate: dt_s = {dt_s!r}, must be >= 0")
+        if h == 0.0:
+            return x.copy(), np.eye(6), np.zeros((6, 6))
+        if self.drag_per_m == 0.0:
+            Phi, Gamma, Q = self.linear.matrices(h)
+            # x(t + h) = Phi x + Gamma u, u = 1 (19)-(20)
+            return Phi @ x + Gamma[:, 0], Phi, Q
+        n = int(np.ceil(h / self.max_substep_s - 1e-9))
+        step = h / n
+        F = np.eye(6) if with_jacobian else None
+        for _ in range(n):
+            if with_jacobian:
+                A = self._jacobian(x)
+                # F <- (I + A h + A^2 h^2 / 2) F
+                F = (np.eye(6) + step * A + 0.5 * step * step * (A @ A)) @ F
+            # RK4: x <- x + h/6 (k1 + 2 k2 + 2 k3 + k4)
+            k1 = self.derivative(x)
+            k2 = self.derivative(x + 0.5 * step * k1)
+            k3 = self.derivative(x + 0.5 * step * k2)
+            k4 = self.derivative(x + step * k3)
+            x = x + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        Q = self.linear.matrices(h)[2] if with_jacobian else None
+        return x, F, Q
+
+
+def env_drag_per_m(air_drag: bool) -> float:
+    """k (1/m) of :class:`BallFlight` for the BallCatcher env's air drag: rho C_d A / (2 m)
+    with the env's air density, drag coefficient, the ball's radius and its mass (the
+    0.05 kg of envs/assets/ball.urdf); 0 without drag."""
+    if not air_drag:
+        return 0.0
+    area_m2 = np.pi * BALL_RADIUS_M**2
+    return AIR_DENSITY_KGPM3 * DRAG_COEFFICIENT * area_m2 / (2.0 * BALL_MASS_KG)

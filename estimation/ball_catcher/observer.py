@@ -10,6 +10,25 @@ the step's time (frames are 0-30 ms old when they arrive). The box's position an
 velocity come from the robot's own kinematics (``info["box_pos_world_m"]``,
 ``info["box_vel_world_mps"]``): a controller knows where its tool is.
 
+Latency: this pipeline is also the observer ``kf-latency`` (the same class under both
+names, estimation/ball_catcher/__init__.py). It already does what ``kf-latency`` means:
+every frame is fused at its capture time, frames delivered late or out of capture order
+(latency, latency jitter, the random_offsets preset's per-camera latencies) by exact
+re-filtering, and the estimate is predicted to the step's time, the time at which the
+next action is applied. Checked: at 60 ms latency with random offsets and jitter its
+estimate at every step equals, to 5e-10 m, a filter fed every frame delivered so far in
+capture order and predicted to the step (tests/estimation/test_ball_catcher_observers.py).
+The one limit: the filter keeps 1 s of frames (``DEFAULT_HISTORY_S``) behind the newest
+one used, and a frame captured earlier raises ``ValueError``. Within the config's bounds
+(latency_s <= 0.5 s, one frame period <= 0.2 s of random_offsets' latency spread,
+latency_jitter_s <= 0.1 s) a frame arrives that far behind another only when their
+latency jitters differ by more than 0.8 s, 5.7 standard deviations of that difference at
+the largest jitter.
+
+NIS: ``Estimate.nis`` sums d^T S^-1 d of this step's accepted frames (two viewline rows
+each, so ``nis_dof`` = 2 per frame; a late frame's at its capture time); None when none
+was accepted.
+
 Initial estimate (docs/spec/catcher.md, "Initialisation"): the centre of the throw
 distribution's launch region with the velocity of a throw from there to the hole's home
 in the middle of the flight-time range, both with a standard deviation of 10 m and
@@ -61,12 +80,8 @@ from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
-from observer_gym.estimation.observer import (
-    MAX_PIXEL_PX,
-    Estimate,
-    checked_measurement_array,
-    checked_rgb_frame,
-)
+from observer_gym.estimation.ball_catcher.frames import FramePixels
+from observer_gym.estimation.observer import Estimate
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0
@@ -80,6 +95,28 @@ RGB_PIXEL_STD_PX = (
 # 0.05 caught 60 (crossing-point error at 0.1 s to go, median 3.4 mm).
 ACCEL_NOISE_STD = 0.05
 DEFAULT_REACQUIRE_AFTER = 3  # consecutive gate rejections that restart the filter
+
+
+def default_pixel_std_px(config: Any) -> float:
+    """The pixel noise the BallCatcher filters assume: the env's ``measurement_noise_px`` in
+    measurements mode, floored at 0.1 px for round-off, RGB_PIXEL_STD_PX for the rgb
+    detector."""
+    if config.obs_mode == "rgb":
+        return RGB_PIXEL_STD_PX
+    return max(config.measurement_noise_px, 0.1)
+
+
+def initial_estimate(config: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The prior (x0 (6,), P0 (6, 6)) of the ball's (position, velocity), world frame: the
+    launch region's centre with the velocity of a throw from there to the hole's home in
+    the middle of the flight-time range, standard deviations 10 m and 10 m/s (see the
+    module docstring)."""
+    launch = np.array([config.launch_x_m, 0.0, config.launch_height_m])
+    mid_flight_s = 0.5 * (config.flight_time_min_s + config.flight_time_max_s)
+    typical = throw_through(launch, geo.HOLE_HOME_WORLD, mid_flight_s)
+    x0 = np.concatenate([launch, typical.launch_vel_world])
+    P0 = np.diag([INITIAL_STD_POS_M**2] * 3 + [INITIAL_STD_VEL_MPS**2] * 3)
+    return x0, P0
 
 
 class BallCatcherObserver:
@@ -122,19 +159,15 @@ class BallCatcherObserver:
             )
         self.reacquire_after = int(reacquire_after)
         cfg = env.config
-        self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
-        self.rgb = cfg.obs_mode == "rgb"
-        if pixel_std_px is None:
-            pixel_std_px = RGB_PIXEL_STD_PX if self.rgb else max(cfg.measurement_noise_px, 0.1)
-        self.pixel_std_px = float(pixel_std_px)
+        self.pixels = FramePixels(cfg, detector, owner="BallCatcherObserver")
+        self.rgb = self.pixels.rgb
+        self.detector = self.pixels.detector
+        self.pixel_std_px = float(
+            default_pixel_std_px(cfg) if pixel_std_px is None else pixel_std_px
+        )
         self.gate_p = gate_p
         self.accel_noise_std = float(accel_noise_std)
-        self.detector = detector if detector is not None else BallCatcherDetector()
-        launch = np.array([cfg.launch_x_m, 0.0, cfg.launch_height_m])
-        mid_flight_s = 0.5 * (cfg.flight_time_min_s + cfg.flight_time_max_s)
-        typical = throw_through(launch, geo.HOLE_HOME_WORLD, mid_flight_s)
-        self.x0 = np.concatenate([launch, typical.launch_vel_world])
-        self.P0 = np.diag([INITIAL_STD_POS_M**2] * 3 + [INITIAL_STD_VEL_MPS**2] * 3)
+        self.x0, self.P0 = initial_estimate(cfg)
         self.filter: ViewlineKalmanFilter | None = None
         self.reset()
 
@@ -149,30 +182,17 @@ class BallCatcherObserver:
         # per camera: (capture time of the first, count) of its current run of rejections
         self._rejected: dict[Any, tuple[float, int]] = {}
         self.reacquisitions = 0
+        self._nis, self._nis_dof = 0.0, 0  # this step's accepted frames' NIS and dimension
 
     def detect(self, frame: dict) -> np.ndarray | None:
         """The ball's pixel (u, v) in one delivered frame, or None (also for NaN, inf or beyond
-        MAX_PIXEL_PX)."""
-        if self.rgb:
-            image = checked_rgb_frame(
-                frame.get("image"),
-                frame.get("image_size_px", self.image_size_px),
-                f"BallCatcherObserver: frame of camera {frame.get('camera_id')!r}",
-            )
-            uv = self.detector.detect(image)
-        else:
-            uv = frame.get("uv_px", "missing")  # None: no detection
-            if uv is not None:
-                uv = checked_measurement_array("BallCatcherObserver", "uv_px", uv, (2,))
-        if uv is None:
-            return None
-        uv = np.asarray(uv, dtype=float)
-        # NaN, inf, or a pixel no camera reports (1e308 overflowed the filter's update)
-        return uv if bool(np.all(np.abs(uv) <= MAX_PIXEL_PX)) else None
+        MAX_PIXEL_PX); see :class:`FramePixels`."""
+        return self.pixels.detect(frame)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         measurements = []
         used = False
+        self._nis, self._nis_dof = 0.0, 0
         for frame in info["frames"]:
             uv = self.detect(frame)
             measurements.append({"camera_id": frame["camera_id"], "uv_px": uv})
@@ -192,6 +212,8 @@ class BallCatcherObserver:
             measurement_used=used,
             measurement=measurements or None,
             time_s=now_s,
+            nis=self._nis if self._nis_dof else None,
+            nis_dof=self._nis_dof,
         )
 
     def _add_frame(self, frame: dict, uv: np.ndarray | None) -> bool:
@@ -205,6 +227,9 @@ class BallCatcherObserver:
         camera = frame["camera_id"]
         if result.accepted:
             self._rejected.pop(camera, None)
+            # d^T S^-1 d of the frame's two viewline rows (a late frame's: at its capture time)
+            self._nis += result.nis
+            self._nis_dof += 2
             return True
         first_s, count = self._rejected.get(camera, (t_s, 0))
         self._rejected[camera] = (min(first_s, t_s), count + 1)

@@ -24,6 +24,18 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "kf": ("rgb", {}),
     "kf-measurements": ("measurements", {}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
+    # triangulated detections, no filter
+    "raw": ("rgb", {"observer": "raw"}),
+    "raw-measurements": ("measurements", {"observer": "raw"}),
+    # the same pipeline as kf (kf is already latency-aware)
+    "kf-latency": ("rgb", {"observer": "kf-latency"}),
+    "kf-latency-measurements": ("measurements", {"observer": "kf-latency"}),
+    # iterated EKF on the pixels
+    "ekf": ("rgb", {"observer": "ekf"}),
+    "ekf-measurements": ("measurements", {"observer": "ekf"}),
+    # ground truth while the ball is seen: analysis only
+    "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
+    "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
 }
 # what an agent trained with --obs estimate reads, by --estimate-from
 ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}
