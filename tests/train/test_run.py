@@ -238,7 +238,7 @@ def test_a_controller_made_for_another_env_raises(tmp_path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--observer", "ekf", "--controller", "lqr"], "invalid choice"),
+        (["--observer", "ukf", "--controller", "lqr"], "invalid choice"),
         (["--observer", "oracle", "--controller", "rl"], "neither a controller"),
         (["--observer", "oracle", "--controller", "a2c:runs/x"], "neither a controller"),
         (["--observer", "oracle", "--controller", "lqr", "--episodes", "0"], "must be an"),
