@@ -66,6 +66,17 @@ class SelfTuningR:
     def full(self) -> bool:
         return len(self._register) == self.window
 
+    @property
+    def samples(self) -> tuple[np.ndarray, ...]:
+        """The register's observations, oldest first (a snapshot: see :meth:`refill`)."""
+        return tuple(self._register)
+
+    def refill(self, samples: tuple[np.ndarray, ...]) -> None:
+        """Put the register back to ``samples`` (from :attr:`samples`)."""
+        self.reset()
+        for z in samples:
+            self.push(z)
+
     def push(self, z: np.ndarray) -> None:
         """Shift the observation z (m,) into the register (the oldest drops out)."""
         z = np.asarray(z, dtype=float).reshape(-1)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from observer_gym.estimation.filters import KalmanFilter
+from observer_gym.estimation.filters import KalmanFilter, UpdateResult
 from observer_gym.estimation.self_tuning import SelfTuningR
 from observer_gym.estimation.target_follower.models import (
     MEASUREMENT_MATRIX,
@@ -80,6 +80,7 @@ class VisualStateEstimator:
         self.R = self.R0.copy()
         self.tuner.reset()
         self.reinitialisations = 0
+        self.last_update: UpdateResult | None = None  # the last update (34), for its NIS
 
     @property
     def initialised(self) -> bool:
@@ -97,32 +98,64 @@ class VisualStateEstimator:
         """One sample: ``z`` the detection (3,) or None, ``B_i`` evaluated at the previous
         estimate, ``u`` the velocity applied over the last ``dt_s``. Returns whether a
         measurement was used (a (re)initialisation counts)."""
-        p = self.params
+        self.last_update = None
         if self.kf is None:  # (2): start at the first detection
-            if z is None:
-                return False
-            z = np.asarray(z, dtype=float)
-            self.kf = KalmanFilter(np.concatenate([z, np.zeros(3)]), p.p0 * np.eye(6))
-            if p.self_tuning:
-                self.tuner.push(z)
-            return True
-        if p.self_tuning:  # (3): shift register and R_n (41)
-            if z is None:
-                # The line fit's fixed regressor A = [[1, 1], ..., [k, 1]] assumes k
-                # consecutive samples: a missed one breaks the sequence, so the register
-                # restarts, and R_n = R_0 until it is full again.
-                self.tuner.reset()
-            else:
-                self.tuner.push(z)
-            self.R = self.tuner.R()
+            return self.start(z)
+        self.register(z)  # (3)
+        self.predict(B_i, u, dt_s)  # (4)
+        used = self.update(z)  # (5)
+        self.check_reliability()  # (6)
+        return used
+
+    # The procedure's parts, which step() composes; the latency-aware drive
+    # (estimation/target_follower/latency.py) calls them at capture and step times.
+    def start(self, z: np.ndarray | None) -> bool:
+        """(2): X_0 = (Z_0, 0), P_0 = p0 I_6 at a detection ``z`` (None: stay uninitialised).
+        Returns whether it started."""
+        if z is None:
+            return False
+        z = np.asarray(z, dtype=float)
+        self.kf = KalmanFilter(np.concatenate([z, np.zeros(3)]), self.params.p0 * np.eye(6))
+        if self.params.self_tuning:
+            self.tuner.push(z)
+        return True
+
+    def register(self, z: np.ndarray | None) -> None:
+        """(3): shift ``z`` into the register and set R_n by (41) (the STKF; the KF keeps
+        R_0). A missed sample (None) empties the register: the line fit's fixed regressor
+        A = [[1, 1], ..., [k, 1]] assumes k consecutive samples, so R_n = R_0 until it is
+        full again."""
+        if not self.params.self_tuning:
+            return
+        if z is None:
+            self.tuner.reset()
+        else:
+            self.tuner.push(z)
+        self.R = self.tuner.R()
+
+    def predict(self, B_i: np.ndarray, u: np.ndarray, dt_s: float) -> None:
+        """(4): X <- F X + G u, P <- F P F^T + Q with (F, G) of (30) over ``dt_s``."""
         F, G = image_state_transition(dt_s, B_i)
-        self.kf.predict(F, self.Q, G, np.asarray(u, dtype=float))  # (4): (30), (33)
-        used = False
-        if z is not None:  # (5): (34)
-            used = self.kf.update(np.asarray(z, dtype=float), MEASUREMENT_MATRIX, self.R).accepted
-        if np.max(np.diag(self.kf.P)) > p.reliability_threshold:  # (6): unreliable
+        self.kf.predict(F, self.Q, G, np.asarray(u, dtype=float))  # (30), (33)
+
+    def update(self, z: np.ndarray | None) -> bool:
+        """(5): the update (34) with R_n if the target was detected (``z`` not None), else
+        keep the prediction. Returns whether the measurement was used; the update's
+        :class:`~observer_gym.estimation.filters.UpdateResult` is kept in ``last_update``."""
+        if z is None:
+            return False
+        self.last_update = self.kf.update(np.asarray(z, dtype=float), MEASUREMENT_MATRIX, self.R)
+        return self.last_update.accepted
+
+    def unreliable(self) -> bool:
+        """(6): a diagonal element of P exceeds the reliability threshold."""
+        return bool(np.max(np.diag(self.kf.P)) > self.params.reliability_threshold)
+
+    def check_reliability(self) -> None:
+        """(6): if the estimate is unreliable, stop: back to uninitialised (R = R_0, the
+        register emptied); the next detection restarts it (2)."""
+        if self.unreliable():
             self.kf = None
             self.R = self.R0.copy()
             self.tuner.reset()
             self.reinitialisations += 1
-        return used

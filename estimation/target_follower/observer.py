@@ -16,7 +16,12 @@ The output has the env's state layout; ``tracking_valid`` is 1 while the estimat
 reliable (initialised, every diagonal element of P below the threshold), else 0, and the
 image entries then hold the last reliable estimate with zero rates; ``target_visible`` is
 1 when this step's frame gave a detection. A detection with a non-finite entry (NaN,
-inf) is no detection (the estimator's missed-measurement step).
+inf) is no detection (the estimator's missed-measurement step). ``Estimate.nis`` is the
+update's d^T S^-1 d (3 dof) on steps with an update, else None.
+
+The measurement is fused when it is delivered, whatever its capture time; the
+latency-aware drive of the same estimator is
+:mod:`~observer_gym.estimation.target_follower.latency`.
 
 Frames (``obs_mode="rgb"``) must be uint8 images of the env's size (``image_size_px`` of
 the frame, else the env config's), H x W x 3: others raise ``ValueError``.
@@ -28,24 +33,16 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.envs.target_follower import (
-    APPLIED,
-    DETECTED,
-    IMAGE,
-    IMAGE_RATE,
-    STATE_DIM,
-    TARGET_PX,
-    StateIndex,
-    TargetFollowerEnv,
-)
-from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
-from observer_gym.estimation.observer import Estimate, checked_measurement, checked_rgb_frame
+from observer_gym.envs.target_follower import TargetFollowerEnv
+from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
+from observer_gym.estimation.target_follower.frames import FrameReader
 from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
+from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
 
 FILTERS = ("stkf", "kf")
 
@@ -80,10 +77,8 @@ class TargetFollowerObserver:
             env.calibration
         )
         self.delta_y_m = env.calibration["delta_y_m"]
-        self.detector = detector or TargetFollowerDetector()
-        self.from_pixels = env.config.obs_mode == "rgb"
-        self.measurement_space = env.observation_space  # measurements mode: its Dict
-        self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
+        self.frames = FrameReader(env, detector)
+        self.detector = self.frames.detector
         self.vse = VisualStateEstimator(self.params)
         self.reset()
 
@@ -95,59 +90,36 @@ class TargetFollowerObserver:
 
     def detect(self, obs: Any, frame: dict) -> np.ndarray | None:
         """(x_i, y_i, d_x) of one frame, or None (also when an entry is NaN or inf)."""
-        if self.from_pixels:
-            image = checked_rgb_frame(
-                obs, frame.get("image_size_px", self.image_size_px), "TargetFollowerObserver"
-            )
-            z = self.detector.detect(image, frame["K"])
-        else:
-            obs = checked_measurement("TargetFollowerObserver", obs, self.measurement_space)
-            if not obs[DETECTED][0]:
-                return None
-            z = obs[TARGET_PX]
-        if z is None:
-            return None
-        z = np.asarray(z, dtype=float)
-        return z if bool(np.all(np.isfinite(z))) else None
+        return self.frames.detect(obs, frame)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         frames = info["frames"]
         z = self.detect(obs, frames[0]) if frames else None
-        time_s = float(info["time_s"])
-        xy, yaw, tilt = robot_pose_from_camera(info["camera"]["T_world_cam"], self.delta_y_m)
-        applied = info.get("applied_action")
-        if applied is None:
-            applied = np.zeros(3) if action is None else action
-        applied = np.asarray(applied, dtype=float)
+        robot = RobotStep.from_info(info, action, self.delta_y_m)
         vse = self.vse
         if action is None or self._time_s is None:  # after a reset
             vse.reset()
             used = vse.step(z, np.zeros((3, 3)), np.zeros(3), 1.0)
         else:
-            dt_s = round(time_s - self._time_s, 9)
+            dt_s = round(robot.time_s - self._time_s, 9)
             B_i = (
                 robot_jacobian(vse.x[:3], self._tilt_rad, self.camera_params)
                 if vse.initialised
                 else np.zeros((3, 3))
             )
-            used = vse.step(z, B_i, applied, dt_s)
-        self._time_s = time_s
-        self._tilt_rad = tilt
-        mean = np.zeros(STATE_DIM)
-        cov = np.zeros((STATE_DIM, STATE_DIM))
-        valid = vse.initialised
-        if valid:
+            used = vse.step(z, B_i, robot.applied, dt_s)
+        self._time_s = robot.time_s
+        self._tilt_rad = robot.tilt_rad
+        visible = z is not None
+        if vse.initialised:
             self._last_image = vse.x[:3].copy()
-            mean[IMAGE] = vse.x[:3]
-            mean[IMAGE_RATE] = vse.x[3:]
-            cov[:6, :6] = vse.P
+            mean, cov = state_estimate(vse.x[:3], vse.x[3:], vse.P, robot, True, visible)
         else:
-            mean[IMAGE] = self._last_image
-            cov[:6, :6] = np.eye(6) * self.params.reliability_threshold
-        mean[StateIndex.ROBOT_X : StateIndex.ROBOT_Y + 1] = xy
-        mean[StateIndex.ROBOT_YAW] = yaw
-        mean[StateIndex.TILT] = tilt
-        mean[APPLIED] = applied
-        mean[StateIndex.TRACKING_VALID] = float(valid)
-        mean[StateIndex.TARGET_VISIBLE] = float(z is not None)
-        return Estimate(mean, cov, used, z, time_s)
+            unknown = np.eye(6) * self.params.reliability_threshold
+            mean, cov = state_estimate(
+                self._last_image, np.zeros(3), unknown, robot, False, visible
+            )
+        update = vse.last_update
+        if update is not None and update.accepted:
+            return Estimate(mean, cov, used, z, robot.time_s, update.nis, 3)
+        return Estimate(mean, cov, used, z, robot.time_s)

@@ -33,6 +33,19 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "kf-measurements": ("measurements", {"filter": "kf"}),
     "stkf-measurements": ("measurements", {"filter": "stkf"}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
+    # the other observers of estimation/target_follower/__init__.py, from the camera
+    # frames and from perfect-detector measurements
+    "raw": ("rgb", {"observer": "raw"}),
+    "raw-measurements": ("measurements", {"observer": "raw"}),
+    "kf-latency": ("rgb", {"observer": "kf-latency"}),
+    "kf-latency-measurements": ("measurements", {"observer": "kf-latency"}),
+    "stkf-latency": ("rgb", {"observer": "stkf-latency"}),
+    "stkf-latency-measurements": ("measurements", {"observer": "stkf-latency"}),
+    "ekf": ("rgb", {"observer": "ekf"}),
+    "ekf-measurements": ("measurements", {"observer": "ekf"}),
+    # reads the ground truth while the target is detected: for analysis only
+    "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
+    "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
 }
 # what an agent trained with --obs estimate reads, by --estimate-from
 ESTIMATE_OBSERVERS = {"measurements": "stkf-measurements", "rgb": "stkf"}

@@ -1,0 +1,124 @@
+"""What a TargetFollower step delivers to an observer: the detection of its newest frame,
+with the frame's capture time and the camera pose then.
+
+The env's observation is the newest frame delivered so far (by capture time); a step may
+deliver several frames (latency jitter) or none (a drop, or a frame still in flight), and
+only the newest one's pixels (or perfect-detector report) reach the observer. So:
+
+- :meth:`FrameReader.detect` turns one frame into (x_i, y_i, d_x) or None: the orange-blob
+  detector (:class:`~observer_gym.estimation.target_follower.detector.TargetFollowerDetector`)
+  on an rgb frame, the perfect detector's report in measurements mode; a non-finite entry
+  (NaN, inf) is no detection;
+- :meth:`FrameReader.newest` gives the step's new frame: the delivered frame with the
+  latest capture time, if it is newer than every frame seen before (else the observation
+  repeats an older frame and nothing new arrived), with its detection, capture time,
+  nominal ``K`` and ``T_world_cam`` and the camera's tilt then
+  (envs/target_follower/geometry.robot_pose_from_camera). Older frames delivered in the
+  same step are lost to the observer (their content is not in the observation).
+
+:func:`history_s` is how far back a capture-time-fused observer keeps its past.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.target_follower import DETECTED, TARGET_PX, TargetFollowerEnv
+from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
+from observer_gym.estimation.observer import checked_measurement, checked_rgb_frame
+from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
+
+__all__ = ["FrameDetection", "FrameReader", "history_s"]
+
+# Capture times closer than this are the same instant (tick multiples).
+SAME_TIME_S = 1e-9
+# The longest latency jitter kept, in standard deviations of the env's Gaussian jitter.
+JITTER_SIGMAS = 5.0
+
+
+@dataclass(frozen=True)
+class FrameDetection:
+    """One delivered frame as an observer uses it."""
+
+    z_px: np.ndarray | None  # (x_i, y_i, d_x) in pixels, None when not detected
+    capture_time_s: float
+    K: np.ndarray  # the nominal camera matrix
+    T_world_cam: np.ndarray  # the nominal camera pose at capture
+    tilt_rad: float  # the camera's tilt at capture
+
+
+def history_s(env: TargetFollowerEnv) -> float:
+    """How long a capture-time-fused observer keeps its past: the env's largest latency
+    (``latency_s`` plus ``JITTER_SIGMAS`` standard deviations of ``latency_jitter_s``)
+    and two frame periods, so the latest frame always finds the step it was captured in."""
+    cfg = env.config
+    return cfg.latency_s + JITTER_SIGMAS * cfg.latency_jitter_s + 2.0 / cfg.frame_rate_hz
+
+
+class FrameReader:
+    """Detections of the frames a TargetFollower env delivers (see the module docstring).
+
+    Args:
+        env: the TargetFollower env (its obs_mode, image size, observation space and
+            calibration are read).
+        detector: the rgb detector (default: :class:`TargetFollowerDetector`).
+        owner: the name in error messages.
+    """
+
+    def __init__(
+        self,
+        env: TargetFollowerEnv,
+        detector: TargetFollowerDetector | None = None,
+        owner: str = "TargetFollowerObserver",
+    ) -> None:
+        self.detector = detector or TargetFollowerDetector()
+        self.from_pixels = env.config.obs_mode == "rgb"
+        self.measurement_space = env.observation_space  # measurements mode: its Dict
+        self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
+        self.delta_y_m = env.calibration["delta_y_m"]
+        self.owner = owner
+        self.reset()
+
+    def reset(self) -> None:
+        self._newest_capture_s = -np.inf
+
+    def detect(self, obs: Any, frame: dict) -> np.ndarray | None:
+        """(x_i, y_i, d_x) of one frame, or None (also when an entry is NaN or inf)."""
+        if self.from_pixels:
+            image = checked_rgb_frame(
+                obs, frame.get("image_size_px", self.image_size_px), self.owner
+            )
+            z = self.detector.detect(image, frame["K"])
+        else:
+            obs = checked_measurement(self.owner, obs, self.measurement_space)
+            if not obs[DETECTED][0]:
+                return None
+            z = obs[TARGET_PX]
+        if z is None:
+            return None
+        z = np.asarray(z, dtype=float)
+        return z if bool(np.all(np.isfinite(z))) else None
+
+    def newest(self, obs: Any, info: dict) -> FrameDetection | None:
+        """The step's new frame (the observation's), detected; None when no frame newer
+        than those seen before was delivered."""
+        frames = info["frames"]
+        if not frames:
+            return None
+        frame = max(frames, key=lambda f: f["capture_time_s"])
+        capture_s = float(frame["capture_time_s"])
+        if capture_s <= self._newest_capture_s + SAME_TIME_S:
+            return None  # the observation repeats a frame seen before
+        self._newest_capture_s = capture_s
+        T_world_cam = np.asarray(frame["T_world_cam"], dtype=float)
+        _, _, tilt = robot_pose_from_camera(T_world_cam, self.delta_y_m)
+        return FrameDetection(
+            self.detect(obs, frame),
+            capture_s,
+            np.asarray(frame["K"], dtype=float),
+            T_world_cam,
+            tilt,
+        )

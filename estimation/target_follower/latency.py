@@ -1,0 +1,250 @@
+"""The latency-aware drive of TargetFollower's visual state estimator (``kf-latency``,
+``stkf-latency``): each detection is fused at its frame's capture time and the estimate is
+predicted to the step's time, when the next action is applied.
+
+:class:`VSECore` is the VSE (:mod:`~observer_gym.estimation.target_follower.filters`, the
+spec's procedure) as a :class:`~observer_gym.estimation.latency.FilterCore`, driven by
+:class:`~observer_gym.estimation.latency.CaptureTimeFusion` (rewind and replay for late
+frames). The spec's step, split at capture times:
+
+- predict (30) over [t, t'] with the velocity u applied over the step that holds the
+  interval and B_i at the estimate and the camera's tilt at t (the spec's "B_i at the
+  previous estimate", evaluated where the replay is: the tilt moves linearly within a
+  step, phi(t) = phi(t_{k-1}) + omega_t (t - t_{k-1}), exactly as the drive moves it);
+- update (34) at the capture time (and the self-tuning register (41) on the samples in
+  capture order; a dropped or undelivered frame, a gap of more than 1.5 frame periods
+  between samples, empties it as a missed detection does);
+- the reliability check (6) on the estimate at each step time, after the frames captured
+  up to it are fused: it is made when the filter first moves on from a step time.
+
+With zero latency (frames captured at the step times and delivered at once) this is the
+call sequence of :class:`~observer_gym.estimation.target_follower.observer.
+TargetFollowerObserver` (``kf``/``stkf``) and the estimates are the same numbers
+(tests/estimation/test_target_follower_observers.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.target_follower import TargetFollowerEnv
+from observer_gym.estimation.filters import KalmanFilter
+from observer_gym.estimation.latency import SAME_TIME_S, CaptureTimeFusion, TimedMeasurement
+from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
+from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
+from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader, history_s
+from observer_gym.estimation.target_follower.models import (
+    TargetFollowerCameraParams,
+    robot_jacobian,
+)
+from observer_gym.estimation.target_follower.observer import FILTERS
+from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
+
+__all__ = ["HeldInput", "LatencyAwareObserver", "VSECore"]
+
+# A gap between successive samples longer than this many frame periods is a missed sample.
+GAP_PERIODS = 1.5
+
+
+@dataclass(frozen=True)
+class HeldInput:
+    """The robot's input over one step interval (t_{k-1}, t_k]: the applied velocity and
+    where the tilt started, so the tilt is known at any time inside it."""
+
+    applied: np.ndarray  # (v, omega, omega_t)
+    start_time_s: float  # t_{k-1}
+    end_time_s: float  # t_k
+    start_tilt_rad: float  # phi(t_{k-1})
+
+    def tilt_at(self, time_s: float) -> float:
+        """phi(t) = phi(t_{k-1}) + omega_t (t - t_{k-1})."""
+        return self.start_tilt_rad + float(self.applied[2]) * (time_s - self.start_time_s)
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    kf: tuple[np.ndarray, np.ndarray] | None
+    R: np.ndarray
+    register: tuple[np.ndarray, ...]
+    last_sample_s: float
+    reinitialisations: int
+    time_s: float
+    check_due: bool
+
+
+class VSECore:
+    """The visual state estimator as a capture-time
+    :class:`~observer_gym.estimation.latency.FilterCore` (see the module docstring).
+    Measurements are :class:`~observer_gym.estimation.target_follower.frames.FrameDetection`
+    (a None detection is a missed one); ``nis_of`` maps ``id(measurement)`` to the NIS of
+    its latest update."""
+
+    def __init__(
+        self,
+        vse: VisualStateEstimator,
+        camera_params: TargetFollowerCameraParams,
+        time_s: float,
+        frame_period_s: float,
+    ) -> None:
+        self.vse = vse
+        self.camera_params = camera_params
+        self.time_s = float(time_s)
+        self.max_gap_s = GAP_PERIODS * frame_period_s
+        self.last_sample_s = -np.inf
+        self.check_due = False  # the filter sits at a step time not yet checked (6)
+        self.nis_of: dict[int, float] = {}
+
+    def predict_to(self, time_s: float, action: HeldInput | None) -> None:
+        vse = self.vse
+        dt_s = round(time_s - self.time_s, 9)
+        if dt_s <= 0.0:
+            return
+        if self.check_due and vse.initialised:  # (6) at the step time being left
+            vse.check_reliability()
+        self.check_due = False
+        if action is not None:
+            if vse.initialised:
+                # (30) over dt with B_i at the estimate and the tilt now (the filter's time
+                # lies in the step interval of ``action``)
+                tilt_rad = action.tilt_at(self.time_s)
+                B_i = robot_jacobian(vse.x[:3], tilt_rad, self.camera_params)
+                vse.predict(B_i, action.applied, dt_s)
+            self.check_due = abs(time_s - action.end_time_s) < SAME_TIME_S
+        self.time_s = float(time_s)
+
+    def update(self, measurement: FrameDetection) -> bool:
+        vse = self.vse
+        z = measurement.z_px
+        if not vse.initialised:  # (2)
+            started = vse.start(z)
+            if started:
+                self.last_sample_s = measurement.capture_time_s
+            return started
+        if z is not None and measurement.capture_time_s - self.last_sample_s > self.max_gap_s:
+            vse.register(None)  # samples missed in between: the register restarts
+        vse.register(z)  # (3)
+        vse.last_update = None
+        used = vse.update(z)  # (5)
+        if z is not None:
+            self.last_sample_s = measurement.capture_time_s
+            self.nis_of[id(measurement)] = vse.last_update.nis
+        return used
+
+    def snapshot(self) -> _Snapshot:
+        vse = self.vse
+        return _Snapshot(
+            None if vse.kf is None else (vse.kf.x, vse.kf.P),
+            vse.R,
+            vse.tuner.samples,
+            self.last_sample_s,
+            vse.reinitialisations,
+            self.time_s,
+            self.check_due,
+        )
+
+    def restore(self, snapshot: _Snapshot) -> None:
+        vse = self.vse
+        if snapshot.kf is None:
+            vse.kf = None
+        elif vse.kf is None:
+            vse.kf = KalmanFilter(*snapshot.kf)
+        else:  # the filter assigns fresh arrays each step: the snapshot's stay unchanged
+            vse.kf.x, vse.kf.P = snapshot.kf
+        vse.R = snapshot.R
+        vse.tuner.refill(snapshot.register)
+        self.last_sample_s = snapshot.last_sample_s
+        vse.reinitialisations = snapshot.reinitialisations
+        self.time_s = snapshot.time_s
+        self.check_due = snapshot.check_due
+
+    @property
+    def reliable(self) -> bool:
+        """Initialised and every diagonal element of P within the threshold (6)."""
+        return self.vse.initialised and not self.vse.unreliable()
+
+
+class LatencyAwareObserver:
+    """TargetFollower's VSE fused at capture time (``kf-latency``, ``stkf-latency``).
+
+    Args:
+        env: the TargetFollower env (calibration, obs_mode, latency options).
+        filter: "stkf" (self-tuning R) or "kf" (R = R_0).
+        params: the estimator's tuning (default: spec Table 1); ``self_tuning`` is set
+            from ``filter``.
+        camera_params: the f_x, f_y, W, delta_y that B_i uses (default: the calibration).
+        detector: the rgb detector.
+
+    The output is :class:`~observer_gym.estimation.target_follower.observer.
+    TargetFollowerObserver`'s: the estimate at the step time, ``tracking_valid`` while it
+    is reliable (else the last reliable image state with zero rates and covariance
+    threshold x I), ``target_visible`` when this step's new frame gave a detection,
+    ``Estimate.nis`` the sum over this step's new detections (3 dof each).
+    """
+
+    def __init__(
+        self,
+        env: TargetFollowerEnv,
+        filter: str = "stkf",
+        params: VSEParams | None = None,
+        camera_params: TargetFollowerCameraParams | None = None,
+        detector: TargetFollowerDetector | None = None,
+    ) -> None:
+        if filter not in FILTERS:
+            raise ValueError(f"filter={filter!r} is not allowed; choose one of {list(FILTERS)}")
+        self.filter = filter
+        base = params or VSEParams()
+        self.params = VSEParams(**{**base.__dict__, "self_tuning": filter == "stkf"})
+        self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
+            env.calibration
+        )
+        self.delta_y_m = env.calibration["delta_y_m"]
+        self.frame_period_s = 1.0 / env.config.frame_rate_hz
+        self.history_s = history_s(env)
+        self.frames = FrameReader(env, detector, owner="LatencyAwareObserver")
+        self.reset()
+
+    def reset(self) -> None:
+        self.frames.reset()
+        self.fusion: CaptureTimeFusion | None = None
+        self._robot: RobotStep | None = None
+        self._last_image = np.zeros(3)
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
+        robot = RobotStep.from_info(info, action, self.delta_y_m)
+        if action is None or self.fusion is None:  # after a reset
+            core = VSECore(
+                VisualStateEstimator(self.params),
+                self.camera_params,
+                robot.time_s,
+                self.frame_period_s,
+            )
+            self.fusion = CaptureTimeFusion(core, latency_aware=True, history_s=self.history_s)
+            held = None
+        else:
+            prev = self._robot
+            held = HeldInput(robot.applied, prev.time_s, robot.time_s, prev.tilt_rad)
+        self._robot = robot
+        frame = self.frames.newest(obs, info)
+        new = [] if frame is None else [TimedMeasurement(frame.capture_time_s, frame)]
+        core = self.fusion.core
+        core.nis_of = {}
+        used = self.fusion.step(robot.time_s, held, new)
+        vse = core.vse
+        visible = frame is not None and frame.z_px is not None
+        if core.reliable:
+            self._last_image = vse.x[:3].copy()
+            mean, cov = state_estimate(vse.x[:3], vse.x[3:], vse.P, robot, True, visible)
+        else:
+            unknown = np.eye(6) * self.params.reliability_threshold
+            mean, cov = state_estimate(
+                self._last_image, np.zeros(3), unknown, robot, False, visible
+            )
+        z = None if frame is None else frame.z_px
+        nis = [core.nis_of[id(m.measurement)] for m in new if id(m.measurement) in core.nis_of]
+        if nis:
+            return Estimate(mean, cov, used, z, robot.time_s, float(sum(nis)), 3 * len(nis))
+        return Estimate(mean, cov, used, z, robot.time_s)
