@@ -103,18 +103,21 @@ def checked_measurement_array(owner: str, name: str, value: Any, shape: tuple) -
     """A measurement's entry ``name`` as a float array of ``shape``; NaN and inf are kept (a
     pipeline takes them as no detection). ValueError naming ``owner``, the entry and what is
     allowed for anything but real numbers (bools too) of that shape."""
-    error = ValueError(
-        f"{owner}: measurement {name} must be real numbers of shape {tuple(shape)}, got "
-        f"{reprlib.repr(value)}"
-    )
+
+    def error() -> ValueError:  # built on failure only: repr of an array is ~100 us
+        return ValueError(
+            f"{owner}: measurement {name} must be real numbers of shape {tuple(shape)}, got "
+            f"{reprlib.repr(value)}"
+        )
+
     if value is None or isinstance(value, np.ma.MaskedArray):
-        raise error
+        raise error()
     try:
         raw = np.asarray(value)
     except (TypeError, ValueError):  # ragged sequences
-        raise error from None
+        raise error() from None
     if raw.dtype.kind not in "biuf" or raw.shape != tuple(shape):
-        raise error
+        raise error()
     return raw.astype(np.float64)
 
 
