@@ -8,14 +8,24 @@ process and control models, and the observer pipelines (docs/spec/table_ball.md)
 from functools import partial
 
 from observer_gym.estimation.ball_table.observer import BallTableObserver, BallTableObserverParams
+from observer_gym.estimation.ball_table.oracle_visible import OracleVisibleObserver
+from observer_gym.estimation.ball_table.pixel_ekf import BallTablePixelEKF, PixelEKFParams
+from observer_gym.estimation.ball_table.raw import RawObserver
 
 OBSERVERS = {
     "kf": BallTableObserver,
     "kf-latency": partial(BallTableObserver, latency_aware=True),
+    "ekf": BallTablePixelEKF,
+    "raw": RawObserver,
+    "oracle-visible": OracleVisibleObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "BallTableObserver",
     "BallTableObserverParams",
+    "BallTablePixelEKF",
+    "OracleVisibleObserver",
+    "PixelEKFParams",
+    "RawObserver",
 ]
