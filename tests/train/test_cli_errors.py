@@ -111,7 +111,8 @@ CASES = {
     "run-stkf-on-balltable": (
         [*RUN, "--env", "BallTable-v0", "--observer", "stkf", "--controller", "lqr"],
         "unknown observer 'stkf' for observer_gym/BallTable-v0; allowed: oracle, kf, "
-        "kf-measurements, pixels",
+        "kf-measurements, kf-latency, kf-latency-measurements, ekf, ekf-measurements, raw, "
+        "raw-measurements, oracle-visible, oracle-visible-measurements, pixels",
     ),
     "compare-stkf-on-balltable": (
         [*COMPARE, "--observers", "oracle,stkf", "--controllers", "lqr"],
