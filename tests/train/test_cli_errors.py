@@ -369,7 +369,7 @@ def test_the_checks_say_what_the_library_says(tmp_path):
     }
     names = {*checks.controller_choices(), "lqg", *runs}
     for system in SYSTEMS:
-        for observer in [*checks.observer_choices(), "ekf"]:
+        for observer in [*checks.observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
                     checks.check_controller, controller, system.env_id, observer
