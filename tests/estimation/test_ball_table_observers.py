@@ -1,8 +1,8 @@
 """BallTable's observer family (estimation/ball_table: ``kf``, ``kf-latency``, ``ekf``,
 ``raw``, ``oracle-visible``) against the simulator's ground truth and against each other.
 
-Every pipeline of a run watches the same episode: the actions come from a PD law on the
-true state (test scaffolding, see :func:`circle_action`), so the observers do not steer
+Every pipeline of a run watches the same episode: the actions come from test_observer.py's
+PD law that makes the ball circle, here on the true state, so the observers do not steer
 the ball and their errors are comparable step by step.
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from test_observer import circle_tracking_action
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.ball_table import STATE_DIM
@@ -35,17 +36,6 @@ DT_S = 0.02
 SKIP = 25  # the first 0.5 s: velocities start from zero
 
 
-def circle_action(time_s: float, state: np.ndarray, phase: float = 0.5) -> np.ndarray:
-    """A PD tilt law on the true state that makes the ball follow a 5 cm circle (as in
-    test_observer.py, there on the estimate): the ball keeps rolling, off the borders."""
-    omega_radps, radius_m, k_p, k_d = 0.8, 0.05, 4.0, 3.0
-    angle = omega_radps * time_s + phase
-    ref = radius_m * np.array([np.cos(angle), np.sin(angle)])
-    accel = k_p * (ref - state[0:2]) - k_d * state[2:4]
-    gain = 5.0 / 7.0 * 9.81
-    return np.clip([-accel[1] / gain, accel[0] / gain], -0.1, 0.1).astype(np.float32)
-
-
 def watch(names, steps, seed=0, change=None, **env_kwargs):
     """Run one episode; every observer in ``names`` watches it. Returns the truth (T, 8),
     the estimates {name: [Estimate]} and the per-step infos. ``change(k, obs)`` may alter
@@ -57,7 +47,8 @@ def watch(names, steps, seed=0, change=None, **env_kwargs):
         estimates = {name: [p.observe(obs, info, None)] for name, p in pipelines.items()}
         truth, infos = [info["state"]], [info]
         for k in range(steps):
-            obs, _, terminated, _, info = env.step(circle_action(k * DT_S, info["state"]))
+            action = circle_tracking_action(k * DT_S, info["state"], phase=0.5)
+            obs, _, terminated, _, info = env.step(action)
             seen = obs if change is None else change(k, obs)
             for name, pipeline in pipelines.items():
                 estimates[name].append(pipeline.observe(seen, info, info["applied_action"]))
