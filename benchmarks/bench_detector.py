@@ -115,8 +115,8 @@ def render_episodes(count: int, episode_frames: int) -> tuple[list[list[Frame]],
 
 def _steady_cycles(observer: BallTableObserver) -> int:
     """Cycles the observer's two filters took on their converged-gain path so far."""
-    filters = (observer._ball_kf, observer._tilt_kf)
-    return sum(kf.steady_cycles for kf in filters if kf is not None)
+    core = observer.core
+    return 0 if core is None else core.ball_kf.steady_cycles + core.tilt_kf.steady_cycles
 
 
 class Stopwatch:
@@ -312,7 +312,13 @@ def main() -> None:
             for frame in episode:
                 staged(frame)
                 info = {
-                    "frames": [{"K": frame.K, "T_world_cam": frame.T_world_cam}],
+                    "frames": [
+                        {
+                            "K": frame.K,
+                            "T_world_cam": frame.T_world_cam,
+                            "capture_time_s": frame.time_s,
+                        }
+                    ],
                     "time_s": frame.time_s,
                 }
                 steady_before = _steady_cycles(observer)
@@ -339,7 +345,7 @@ def main() -> None:
     print(f"{'stage':28s} {'median us':>10s}")
     for stage, values in stage_us.items():
         print(f"{stage:28s} {np.median(values):10.1f}")
-    tracker = observer.table_tracker
+    tracker = observer.reader.table_tracker
     print(
         f"(the observer's region of interest: tracked in {tracker.tracked_frames} frames, "
         f"searched in {tracker.searched_frames})"

@@ -42,7 +42,20 @@ class SystemNames(NamedTuple):
 _OBSERVERS = {"oracle": "state", "kf": "rgb", "kf-measurements": "measurements", "pixels": "rgb"}
 SYSTEM_NAMES: dict[str, SystemNames] = {
     "ball_table": SystemNames(
-        _OBSERVERS,
+        {
+            "oracle": "state",
+            "kf": "rgb",
+            "kf-measurements": "measurements",
+            "kf-latency": "rgb",
+            "kf-latency-measurements": "measurements",
+            "ekf": "rgb",
+            "ekf-measurements": "measurements",
+            "raw": "rgb",
+            "raw-measurements": "measurements",
+            "oracle-visible": "rgb",
+            "oracle-visible-measurements": "measurements",
+            "pixels": "rgb",
+        },
         ("pixels",),
         {"measurements": "kf-measurements", "rgb": "kf"},
         ("lqr", "mpc", "pid"),

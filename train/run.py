@@ -233,8 +233,8 @@ def run_experiment(
 
     Args:
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
-        observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-measurements,
-            pixels).
+        observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-latency, ekf,
+            raw, oracle-visible, each but oracle also as NAME-measurements, and pixels).
         controller: one of the env's ``observer_gym.controllers.controllers_for(env_id)``
             or a trained agent ``ALGO:DIR`` (``ppo:runs/ppo-balltable``).
         episodes: number of episodes (>= 1).

@@ -1,5 +1,5 @@
-"""The BallTable observer: detector + two Kalman filters (docs/spec/table_ball.md, "Dynamics and
-estimator").
+"""The BallTable observers ``kf`` and ``kf-latency``: detector + two Kalman filters
+(docs/spec/table_ball.md, "Dynamics and estimator").
 
 Per frame:
 1. The detector (estimation/ball_table/detector.py) turns the frame (or, in the
@@ -8,7 +8,7 @@ Per frame:
    ``info["frames"]`` (the report had to guess it). The table's region of interest is
    tracked from the previous frame (TableTracker: the same features as the full search,
    which runs on the first frame, after a flagged one, and when the table left the
-   tracked region).
+   tracked region). A step fuses only a new frame (estimation/ball_table/frames.py).
 2. A filter on the two tilt angles, driven by the commanded tilt through the arm's
    first-order lag (TiltLagModel, time constant from the env's joint gain), gives the
    tilt; the tilt rate follows from the same model. While the table is unseen (an
@@ -24,8 +24,13 @@ detection with a non-finite tilt or ball position (NaN, inf: e.g. from NaN pixel
 measurement) is no detection of that part: it neither updates a filter nor counts as a
 gate rejection.
 
-Frames (``obs_mode="rgb"``) must be uint8 images of the env's size (``image_size_px`` of
-the frame, else the env config's), H x W x 3: others raise ``ValueError``.
+The two filters are one :class:`~observer_gym.estimation.latency.FilterCore`,
+:class:`TiltBallFilters`. ``kf`` fuses each frame when it is delivered (predict to the
+step's time, update); ``kf-latency`` (``latency_aware=True``) fuses it at its capture time
+through :class:`~observer_gym.estimation.latency.CaptureTimeFusion` (rewinding to the
+capture, replaying the later steps) and predicts to the step's time, when the next action
+is applied. With zero latency the two are the same filter, bit for bit
+(tests/estimation/test_ball_table_observers.py).
 """
 
 from __future__ import annotations
@@ -37,22 +42,17 @@ import numpy as np
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.geometry import up_in_table
-from observer_gym.estimation.ball_table.features import features_from_measurement
+from observer_gym.estimation.ball_table.frames import FrameReader, detected_parts
+from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
 from observer_gym.estimation.ball_table.models import (
     RollingBallModel,
     RollingBallParams,
     TiltLagModel,
 )
-from observer_gym.estimation.ball_table.tracker import TableTracker
+from observer_gym.estimation.filter_copy import copy_filter
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
-from observer_gym.estimation.observer import (
-    MAX_PIXEL_PX,
-    Estimate,
-    checked_measurement,
-    checked_rgb_frame,
-)
 
 
 def _tuned_ball_params() -> RollingBallParams:
@@ -72,6 +72,7 @@ class BallTableObserverParams:
     tilt_meas_std_rad: tuple[float, float] = (0.0035, 0.001)
     start_pos_std_m: float = 0.1  # prior when the first frame shows no ball
     start_speed_std_mps: float = 0.05  # the env's random start speed is up to 0.05 m/s
+    start_tilt_std_rad: float = 0.1  # prior when the first frame shows no table
     gate_probability: float = 0.9999  # chi-square gate on the ball measurement
     reacquire_after: int = 3  # consecutive gate rejections that restart the ball filter
     # Both filters take the converged-gain path (KalmanFilter.converged_rtol) once a cycle
@@ -79,159 +80,242 @@ class BallTableObserverParams:
     converged_rtol: float | None = 1e-9
 
 
-class BallTableObserver:
-    """The default observer pipeline for BallTable-v0 (see the module docstring)."""
+class TiltBallFilters:
+    """The tilt filter and the rolling-ball filter as one
+    :class:`~observer_gym.estimation.latency.FilterCore` (see the module docstring).
+
+    A measurement is a :class:`Fused` of (tilt (2,) or None, ball position (2,) or None).
+    The ball's prediction over an interval uses the tilt at its end after that instant's
+    tilt update, so it is made lazily: by the update at the interval's end, else before
+    anything reads the estimate (the next prediction, the mean); a snapshot keeps it
+    pending.
+
+    Args:
+        params: the observer's parameters.
+        ball_model, tilt_model: the process models.
+        time_s: the start time.
+        tilt, ball: the start's detection (each None when not seen).
+        tilt_cmd: the commanded tilt at the start (the arm is commanded level at reset).
+    """
 
     def __init__(
         self,
-        env: BallTableEnv,
-        params: BallTableObserverParams | None = None,
-        detector: BallTableDetector | None = None,
+        params: BallTableObserverParams,
+        ball_model: RollingBallModel,
+        tilt_model: TiltLagModel,
+        time_s: float,
+        tilt: np.ndarray | None,
+        ball: np.ndarray | None,
+        tilt_cmd: np.ndarray | None = None,
     ) -> None:
-        self.params = params or BallTableObserverParams()
-        self.detector = detector or BallTableDetector()
-        cfg = env.config
-        self.from_pixels = cfg.obs_mode == "rgb"
-        self.measurement_space = env.observation_space  # measurements mode: its Dict
-        self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
-        self.ball_model = RollingBallModel(self.params.ball)
-        self.tilt_model = TiltLagModel.from_arm(
-            cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
-        )
-        self._tilt_R = np.diag(np.square(self.params.tilt_meas_std_rad))
-        # The image stage, with the table's region of interest tracked between frames.
-        self.table_tracker = TableTracker()
-        self.reset()
-
-    def reset(self) -> None:
-        self.table_tracker.reset()
-        self._ball_kf: KalmanFilter | None = None
-        self._tilt_kf: KalmanFilter | None = None
-        self._time_s = 0.0
-        self._tilt_cmd = np.zeros(2)  # the arm is commanded level at reset
-        self._rejections_in_a_row = 0
+        self.params = params
+        self.ball_model = ball_model
+        self.tilt_model = tilt_model
+        self._tilt_R = np.diag(np.square(params.tilt_meas_std_rad))
+        self.time_s = time_s
+        self.tilt_cmd = np.zeros(2) if tilt_cmd is None else np.asarray(tilt_cmd, dtype=float)
+        self.rejections_in_a_row = 0
         self.reacquisitions = 0
+        # The ball's prediction still to make: (dt, tilt at the interval's start), or None.
+        self._pending: tuple[float, np.ndarray] | None = None
         self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.tilt_kf = self._start_tilt(tilt)
+        self.ball_kf = self._start_ball(ball)
 
-    # --- per step -----------------------------------------------------------------------
-    def detect(self, obs: Any, frame: dict):
-        """The detection of one frame."""
-        if self.from_pixels:
-            image = checked_rgb_frame(
-                obs, frame.get("image_size_px", self.image_size_px), "BallTableObserver"
-            )
-            features = self.table_tracker.extract_features(image, frame["K"], frame["T_world_cam"])
-        else:
-            obs = checked_measurement("BallTableObserver", obs, self.measurement_space)
-            # A pixel no camera reports (1e308: its rays cancel, ZeroDivisionError in the
-            # geometry stage) is a non-finite one: no detection of that part.
-            obs = {k: np.where(np.abs(v) <= MAX_PIXEL_PX, v, np.nan) for k, v in obs.items()}
-            features = features_from_measurement(obs)
-        return self.detector.detect(features, frame["K"], frame["T_world_cam"])
-
-    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
-        frames = info["frames"]
-        detection = self.detect(obs, frames[0]) if frames else None
-        time_s = float(info["time_s"])
-        tilt_rad = detection.tilt_rad if detection is not None and detection.table_found else None
-        ball_pos = (
-            detection.ball_pos_table_m if detection is not None and detection.ball_found else None
-        )
-        tilt_rad, ball_pos = _finite_or_none(tilt_rad), _finite_or_none(ball_pos)
-        if self._ball_kf is None:
-            self._start_tilt(tilt_rad)
-            self._start_ball(ball_pos)
-            used = tilt_rad is not None or ball_pos is not None
-        else:
-            if action is not None:
-                self._tilt_cmd = np.asarray(action, dtype=float)
-            # To the nanosecond: the frame period is one number, not a few that differ in
-            # the last bits of the summed time (one cached discretisation, and a filter
-            # that sees the same matrices can take its converged-gain path).
-            dt_s = round(time_s - self._time_s, 9)
-            tilt_before = self._tilt()
-            used = self._update_tilt(dt_s, tilt_rad)
-            used |= self._update_ball(dt_s, tilt_before, self._tilt(), ball_pos)
-        self._time_s = time_s
-        return Estimate(self._mean(), self._covariance(), used, detection, time_s)
-
-    # --- filters ------------------------------------------------------------------------
-    def _start_tilt(self, tilt_rad: np.ndarray | None) -> None:
+    def _start_tilt(self, tilt_rad: np.ndarray | None) -> KalmanFilter:
         if tilt_rad is None:
-            x0, P0 = np.zeros(2), np.eye(2) * 0.1**2
+            x0, P0 = np.zeros(2), np.eye(2) * self.params.start_tilt_std_rad**2
         else:
             x0, P0 = np.asarray(tilt_rad, dtype=float), self._tilt_R
-        self._tilt_kf = KalmanFilter(x0, P0, converged_rtol=self.params.converged_rtol)
+        return KalmanFilter(x0, P0, converged_rtol=self.params.converged_rtol)
 
-    def _start_ball(self, ball_pos_table_m: np.ndarray | None) -> None:
+    def _start_ball(self, ball_pos_table_m: np.ndarray | None) -> KalmanFilter:
         p = self.params
         seen = ball_pos_table_m is not None
         pos0 = np.asarray(ball_pos_table_m, dtype=float) if seen else np.zeros(2)
         pos_std = p.ball.sigma_v_m if seen else p.start_pos_std_m
         P0 = np.diag([pos_std**2] * 2 + [p.start_speed_std_mps**2] * 2 + [p.ball.sigma_w**2] * 2)
         gate = ChiSquareGate(probability=p.gate_probability)
-        self._ball_kf = KalmanFilter(
+        return KalmanFilter(
             np.concatenate([pos0, np.zeros(4)]), P0, gate=gate, converged_rtol=p.converged_rtol
         )
 
-    def _tilt(self) -> np.ndarray:
-        return self._tilt_kf.x
+    @classmethod
+    def at_state(
+        cls,
+        params: BallTableObserverParams,
+        ball_model: RollingBallModel,
+        tilt_model: TiltLagModel,
+        time_s: float,
+        state: np.ndarray,
+        tilt_cmd: np.ndarray | None,
+    ) -> TiltBallFilters:
+        """The filters started at a known ``state`` (the env's layout) with no error in it:
+        P = 0 but for the ball's disturbance, at its stationary std sigma_w."""
+        core = cls(params, ball_model, tilt_model, time_s, None, None, tilt_cmd)
+        state = np.asarray(state, dtype=float)
+        core.tilt_kf = KalmanFilter(state[4:6], np.zeros((2, 2)))
+        P0 = np.diag([0.0] * 4 + [params.ball.sigma_w**2] * 2)
+        core.ball_kf = KalmanFilter(np.concatenate([state[0:4], np.zeros(2)]), P0)
+        return core
 
-    def _update_tilt(self, dt_s: float, tilt_rad: np.ndarray | None) -> bool:
+    # --- FilterCore ---------------------------------------------------------------------
+    def predict_to(self, time_s: float, action: np.ndarray | None) -> None:
+        # To the nanosecond: the frame period is one number, not a few that differ in the
+        # last bits of the summed time (one cached discretisation, and a filter that sees
+        # the same matrices can take its converged-gain path).
+        dt_s = round(time_s - self.time_s, 9)
+        if dt_s <= 0.0:
+            return
+        self._settle()
+        if action is not None:
+            self.tilt_cmd = np.asarray(action, dtype=float)
+        tilt_before = self.tilt_kf.x
         Phi, Gamma, Q = self.tilt_model.matrices(dt_s)
-        self._tilt_kf.predict(Phi, Q, Gamma, self._tilt_cmd)
-        if tilt_rad is None:
-            return False
-        return self._tilt_kf.update(np.asarray(tilt_rad), self.tilt_model.C, self._tilt_R).accepted
+        self.tilt_kf.predict(Phi, Q, Gamma, self.tilt_cmd)
+        self._pending = (dt_s, tilt_before)
+        self.time_s = time_s
 
-    def _update_ball(self, dt_s, tilt_before, tilt_after, ball_pos_table_m) -> bool:
+    def update(self, measurement: Fused) -> bool:
+        tilt_rad, ball_pos = measurement.value
+        measurement.clear_nis()
+        used = False
+        if tilt_rad is not None:
+            result = self.tilt_kf.update(tilt_rad, self.tilt_model.C, self._tilt_R)
+            if result.accepted:
+                measurement.add_nis(result.nis, 2)
+            used = result.accepted
+        self._settle()
+        if ball_pos is not None:
+            used |= self._update_ball(ball_pos, measurement)
+        return used
+
+    def snapshot(self) -> tuple:
+        # The ball's prediction stays pending: a measurement captured at this very time
+        # (rewound to) must update the tilt before the ball's prediction uses it.
+        return (
+            self.time_s,
+            self.tilt_cmd,
+            copy_filter(self.tilt_kf),
+            copy_filter(self.ball_kf),
+            self._pending,
+            self.rejections_in_a_row,
+            self.reacquisitions,
+        )
+
+    def restore(self, snapshot: tuple) -> None:
+        time_s, tilt_cmd, tilt_kf, ball_kf, pending, rejections, reacquisitions = snapshot
+        self.time_s, self.tilt_cmd, self._pending = time_s, tilt_cmd, pending
+        self.tilt_kf, self.ball_kf = copy_filter(tilt_kf), copy_filter(ball_kf)
+        self.rejections_in_a_row, self.reacquisitions = rejections, reacquisitions
+
+    # --- the two filters ----------------------------------------------------------------
+    def _settle(self) -> None:
+        """Make the ball's pending prediction, with the tilt at the interval's end as it is
+        now."""
+        if self._pending is None:
+            return
+        dt_s, tilt_before = self._pending
+        self._pending = None
         model = self.ball_model
         # B(t) from the table's rotation over the interval (trapezoid of the two ends).
-        u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + tilt_after))))
+        u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + self.tilt_kf.x))))
         Phi, Gamma, Q = model.matrices(dt_s)
-        kf = self._ball_kf
+        kf = self.ball_kf
         kf.predict(Phi, Q, Gamma, u)
         kf.x, kf.P = model.clamp_to_border(kf.x, kf.P)
-        if ball_pos_table_m is None:
-            return False
-        accepted = kf.update(np.asarray(ball_pos_table_m), model.C, model.R).accepted
-        self._rejections_in_a_row = 0 if accepted else self._rejections_in_a_row + 1
-        if self._rejections_in_a_row >= self.params.reacquire_after:
-            self._start_ball(np.asarray(ball_pos_table_m))
-            self._rejections_in_a_row = 0
+
+    def _update_ball(self, ball_pos_table_m: np.ndarray, measurement: Fused) -> bool:
+        model = self.ball_model
+        result = self.ball_kf.update(ball_pos_table_m, model.C, model.R)
+        if result.accepted:
+            measurement.add_nis(result.nis, 2)
+        self.rejections_in_a_row = 0 if result.accepted else self.rejections_in_a_row + 1
+        if self.rejections_in_a_row >= self.params.reacquire_after:
+            self.ball_kf = self._start_ball(ball_pos_table_m)
+            self.rejections_in_a_row = 0
             self.reacquisitions += 1
             return True
-        return accepted
+        return result.accepted
 
     # --- output in the env's state layout ---------------------------------------------
-    def _mean(self) -> np.ndarray:
+    def mean(self) -> np.ndarray:
+        self._settle()
+        tilt = self.tilt_kf.x
         mean = np.empty(STATE_DIM)
-        mean[0:4] = self._ball_kf.x[0:4]
-        mean[4:6] = self._tilt()
-        mean[6:8] = self.tilt_model.rate(self._tilt(), self._tilt_cmd)
+        mean[0:4] = self.ball_kf.x[0:4]
+        mean[4:6] = tilt
+        mean[6:8] = self.tilt_model.rate(tilt, self.tilt_cmd)
         return mean
 
-    def _covariance(self) -> np.ndarray:
+    def covariance(self) -> np.ndarray:
         """Read-only; the same array while both filters keep their P (converged)."""
-        P_ball, P_tilt = self._ball_kf.P, self._tilt_kf.P
+        self._settle()
+        P_ball, P_tilt = self.ball_kf.P, self.tilt_kf.P
         cached = self._cov_cache
         if cached is not None and cached[0] is P_ball and cached[1] is P_tilt:
             return cached[2]
-        # rate = (u - theta) / tau with u known: cov(rate) = P / tau^2, cov(theta, rate) = -P / tau
         cov = np.zeros((STATE_DIM, STATE_DIM))
         cov[0:4, 0:4] = P_ball[0:4, 0:4]
-        tau = self.tilt_model.tau_s
-        cov[4:6, 4:6] = P_tilt
-        cov[4:6, 6:8] = cov[6:8, 4:6] = -P_tilt / tau
-        cov[6:8, 6:8] = P_tilt / tau**2
+        tilt_covariance_blocks(cov, P_tilt, self.tilt_model.tau_s)
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
 
 
-def _finite_or_none(value: np.ndarray | None) -> np.ndarray | None:
-    """``value`` as a float array if all of it is finite, else None (no detection)."""
-    if value is None:
-        return None
-    value = np.asarray(value, dtype=float)
-    return value if bool(np.all(np.isfinite(value))) else None
+def tilt_covariance_blocks(cov: np.ndarray, P_tilt: np.ndarray, tau_s: float) -> None:
+    """Write the tilt and tilt-rate blocks of the state covariance ``cov`` from the tilt's
+    covariance: rate = (u - theta) / tau with u known gives cov(rate) = P / tau^2 and
+    cov(theta, rate) = -P / tau."""
+    cov[4:6, 4:6] = P_tilt
+    cov[4:6, 6:8] = cov[6:8, 4:6] = -P_tilt / tau_s
+    cov[6:8, 6:8] = P_tilt / tau_s**2
+
+
+class BallTableObserver(FusedObserver):
+    """``kf`` (and, with ``latency_aware=True``, ``kf-latency``) for BallTable-v0: see the
+    module docstring.
+
+    Args:
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` or ``"measurements"``.
+        params: the filters' parameters.
+        detector: the geometry stage (default :class:`BallTableDetector`).
+        latency_aware: fuse each frame at its capture time (``kf-latency``).
+    """
+
+    def __init__(
+        self,
+        env: BallTableEnv,
+        params: BallTableObserverParams | None = None,
+        detector: BallTableDetector | None = None,
+        latency_aware: bool = False,
+    ) -> None:
+        self.params = params or BallTableObserverParams()
+        cfg = env.config
+        self.ball_model = RollingBallModel(self.params.ball)
+        self.tilt_model = TiltLagModel.from_arm(
+            cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
+        )
+        reader = FrameReader(env, detector, type(self).__name__)
+        super().__init__(env, reader, latency_aware)
+
+    @property
+    def detector(self) -> BallTableDetector:
+        return self.reader.detector
+
+    @property
+    def reacquisitions(self) -> int:
+        return 0 if self.core is None else self.core.reacquisitions
+
+    def detect(self, obs: Any, frame: dict):
+        """The detection of one new frame."""
+        return self.reader.detect(obs, frame)
+
+    def _read(self, obs: Any, frame: dict):
+        detection = self.detect(obs, frame)
+        return detection, Fused(detected_parts(detection))
+
+    def _start(self, time_s: float, measurement: Fused | None) -> tuple[TiltBallFilters, bool]:
+        tilt, ball = (None, None) if measurement is None else measurement.value
+        core = TiltBallFilters(self.params, self.ball_model, self.tilt_model, time_s, tilt, ball)
+        return core, tilt is not None or ball is not None

@@ -111,7 +111,8 @@ CASES = {
     "run-stkf-on-balltable": (
         [*RUN, "--env", "BallTable-v0", "--observer", "stkf", "--controller", "lqr"],
         "unknown observer 'stkf' for observer_gym/BallTable-v0; allowed: oracle, kf, "
-        "kf-measurements, pixels",
+        "kf-measurements, kf-latency, kf-latency-measurements, ekf, ekf-measurements, raw, "
+        "raw-measurements, oracle-visible, oracle-visible-measurements, pixels",
     ),
     "compare-stkf-on-balltable": (
         [*COMPARE, "--observers", "oracle,stkf", "--controllers", "lqr"],
@@ -375,7 +376,7 @@ def test_the_checks_say_what_the_library_says(tmp_path):
     }
     names = {*checks.controller_choices(), "lqg", *runs}
     for system in SYSTEMS:
-        for observer in [*checks.observer_choices(), "ekf"]:
+        for observer in [*checks.observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
                     checks.check_controller, controller, system.env_id, observer

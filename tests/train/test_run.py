@@ -195,7 +195,7 @@ def test_bad_arguments_raise(tmp_path):
     with pytest.raises(ValueError, match="BallTable-v0"):
         run_experiment("CartPole-v1", "oracle", "lqr", 1, 0, tmp_path)
     with pytest.raises(ValueError, match="observer"):
-        run_experiment(ENV_ID, "ekf", "lqr", 1, 0, tmp_path)
+        run_experiment(ENV_ID, "no-such-observer", "lqr", 1, 0, tmp_path)
     with pytest.raises(ValueError, match="controller"):
         run_experiment(ENV_ID, "oracle", "rl", 1, 0, tmp_path)
     with pytest.raises(ValueError, match="episodes"):
@@ -238,7 +238,7 @@ def test_a_controller_made_for_another_env_raises(tmp_path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--observer", "ukf", "--controller", "lqr"], "invalid choice"),
+        (["--observer", "no-such-observer", "--controller", "lqr"], "invalid choice"),
         (["--observer", "oracle", "--controller", "rl"], "neither a controller"),
         (["--observer", "oracle", "--controller", "a2c:runs/x"], "neither a controller"),
         (["--observer", "oracle", "--controller", "lqr", "--episodes", "0"], "must be an"),

@@ -10,10 +10,18 @@ from observer_gym.envs.ball_table.layout import BALL_POS
 from observer_gym.train import metrics
 from observer_gym.train.plots import plot_distances, plot_estimate, plot_paths
 
+# observer_gym.estimation.ball_table's observers other than the default (kf), each from
+# the camera's frames and from the measurements
+_FAMILY = ("kf-latency", "ekf", "raw", "oracle-visible")
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
     "kf": ("rgb", {}),
     "kf-measurements": ("measurements", {}),
+    **{
+        f"{name}{suffix}": (obs_mode, {"observer": name})
+        for name in _FAMILY
+        for suffix, obs_mode in (("", "rgb"), ("-measurements", "measurements"))
+    },
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
 # what an agent trained with --obs estimate reads, by --estimate-from

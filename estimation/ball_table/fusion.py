@@ -1,0 +1,98 @@
+"""How a BallTable observer drives its filter: :class:`FusedObserver` reads each step's new
+frame (estimation/ball_table/frames.py) and fuses it into a
+:class:`~observer_gym.estimation.latency.FilterCore` (``kf``'s two filters, ``ekf``'s one),
+at its delivery or at its capture time; :class:`Fused` is a measurement on its way in,
+which records the NIS its updates gave for the step's :class:`~observer_gym.estimation.
+observer.Estimate`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.ball_table import BallTableEnv
+from observer_gym.estimation.ball_table.frames import FrameReader
+from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
+from observer_gym.estimation.observer import Estimate
+
+__all__ = ["Fused", "FusedObserver", "history_s"]
+
+
+@dataclass
+class Fused:
+    """A measurement as a filter core takes it, and what its last fusion gave: the sum of
+    the NIS of its accepted updates and their dimensions (None, 0 when none was accepted)."""
+
+    value: Any
+    nis: float | None = None
+    nis_dof: int = 0
+
+    def clear_nis(self) -> None:
+        """Before a fusion (a late measurement is fused again when a later one rewinds)."""
+        self.nis, self.nis_dof = None, 0
+
+    def add_nis(self, nis: float, dof: int) -> None:
+        self.nis = nis if self.nis is None else self.nis + nis
+        self.nis_dof += dof
+
+
+def history_s(env: BallTableEnv) -> float:
+    """How far back capture-time fusion keeps the filter's past: the env's latency with
+    five standard deviations of its jitters, and two frame periods."""
+    cfg = env.config
+    return cfg.latency_s + 5.0 * (cfg.latency_jitter_s + cfg.jitter_s) + 2.0 * cfg.dt_s
+
+
+class FusedObserver:
+    """An observer whose filter is a :class:`~observer_gym.estimation.latency.FilterCore`:
+    the first call (after a reset) starts the core from its measurement; each later one
+    fuses the step's new frame, at its delivery (predict to the step's time, update: the
+    plain drive) or, ``latency_aware``, at its capture time through
+    :class:`~observer_gym.estimation.latency.CaptureTimeFusion`, which keeps
+    :func:`history_s` of the filter's past to rewind to.
+
+    A subclass gives :meth:`_read` (the frame's raw detection and the core's measurement)
+    and :meth:`_start` (the core)."""
+
+    def __init__(self, env: BallTableEnv, reader: FrameReader, latency_aware: bool) -> None:
+        self.reader = reader
+        self.latency_aware = latency_aware
+        self.history_s = history_s(env)
+        self.reset()
+
+    def reset(self) -> None:
+        self.reader.reset()
+        self.core: Any = None
+        self.fusion: CaptureTimeFusion | None = None
+
+    def _read(self, obs: Any, frame: dict) -> tuple[Any, Fused]:
+        """(the frame's raw detection, the core's measurement of it)."""
+        raise NotImplementedError
+
+    def _start(self, time_s: float, measurement: Fused | None) -> tuple[Any, bool]:
+        """The core at ``time_s`` started from the first measurement (None: no frame), and
+        whether the measurement was used."""
+        raise NotImplementedError
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
+        frame, obs = self.reader.new_frame(obs, info)
+        raw, measurement = self._read(obs, frame) if frame is not None else (None, None)
+        time_s = float(info["time_s"])
+        if self.core is None:
+            self.core, used = self._start(time_s, measurement)
+            if self.latency_aware:
+                self.fusion = CaptureTimeFusion(self.core, True, self.history_s)
+        elif self.fusion is not None:
+            timed = []
+            if frame is not None:
+                timed.append(TimedMeasurement(frame["capture_time_s"], measurement))
+            used = self.fusion.step(time_s, action, timed)
+        else:
+            self.core.predict_to(time_s, action)
+            used = measurement is not None and self.core.update(measurement)
+        nis = measurement.nis if measurement is not None else None
+        dof = measurement.nis_dof if measurement is not None else 0
+        return Estimate(self.core.mean(), self.core.covariance(), used, raw, time_s, nis, dof)

@@ -1,0 +1,448 @@
+"""The BallTable observer ``ekf``: one extended Kalman filter straight from the pixels, with
+no PnP in between.
+
+State (8): the ball's position, velocity and Gauss-Markov disturbance per table axis
+(RollingBallModel's six) and the table's two tilt angles (TiltLagModel's). Process: the
+tilt follows the commanded tilt through the arm's first-order lag; the ball rolls with the
+gravity input of the tilt at the middle of the interval (the trapezoid of its two ends, as
+``kf`` has it), so the ball's prediction depends on the tilt and F couples them:
+
+    theta' = Phi_t theta + Gamma_t u,   b' = Phi_b b + Gamma_b a((theta + theta') / 2)
+    F = [[Phi_b, Gamma_b A (I + Phi_t) / 2], [0, Phi_t]],   A = da/dtheta
+
+and the tilt's process noise reaches the ball the same way (Q). The border constraint is
+applied to the predicted mean, as in ``kf``.
+
+Measurement: the pixels of the table's corners and of the ball's centre, predicted
+through the frame's nominal camera (``K``, ``T_world_cam`` in ``info["frames"]``) from the
+table's pose, which the tilt angles and the arm's fixed table centre give
+(``T_world_table`` = [R_x(tilt_x) R_y(tilt_y), TABLE_CENTRE_HOME_WORLD]: the arm tilts the
+table about its centre, envs/ball_table/scene.py), and the ball's centre on the table at
+its radius, (x, y, r) in the table frame. The ball's pixel is the centre of the sphere's
+exact image ellipse (what the env's measurement and the image stage's blob centroid
+report), which for a sphere of centre S (camera frame) and radius r is the pinhole
+projection of S scaled by S_z^2 / (S_z^2 - r^2): see :func:`project`. Measured corners are
+those of the red top (measurements mode; from rgb, the image stage's corners of the model
+it found) and, from rgb, the borders' outer outline beside them. A corner with a
+non-finite pixel is dropped from that step's measurement vector; a table not found gives
+no corner rows, a ball not found no ball rows.
+
+The corners update the filter first, without a gate (as ``kf``'s tilt filter); the ball's
+pixel then updates it behind a chi-square gate, linearised again after the corners'
+update (for a linear model the same as one joint update: the two noises are
+independent). After ``reacquire_after`` consecutive rejections, and when the ball is seen
+for the first time, its position is set from its pixel (the geometry stage's ray to the
+ball's centre, met with the plane z = r of the estimated table) and its velocity and
+disturbance restarted, their correlations with the tilt dropped.
+
+Each frame is fused at its capture time (as ``kf-latency``, through
+:class:`~observer_gym.estimation.latency.CaptureTimeFusion`) and the estimate predicted to
+the step's time.
+
+Pixel noise: from rgb, the image stage's measured errors (corners of the red top 0.18-0.31
+px RMS, outline 0.15 px, ball centre 0.06 px on 400 rendered frames, fixed camera and head
+motion), rounded up because they are correlated from frame to frame; in measurements
+mode the env's ``measurement_noise_px`` with a floor of MEASUREMENT_FLOOR_PX for what the
+model leaves out: the arm holds the table's centre to 0.02 mm once settled, but
+its joints lag in fast tilt moves (0.3 mm, 0.1 px, under the tests' circle-tracking law;
+up to 2.3 mm under 0.1 rad steps every frame).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
+from observer_gym.envs.ball_table import geometry as geo
+from observer_gym.envs.sim import GRAVITY_MPS2
+from observer_gym.estimation.ball_table.features import (
+    BORDER_OUTLINE,
+    RED_TOP,
+    BallTableFeatures,
+)
+from observer_gym.estimation.ball_table.frames import FrameReader
+from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
+from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector, model_corners_table
+from observer_gym.estimation.ball_table.models import (
+    ROLLING_ACCEL_FACTOR,
+    RollingBallModel,
+    TiltLagModel,
+)
+from observer_gym.estimation.ball_table.observer import (
+    BallTableObserverParams,
+    tilt_covariance_blocks,
+)
+from observer_gym.estimation.ekf import ExtendedKalmanFilter
+from observer_gym.estimation.filter_copy import copy_filter
+from observer_gym.estimation.gating import ChiSquareGate
+
+__all__ = ["BallTablePixelEKF", "PixelEKFParams", "PixelMeasurement", "project"]
+
+BALL = slice(0, 6)  # the ball's states in the EKF's state
+POS = slice(0, 2)
+TILT = slice(6, 8)
+N_STATES = 8
+MEASUREMENT_FLOOR_PX = 0.05
+# From rgb: the image stage's pixel errors (see the module docstring).
+RGB_STD_PX = {RED_TOP: 0.3, BORDER_OUTLINE: 0.2, "ball": 0.1}
+
+
+@dataclass(frozen=True)
+class PixelEKFParams:
+    """``ekf``'s parameters: the process noise, priors, gate and re-acquisition of ``kf``'s
+    (``filters``; its ``tilt_meas_std_rad`` and ``converged_rtol`` are not used here) and
+    the pixel noise std of each kind of feature (None: the default of the module
+    docstring)."""
+
+    filters: BallTableObserverParams = field(default_factory=BallTableObserverParams)
+    corner_std_px: float | None = None
+    outline_std_px: float | None = None
+    ball_std_px: float | None = None
+
+
+@dataclass(frozen=True)
+class PixelMeasurement:
+    """One frame's pixels for the EKF: the seen corners (table frame (n, 3), pixels (n, 2),
+    noise std (n,)), the ball's image (u, v, semi-major radius) or None and its centre's
+    noise std, and the frame's nominal calibration."""
+
+    K: np.ndarray
+    T_world_cam: np.ndarray
+    corners_table: np.ndarray
+    corners_px: np.ndarray
+    corner_std_px: np.ndarray
+    ball_px: np.ndarray | None
+    ball_std_px: float
+
+
+def project(
+    K: np.ndarray, T_world_cam: np.ndarray, points_world: np.ndarray, radius_m: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (n, 2) of world points (n, 3) and their Jacobians d(u, v)/d(point) (n, 2, 3).
+
+    With ``radius_m`` r > 0 the points are sphere centres and the pixel is the centre of
+    the sphere's exact image ellipse: for the centre S in the camera frame, the normalised
+    image conic's centre (envs.camera.sphere_image) works out to (S_x, S_y) S_z / (S_z^2 -
+    r^2), i.e. the pinhole projection scaled by S_z^2 / (S_z^2 - r^2); r = 0 is the pinhole
+    projection itself.
+    """
+    R_world_cam, t_world_cam = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    # S = R_world_cam^T (p - t_world_cam): the points in the camera frame
+    S = (np.asarray(points_world, dtype=float) - t_world_cam) @ R_world_cam
+    sx, sy, sz = S[:, 0], S[:, 1], S[:, 2]
+    r2 = radius_m * radius_m
+    # g = S_z / (S_z^2 - r^2),  dg/dS_z = -(S_z^2 + r^2) / (S_z^2 - r^2)^2
+    denominator = sz * sz - r2
+    g = sz / denominator
+    dg = -(sz * sz + r2) / (denominator * denominator)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    # u = fx S_x g + cx,  v = fy S_y g + cy
+    uv = np.column_stack([fx * sx * g + cx, fy * sy * g + cy])
+    d_uv_d_S = np.zeros((S.shape[0], 2, 3))
+    d_uv_d_S[:, 0, 0] = fx * g
+    d_uv_d_S[:, 0, 2] = fx * sx * dg
+    d_uv_d_S[:, 1, 1] = fy * g
+    d_uv_d_S[:, 1, 2] = fy * sy * dg
+    return uv, d_uv_d_S @ R_world_cam.T  # dS/dp = R_world_cam^T
+
+
+def _tilt_rotation_and_derivatives(tilt_x: float, tilt_y: float):
+    """R = R_x(tilt_x) R_y(tilt_y) and dR/dtilt_x, dR/dtilt_y."""
+    cx, sx, cy, sy = math.cos(tilt_x), math.sin(tilt_x), math.cos(tilt_y), math.sin(tilt_y)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    dRx = np.array([[0.0, 0.0, 0.0], [0.0, -sx, -cx], [0.0, cx, -sx]])
+    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    dRy = np.array([[-sy, 0.0, cy], [0.0, 0.0, 0.0], [-cy, 0.0, -sy]])
+    return Rx @ Ry, dRx @ Ry, Rx @ dRy
+
+
+def gravity_jacobian(tilt_x: float, tilt_y: float) -> np.ndarray:
+    """da/d(tilt_x, tilt_y) (2, 2) of RollingBallModel.gravity_acceleration(up_in_table):
+    a = (5/7) g (sin(tilt_y) cos(tilt_x), -sin(tilt_x))."""
+    k = ROLLING_ACCEL_FACTOR * GRAVITY_MPS2
+    cx, sx, cy, sy = math.cos(tilt_x), math.sin(tilt_x), math.cos(tilt_y), math.sin(tilt_y)
+    return k * np.array([[-sy * sx, cy * cx], [-cx, 0.0]])
+
+
+def corner_pixels(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
+    """h and H of the corners' pixels (2n,), (2n, 8) at the state ``x``."""
+    R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
+    q = m.corners_table
+    # p_i = c + R(tilt) q_i,  dp_i/dtilt = dR/dtilt q_i
+    uv, J = project(m.K, m.T_world_cam, q @ R.T + geo.TABLE_CENTRE_HOME_WORLD)
+    n = q.shape[0]
+    H = np.zeros((2 * n, N_STATES))
+    H[:, 6] = np.einsum("kij,kj->ki", J, q @ dR_dx.T).reshape(-1)
+    H[:, 7] = np.einsum("kij,kj->ki", J, q @ dR_dy.T).reshape(-1)
+    return uv.reshape(-1), H
+
+
+def ball_pixel(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
+    """h and H of the ball's centre pixel (2,), (2, 8) at the state ``x``."""
+    R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
+    # the ball's centre p = c + R(tilt) (x, y, r): dp/d(x, y) = R[:, :2], dp/dtilt = dR/dtilt q
+    q = np.array([x[0], x[1], geo.BALL_RADIUS_M])
+    centre = R @ q + geo.TABLE_CENTRE_HOME_WORLD
+    uv, J = project(m.K, m.T_world_cam, centre[None], geo.BALL_RADIUS_M)
+    J = J[0]
+    H = np.zeros((2, N_STATES))
+    H[:, POS] = J @ R[:, :2]
+    H[:, 6] = J @ (dR_dx @ q)
+    H[:, 7] = J @ (dR_dy @ q)
+    return uv[0], H
+
+
+def T_world_table(tilt: np.ndarray) -> np.ndarray:
+    """The table's pose for the tilt angles: the arm holds its centre fixed."""
+    T = np.eye(4)
+    T[:3, :3] = geo.tilt_rotation(float(tilt[0]), float(tilt[1]))
+    T[:3, 3] = geo.TABLE_CENTRE_HOME_WORLD
+    return T
+
+
+class PixelEKF:
+    """The EKF as a :class:`~observer_gym.estimation.latency.FilterCore` (see the module
+    docstring); a measurement is a :class:`~observer_gym.estimation.ball_table.observer.
+    Fused` of a :class:`PixelMeasurement`."""
+
+    def __init__(
+        self,
+        params: BallTableObserverParams,
+        ball_model: RollingBallModel,
+        tilt_model: TiltLagModel,
+        detector: BallTableDetector,
+        time_s: float,
+    ) -> None:
+        self.params = params
+        self.ball_model = ball_model
+        self.tilt_model = tilt_model
+        self.detector = detector
+        self.time_s = time_s
+        self.tilt_cmd = np.zeros(2)  # the arm is commanded level at reset
+        self.ball_seen = False
+        self.rejections_in_a_row = 0
+        self.reacquisitions = 0
+        self._gate = ChiSquareGate(probability=params.gate_probability)
+        p = params
+        P0 = np.diag(
+            [p.start_pos_std_m**2] * 2
+            + [p.start_speed_std_mps**2] * 2
+            + [p.ball.sigma_w**2] * 2
+            + [p.start_tilt_std_rad**2] * 2
+        )
+        self.ekf = ExtendedKalmanFilter(np.zeros(N_STATES), P0)
+
+    # --- FilterCore ---------------------------------------------------------------------
+    def predict_to(self, time_s: float, action: np.ndarray | None) -> None:
+        dt_s = round(time_s - self.time_s, 9)  # to the nanosecond, as kf's
+        if dt_s <= 0.0:
+            return
+        if action is not None:
+            self.tilt_cmd = np.asarray(action, dtype=float)
+        x = self.ekf.x
+        Phi_t, Gamma_t, Q_t = self.tilt_model.matrices(dt_s)
+        Phi_b, Gamma_b, Q_b = self.ball_model.matrices(dt_s)
+        # theta' = Phi_t theta + Gamma_t u
+        tilt_next = Phi_t @ x[TILT] + Gamma_t @ self.tilt_cmd
+        # b' = Phi_b b + Gamma_b a((theta + theta') / 2), clamped at the border
+        mid = 0.5 * (x[TILT] + tilt_next)
+        accel = self.ball_model.gravity_acceleration(geo.up_in_table(mid[0], mid[1]))
+        ball_next, _ = self.ball_model.clamp_to_border(Phi_b @ x[BALL] + Gamma_b @ accel)
+        # d(ball')/d(mid tilt); d(mid)/d(theta) = (I + Phi_t) / 2; the tilt's noise w
+        # enters mid as w / 2 (first order), hence Q's coupled part.
+        ball_per_mid = Gamma_b @ gravity_jacobian(mid[0], mid[1])
+        F = np.zeros((N_STATES, N_STATES))
+        F[BALL, BALL] = Phi_b
+        F[TILT, TILT] = Phi_t
+        F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t))
+        G = np.vstack([0.5 * ball_per_mid, np.eye(2)])
+        Q = G @ Q_t @ G.T
+        Q[BALL, BALL] += Q_b
+        self.ekf.predict_nonlinear(np.concatenate([ball_next, tilt_next]), F, Q)
+        self.time_s = time_s
+
+    def update(self, measurement: Fused) -> bool:
+        m: PixelMeasurement = measurement.value
+        measurement.clear_nis()
+        used = False
+        if m.corners_px.shape[0]:
+            h, H = corner_pixels(self.ekf.x, m)
+            R = np.diag(np.repeat(np.square(m.corner_std_px), 2))
+            self.ekf.gate = None  # the corners are not gated (kf's tilt filter is not)
+            result = self.ekf.update_nonlinear(m.corners_px.reshape(-1), h, H, R)
+            if result.accepted:
+                measurement.add_nis(result.nis, h.shape[0])
+            used = result.accepted
+        if m.ball_px is not None:
+            used |= self._update_ball(m, measurement)
+        return used
+
+    def snapshot(self) -> tuple:
+        return (
+            self.time_s,
+            self.tilt_cmd,
+            copy_filter(self.ekf),
+            self.ball_seen,
+            self.rejections_in_a_row,
+            self.reacquisitions,
+        )
+
+    def restore(self, snapshot: tuple) -> None:
+        time_s, tilt_cmd, ekf, seen, rejections, reacquisitions = snapshot
+        self.time_s, self.tilt_cmd, self.ekf = time_s, tilt_cmd, copy_filter(ekf)
+        self.ball_seen, self.rejections_in_a_row = seen, rejections
+        self.reacquisitions = reacquisitions
+
+    # --- the ball -----------------------------------------------------------------------
+    def _update_ball(self, m: PixelMeasurement, measurement: Fused) -> bool:
+        if not self.ball_seen:
+            self.ball_seen = self._restart_ball(m)
+            return self.ball_seen
+        h, H = ball_pixel(self.ekf.x, m)
+        R = np.eye(2) * m.ball_std_px**2
+        self.ekf.gate = self._gate
+        result = self.ekf.update_nonlinear(m.ball_px[:2], h, H, R)
+        if result.accepted:
+            measurement.add_nis(result.nis, 2)
+        self.rejections_in_a_row = 0 if result.accepted else self.rejections_in_a_row + 1
+        if self.rejections_in_a_row >= self.params.reacquire_after:
+            self.rejections_in_a_row = 0
+            if self._restart_ball(m):
+                self.reacquisitions += 1
+                return True
+        return result.accepted
+
+    def _restart_ball(self, m: PixelMeasurement) -> bool:
+        """Set the ball's position from its pixel on the estimated table (velocity and
+        disturbance from their priors, uncorrelated with the tilt); False when its ray
+        misses the table."""
+        T_cam_table = np.linalg.solve(m.T_world_cam, T_world_table(self.ekf.x[TILT]))
+        found = self.detector.ball_position(m.ball_px, m.K, T_cam_table[:3, :3], T_cam_table[:3, 3])
+        if isinstance(found, str):
+            return False
+        p = self.params
+        x = self.ekf.x.copy()
+        x[BALL] = np.concatenate([found[0], np.zeros(4)])
+        P = self.ekf.P.copy()
+        P[BALL, :] = 0.0
+        P[:, BALL] = 0.0
+        P[BALL, BALL] = np.diag(
+            [p.ball.sigma_v_m**2] * 2 + [p.start_speed_std_mps**2] * 2 + [p.ball.sigma_w**2] * 2
+        )
+        self.ekf.x, self.ekf.P = x, P
+        return True
+
+    # --- output in the env's state layout ---------------------------------------------
+    def mean(self) -> np.ndarray:
+        x = self.ekf.x
+        mean = np.empty(STATE_DIM)
+        mean[0:4] = x[0:4]
+        mean[4:6] = x[TILT]
+        mean[6:8] = self.tilt_model.rate(x[TILT], self.tilt_cmd)
+        return mean
+
+    def covariance(self) -> np.ndarray:
+        P, tau = self.ekf.P, self.tilt_model.tau_s
+        cov = np.zeros((STATE_DIM, STATE_DIM))
+        cov[0:4, 0:4] = P[0:4, 0:4]
+        tilt_covariance_blocks(cov, P[TILT, TILT], tau)
+        # cov(ball, rate) = -cov(ball, theta) / tau: rate = (u - theta) / tau, u known
+        cov[0:4, 4:6] = P[0:4, TILT]
+        cov[0:4, 6:8] = -P[0:4, TILT] / tau
+        cov[4:8, 0:4] = cov[0:4, 4:8].T
+        return cov
+
+
+class BallTablePixelEKF(FusedObserver):
+    """``ekf`` for BallTable-v0: see the module docstring. Fuses each frame at its capture
+    time, as ``kf-latency`` does (``latency_aware=False``: when it is delivered, as
+    ``kf``).
+
+    Args:
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` or ``"measurements"``.
+        params: the filter's parameters.
+        detector: the geometry stage, whose ray to the ball's centre places the ball when
+            it is first seen or re-acquired (default :class:`BallTableDetector`).
+        latency_aware: fuse each frame at its capture time (else at its delivery).
+    """
+
+    def __init__(
+        self,
+        env: BallTableEnv,
+        params: PixelEKFParams | None = None,
+        detector: BallTableDetector | None = None,
+        latency_aware: bool = True,
+    ) -> None:
+        self.params = params or PixelEKFParams()
+        cfg = env.config
+        filters = self.params.filters
+        self.ball_model = RollingBallModel(filters.ball)
+        self.tilt_model = TiltLagModel.from_arm(
+            cfg.arm_position_gain, cfg.physics_dt_s, filters.tilt_rate_noise_std_radps
+        )
+        if cfg.obs_mode == "rgb":
+            std = dict(RGB_STD_PX)
+        else:
+            noise = math.hypot(MEASUREMENT_FLOOR_PX, cfg.measurement_noise_px)
+            std = {RED_TOP: noise, BORDER_OUTLINE: noise, "ball": noise}
+        given = {
+            RED_TOP: self.params.corner_std_px,
+            BORDER_OUTLINE: self.params.outline_std_px,
+            "ball": self.params.ball_std_px,
+        }
+        self.pixel_std_px = {k: std[k] if v is None else float(v) for k, v in given.items()}
+        self._model_corners = {
+            model: model_corners_table(model) for model in (RED_TOP, BORDER_OUTLINE)
+        }
+        reader = FrameReader(env, detector, type(self).__name__)
+        super().__init__(env, reader, latency_aware)
+
+    @property
+    def reacquisitions(self) -> int:
+        return 0 if self.core is None else self.core.reacquisitions
+
+    def pixel_measurement(
+        self, features: BallTableFeatures, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> PixelMeasurement:
+        """The EKF's measurement from the image stage's features: every corner with a
+        finite pixel, and the ball's image when all of it is finite."""
+        models = []
+        if features.corners_px is not None:
+            models.append((features.corner_model, features.corners_px))
+            if features.corner_model == RED_TOP and features.outline_corners_px is not None:
+                models.append((BORDER_OUTLINE, features.outline_corners_px))
+        points, pixels, std = [np.zeros((0, 3))], [np.zeros((0, 2))], [np.zeros(0)]
+        for model, corners_px in models:
+            corners_px = np.asarray(corners_px, dtype=float)
+            seen = np.all(np.isfinite(corners_px), axis=1)
+            points.append(self._model_corners[model][seen])
+            pixels.append(corners_px[seen])
+            std.append(np.full(int(seen.sum()), self.pixel_std_px[model]))
+        ball = features.ball_px
+        if ball is not None:
+            ball = np.asarray(ball, dtype=float)
+            ball = ball if bool(np.all(np.isfinite(ball))) else None
+        return PixelMeasurement(
+            K,
+            T_world_cam,
+            np.concatenate(points),
+            np.concatenate(pixels),
+            np.concatenate(std),
+            ball,
+            self.pixel_std_px["ball"],
+        )
+
+    def _read(self, obs: Any, frame: dict) -> tuple[BallTableFeatures, Fused]:
+        features = self.reader.features(obs, frame)
+        K, T_world_cam = (np.asarray(frame[k], dtype=float) for k in ("K", "T_world_cam"))
+        return features, Fused(self.pixel_measurement(features, K, T_world_cam))
+
+    def _start(self, time_s: float, measurement: Fused | None) -> tuple[PixelEKF, bool]:
+        core = PixelEKF(
+            self.params.filters, self.ball_model, self.tilt_model, self.reader.detector, time_s
+        )
+        return core, measurement is not None and core.update(measurement)
