@@ -419,7 +419,8 @@ def _train_run(args: argparse.Namespace) -> int:
     if seeds_options:
         return _error("train", f"{', '.join(seeds_options)} apply to --seeds (several seeds) only")
     run_dir = args.out if args.out is not None else default_out_dir("train")
-    options = _train_options(args, run_dir, 0 if args.seed is None else args.seed)
+    args.seed = 0 if args.seed is None else args.seed  # recorded in config.json as before
+    options = _train_options(args, run_dir, args.seed)
     try:
         _check_train_options(args, options)
     except ValueError as exc:
