@@ -145,6 +145,13 @@ def make_agent_env(
     function of plain arguments, so ``functools.partial`` of it pickles into spawned
     SubprocVecEnv workers."""
     env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
+    return finish_agent_env(env, obs, image)
+
+
+def finish_agent_env(env: gym.Env, obs: str, image: Mapping[str, Any] | None = None) -> gym.Env:
+    """The observer's ``env`` as an agent reading ``obs`` sees it: for ``rgb`` with
+    :func:`wrap_images` (``image``: :class:`ImageOptions` fields), and the action space
+    rescaled to [-1, 1]; ``env`` is closed if this fails."""
     try:
         if obs == "rgb":
             env = wrap_images(env, ImageOptions(**dict(image or {})))

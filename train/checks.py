@@ -20,14 +20,23 @@ world.
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
+
+import numpy as np
 
 from observer_gym.envs import SYSTEMS, system_for_id
 from observer_gym.envs.config import check_render_mode
 from observer_gym.train.hyperparams import ALGOS, resolve_hyperparams
-from observer_gym.train.run_dir import CONFIG_FILE, model_files, parse_agent_spec, read_config
+from observer_gym.train.run_dir import (
+    CONFIG_FILE,
+    SEEDS_FILE,
+    model_files,
+    parse_agent_spec,
+    read_config,
+    seed_run_dirs,
+)
 
 
 class SystemNames(NamedTuple):
@@ -102,6 +111,9 @@ SYSTEM_NAMES: dict[str, SystemNames] = {
 }
 # a trained agent, wherever a controller is taken: "ppo:DIR, sac:DIR, td3:DIR"
 AGENT_FORMS = ", ".join(f"{algo}:DIR" for algo in ALGOS)
+# the backends of train --seeds (as of compare)
+BACKENDS = ("local", "ray")
+RAY_INSTALL_HINT = "pip install 'observer-gym[distributed]'"
 # gym.make's own keywords, which it does not pass to the env
 GYM_MAKE_OPTIONS = ("max_episode_steps", "disable_env_checker")
 
@@ -288,3 +300,51 @@ def check_training_request(
             "--tensorboard needs the tensorboard package: pip install 'observer-gym[tensorboard]'"
         )
     return params
+
+
+# --- train --seeds ----------------------------------------------------------------------
+def check_seeds(seeds: Sequence[int]) -> tuple[int, ...]:
+    """``seeds`` as a tuple of ints; ValueError unless they are at least one distinct
+    integer >= 0."""
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError("seeds must hold at least one seed")
+    for seed in seeds:
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ValueError(f"seeds must be integers >= 0, got {seed!r}")
+    duplicates = sorted({int(s) for s in seeds if seeds.count(s) > 1})
+    if duplicates:
+        raise ValueError(f"seeds must be distinct; {duplicates} appear more than once")
+    return tuple(int(s) for s in seeds)
+
+
+def check_backend(backend: str, workers: int | None, address: str | None) -> None:
+    """ValueError for a bad ``backend`` ("local" or "ray"), ``workers`` (>= 1, local only)
+    or ``address`` (ray only), or the ray backend without Ray installed."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, int) or workers < 1
+    ):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if address is not None and backend != "ray":
+        raise ValueError(f"address {address!r} is a Ray cluster's address: it needs backend 'ray'")
+    if backend == "ray":
+        if workers is not None:
+            raise ValueError(
+                "workers applies to the local backend only; with backend 'ray' the cluster's "
+                "CPUs decide how many seeds train at once"
+            )
+        if importlib.util.find_spec("ray") is None:
+            raise ValueError(f"backend 'ray' needs Ray, which is not installed: {RAY_INSTALL_HINT}")
+
+
+def check_seeds_folder(out_dir: str | Path) -> None:
+    """ValueError if ``out_dir`` already holds a run, single or multi-seed."""
+    out_dir = Path(out_dir)
+    if (out_dir / CONFIG_FILE).exists():
+        raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")
+    if (out_dir / SEEDS_FILE).exists() or seed_run_dirs(out_dir):
+        raise ValueError(
+            f"{out_dir} already holds a multi-seed training run; continue it with --resume"
+        )

@@ -28,6 +28,7 @@ from observer_gym.train.cli_args import (
     UsageError,
     add_output_arguments,
     controller_name,
+    distinct_seeds,
     env_name,
     env_option,
     error_line,
@@ -123,7 +124,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "the env's controller, per env: "
             + per_env("controllers")
-            + "; any env: a trained agent as ALGO:DIR (ppo:runs/x)"
+            + "; any env: a trained agent as ALGO:DIR (ppo:runs/x) or a shipped one as "
+            "ALGO:NAME (ppo:ball_table-estimate)"
         ),
     )
     parser.add_argument(
@@ -269,7 +271,47 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         help="env steps to train for in total (default: the YAML's n_timesteps)",
     )
     parser.add_argument(
-        "--seed", type=nonnegative_int, default=0, help="the run's seed (default: %(default)s)"
+        "--seed",
+        type=nonnegative_int,
+        default=None,
+        metavar="S",
+        help="the run's seed (default: 0)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=distinct_seeds,
+        default=None,
+        metavar="LIST",
+        help=(
+            "train one agent per seed (0,1,2 or 0-4) into OUT/seed_<s>/, in parallel, and "
+            "write their aggregate into OUT: learning_curves.png, aggregate.json and "
+            "aggregate.md (IQM with a bootstrap interval; pip install 'observer-gym[rl]')"
+        ),
+    )
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        metavar="W",
+        help="with --seeds: train W seeds at once (default: one per seed, at most the CPUs)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default=None,
+        help=(
+            "with --seeds: local processes, or one Ray task per seed (pip install "
+            "'observer-gym[distributed]') (default: local)"
+        ),
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help=(
+            "with --backend ray: the Ray cluster ('auto' or HOST:PORT; OUT must be on a file "
+            "system every node shares) (default: start a local Ray instance)"
+        ),
     )
     parser.add_argument(
         "--n-envs", type=positive_int, default=None, metavar="N", help="parallel training envs"
@@ -311,7 +353,9 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         relaxes=(algo, obs),
         help=(
             "continue the run in DIR from its last checkpoint, with its own settings "
-            "(takes only --timesteps; then --algo and --obs are not needed)"
+            "(takes only --timesteps; then --algo and --obs are not needed); for a "
+            "multi-seed run, every unfinished seed (also takes --workers, --backend, "
+            "--address)"
         ),
     )
     add_output_arguments(parser, "train")
@@ -321,6 +365,8 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
 _TRAIN_RUN_OPTIONS = (
     "algo",
     "obs",
+    "seed",
+    "seeds",
     "observer",
     "n_envs",
     "vec_env",
@@ -332,10 +378,15 @@ _TRAIN_RUN_OPTIONS = (
 
 def _train_run(args: argparse.Namespace) -> int:
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run_dir import check_resumable
+    from observer_gym.train.run_dir import check_resumable, is_multi_seed
 
+    seeds_options = [
+        f"--{k}" for k in ("workers", "backend", "address") if getattr(args, k) is not None
+    ]
     if args.resume is not None:
         given = [f"--{k.replace('_', '-')}" for k in _TRAIN_RUN_OPTIONS if getattr(args, k)]
+        if args.seed is not None and "--seed" not in given:
+            given.append("--seed")
         if given:
             line = error_line(
                 "observer-gym train",
@@ -343,6 +394,14 @@ def _train_run(args: argparse.Namespace) -> int:
             )
             print(line, file=sys.stderr)
             raise UsageError(line)
+        if is_multi_seed(args.resume):
+            return _train_seeds_run(args)
+        if seeds_options:
+            return _error(
+                "train",
+                f"{', '.join(seeds_options)} apply to --seeds (or --resume of a multi-seed "
+                f"run); {args.resume} holds a single run",
+            )
         run_dir = args.resume
         try:
             check_resumable(run_dir)  # a run there, a checkpoint, and no run writing it
@@ -351,52 +410,111 @@ def _train_run(args: argparse.Namespace) -> int:
         from observer_gym.train.training import resume_training, training_text  # deferred
 
         state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
-    else:
-        from observer_gym.train.checks import check_training_request, training_overrides
+        print(training_text(run_dir, state))
+        return 130 if state["status"] == "interrupted" else 0
+    if args.seeds is not None:
+        if args.seed is not None:
+            return _error("train", "--seed trains one agent, --seeds several: give one of them")
+        return _train_seeds_run(args)
+    if seeds_options:
+        return _error("train", f"{', '.join(seeds_options)} apply to --seeds (several seeds) only")
+    run_dir = args.out if args.out is not None else default_out_dir("train")
+    args.seed = 0 if args.seed is None else args.seed  # recorded in config.json as before
+    options = _train_options(args, run_dir, args.seed)
+    try:
+        _check_train_options(args, options)
+    except ValueError as exc:
+        return _error("train", exc)
+    from observer_gym.train.training import train_agent, training_text
 
-        run_dir = args.out if args.out is not None else default_out_dir("train")
-        options = {
-            "env_id": args.env,
-            "algo": args.algo,
-            "obs": args.obs,
-            "out_dir": run_dir,
-            "timesteps": args.timesteps,
-            "seed": args.seed,
-            "estimate_from": args.estimate_from,
-            "observer": args.observer,
-            "n_envs": args.n_envs,
-            "vec_env": args.vec_env,
-            "hyperparams": dict(args.hyperparam),
-            "env_kwargs": dict(args.env_option),
-            "tensorboard": args.tensorboard,
-        }
-        try:
-            overrides = training_overrides(
-                options["hyperparams"], args.timesteps, args.n_envs, args.vec_env
-            )
-            check_training_request(
-                args.env,
-                args.algo,
-                args.obs,
-                args.estimate_from,
-                run_dir,
-                overrides,
-                options["env_kwargs"],
-                args.tensorboard,
-                args.observer,
-            )
-            # deferred: PyTorch; the hyperparameters' names come from stable-baselines3
-            from observer_gym.train.training import check_training
-
-            check_training(**options)
-        except ValueError as exc:
-            return _error("train", exc)
-        from observer_gym.train.training import train_agent, training_text
-
-        cli_args = recorded_args(args)
-        state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
+    cli_args = recorded_args(args)
+    state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
     print(training_text(run_dir, state))
     return 130 if state["status"] == "interrupted" else 0
+
+
+def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict[str, object]:
+    """The keywords of ``train_agent`` that ``args`` give, for a run in ``run_dir``."""
+    return {
+        "env_id": args.env,
+        "algo": args.algo,
+        "obs": args.obs,
+        "out_dir": run_dir,
+        "timesteps": args.timesteps,
+        "seed": seed,
+        "estimate_from": args.estimate_from,
+        "observer": args.observer,
+        "n_envs": args.n_envs,
+        "vec_env": args.vec_env,
+        "hyperparams": dict(args.hyperparam),
+        "env_kwargs": dict(args.env_option),
+        "tensorboard": args.tensorboard,
+    }
+
+
+def _check_train_options(args: argparse.Namespace, options: dict[str, object]) -> None:
+    """The checks of a new run: the light ones first, then (importing PyTorch and
+    stable-baselines3, whose classes know their hyperparameters) ``check_training``."""
+    from observer_gym.train.checks import check_training_request, training_overrides
+
+    overrides = training_overrides(
+        options["hyperparams"], args.timesteps, args.n_envs, args.vec_env
+    )
+    check_training_request(
+        args.env,
+        args.algo,
+        args.obs,
+        args.estimate_from,
+        options["out_dir"],
+        overrides,
+        options["env_kwargs"],
+        args.tensorboard,
+        args.observer,
+    )
+    from observer_gym.train.training import check_training  # deferred: PyTorch
+
+    check_training(**options)
+
+
+def _train_seeds_run(args: argparse.Namespace) -> int:
+    """``train --seeds`` (a new multi-seed run) or ``--resume`` of one."""
+    from observer_gym.train.aggregate import check_rliable
+    from observer_gym.train.checks import check_backend, check_seeds_folder
+    from observer_gym.train.outputs import default_out_dir
+
+    backend = args.backend or "local"
+    try:
+        check_rliable()
+        check_backend(backend, args.workers, args.address)
+        if args.resume is None:
+            out_dir = args.out if args.out is not None else default_out_dir("train")
+            check_seeds_folder(out_dir)
+            for seed in args.seeds:
+                _check_train_options(args, _train_options(args, out_dir / f"seed_{seed}", seed))
+    except (ValueError, ImportError) as exc:
+        return _error("train", exc)
+
+    from observer_gym.train.seeds import resume_seeds, seeds_text, train_seeds  # deferred
+
+    progress = not args.no_progress
+    run = {"workers": args.workers, "backend": backend, "address": args.address}
+    try:
+        if args.resume is not None:
+            result = resume_seeds(args.resume, args.timesteps, progress=progress, **run)
+        else:
+            options = _train_options(args, out_dir, 0)
+            del options["seed"]
+            cli_args = recorded_args(args)
+            result = train_seeds(
+                **options, seeds=args.seeds, progress=progress, cli_args=cli_args, **run
+            )
+    except ValueError as exc:  # found by the checks, before any training
+        return _error("train", exc)
+    except RuntimeError as exc:  # a seed's training raised; the others ran to their end
+        print(error_line("observer-gym train", exc), file=sys.stderr)
+        return 1
+    print(seeds_text(result))
+    return 130 if result.status == "interrupted" else 0
 
 
 # --- evaluate --------------------------------------------------------------------------
@@ -408,7 +526,10 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         type=folder_path,
         required=True,
         metavar="DIR",
-        help="the folder of an 'observer-gym train' run",
+        help=(
+            "the folder of an 'observer-gym train' run; of a multi-seed run (--seeds), every "
+            "seed's agent on the same episodes, with the primary metric across seeds"
+        ),
     )
     parser.add_argument(
         "--episodes", type=positive_int, default=10, help="episodes to run (default: %(default)s)"
@@ -441,35 +562,44 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         check_observer,
         names_for,
     )
-    from observer_gym.train.run_dir import read_config
+    from observer_gym.train.run_dir import is_multi_seed, read_config, seed_run_dirs
 
+    multi_seed = is_multi_seed(args.model)
+    runs = list(seed_run_dirs(args.model).values()) if multi_seed else [args.model]
     try:
-        config = read_config(args.model)
-        observer = args.observer or config["observer"]
-        env_id = check_observer(config["env_id"], observer)
-        check_controller(f"{config['algo']}:{args.model}", env_id, observer)
-        obs_mode = names_for(env_id).observers[observer]
-        check_env_options(env_id, obs_mode, config["env_kwargs"])
-    except ValueError as exc:  # no trained agent there, or an observer it cannot read
+        if multi_seed:
+            from observer_gym.train.aggregate import check_rliable
+
+            check_rliable()
+        for run_dir in runs:
+            config = read_config(run_dir)
+            observer = args.observer or config["observer"]
+            env_id = check_observer(config["env_id"], observer)
+            check_controller(f"{config['algo']}:{run_dir}", env_id, observer)
+            obs_mode = names_for(env_id).observers[observer]
+            check_env_options(env_id, obs_mode, config["env_kwargs"])
+    except (ValueError, ImportError) as exc:  # no agent there, or an observer it cannot read
         return _error("evaluate", exc)
 
-    from observer_gym.train.evaluate import evaluate_agent  # deferred: torch, PyBullet
+    # deferred: torch, PyBullet
+    from observer_gym.train.evaluate import evaluate_agent, evaluate_seeds, seeds_evaluation_text
     from observer_gym.train.outputs import default_out_dir
     from observer_gym.train.run import results_text
 
-    cli_args = recorded_args(args)
-    results = evaluate_agent(
-        args.model,
-        episodes=args.episodes,
-        out_dir=args.out if args.out is not None else default_out_dir("evaluate"),
-        seed=args.seed,
-        observer=args.observer,
-        steps=args.steps,
-        workers=args.workers,
-        progress=not args.no_progress,
-        cli_args=cli_args,
-    )
-    print(results_text(results))
+    options = {
+        "episodes": args.episodes,
+        "out_dir": args.out if args.out is not None else default_out_dir("evaluate"),
+        "seed": args.seed,
+        "observer": args.observer,
+        "steps": args.steps,
+        "workers": args.workers,
+        "progress": not args.no_progress,
+        "cli_args": recorded_args(args),
+    }
+    if multi_seed:
+        print(seeds_evaluation_text(evaluate_seeds(args.model, **options)))
+    else:
+        print(results_text(evaluate_agent(args.model, **options)))
     return 0
 
 
@@ -534,7 +664,8 @@ COMMANDS: dict[str, Command] = {
             "Run every pair of --observers and --controllers on one env (--env, default "
             "BallTable-v0) on the same seeds (episode i of every pair resets with the same "
             "seed), locally in worker processes (--workers) or as Ray tasks (--backend ray). "
-            "Controllers include trained agents as ALGO:DIR. Writes table.md and table.csv "
+            "Controllers include trained agents as ALGO:DIR (a multi-seed run's DIR: one "
+            "agent per seed, and a table across seeds). Writes table.md and table.csv "
             "(per pair and metric: mean with its 95 % Student t interval, rates with a "
             "Wilson interval; with 'oracle' among the observers, the paired difference "
             "observer - oracle of the env's primary metric per controller), bar_<metric>.png, "
@@ -571,7 +702,11 @@ COMMANDS: dict[str, Command] = {
             "(observer_gym/train/hyperparams/ALGO.yml), overridable with --hyperparam. Writes "
             "config.json, periodic checkpoints, eval.csv and curve.png (the evaluation "
             "curve), logs/ and, when finished, model.zip and vecnormalize.pkl. Ctrl-C or kill "
-            "leaves the last checkpoint intact; --resume DIR continues from it."
+            "leaves the last checkpoint intact; --resume DIR continues from it. --seeds 0,1,2 "
+            "trains one agent per seed into OUT/seed_<s>/ (in parallel processes, or Ray "
+            "tasks with --backend ray) and writes their aggregate into OUT: "
+            "learning_curves.png, aggregate.json and aggregate.md (final evaluation return: "
+            "IQM with a stratified-bootstrap 95 % interval, by rliable)."
         ),
         add_arguments=_train_arguments,
         run=_train_run,
@@ -582,7 +717,10 @@ COMMANDS: dict[str, Command] = {
             "Run closed-loop episodes of an agent trained by 'observer-gym train' (--model "
             "DIR) on its env, reading what it was trained on or another --observer, and "
             "write results.json and the env's plots exactly as 'observer-gym run' does for a "
-            "baseline controller (episode i resets with seed + i)."
+            "baseline controller (episode i resets with seed + i). For a multi-seed run "
+            "(train --seeds), every seed's agent runs the same episodes into seed_<s>/, and "
+            "across_seeds.md/.json give each seed's mean of the primary metric, their mean "
+            "and their IQM with a 95 % interval."
         ),
         add_arguments=_evaluate_arguments,
         run=_evaluate_run,

@@ -89,6 +89,43 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(0, text)
 
 
+def seed_list(text: str) -> list[int]:
+    """argparse type: comma-separated seeds >= 0 and ranges ``A-B`` (both ends included):
+    ``0-4,10,12-13`` -> [0, 1, 2, 3, 4, 10, 12, 13]."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        first, sep, last = part.strip().partition("-")
+        if sep and not first:  # "-1"
+            raise argparse.ArgumentTypeError(
+                f"{part.strip()!r} in {text!r}: seeds must be integers >= 0"
+            )
+        try:
+            low = int(first)
+            high = int(last) if sep else low
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{part.strip()!r} in {text!r} is not a seed or a range A-B of seeds >= 0"
+            ) from None
+        if low < 0 or high < low:
+            raise argparse.ArgumentTypeError(
+                f"{part.strip()!r} in {text!r}: seeds must be >= 0 and a range A-B needs A <= B"
+            )
+        seeds += range(low, high + 1)
+    return seeds
+
+
+def distinct_seeds(text: str) -> list[int]:
+    """argparse type: :func:`seed_list` with every seed once (``0,1,2``, ``0-4``)."""
+    seeds = seed_list(text)
+    repeated = sorted({seed for seed in seeds if seeds.count(seed) > 1})
+    if repeated:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} lists seed(s) {', '.join(map(str, repeated))} more than once; "
+            "each seed trains one agent"
+        )
+    return seeds
+
+
 def folder_path(text: str) -> Path:
     """argparse type: a folder's path; an empty one (which would mean the current
     folder) is refused."""

@@ -26,12 +26,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from observer_gym.train.aggregate import across_seeds, check_rliable
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import VERSIONED_PACKAGES, output_folder, package_versions
 from observer_gym.train.run import EpisodeSpec, build_controller, check_controller, run_episodes
-from observer_gym.train.run_dir import parse_agent_spec
+from observer_gym.train.run_dir import SEED_PREFIX, expand_agent, parse_agent_spec
 from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
 
@@ -81,7 +82,11 @@ def check_comparison(
     env_kwargs: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Check a comparison's inputs; return them normalised (``env_id`` registered,
-    ``observers``, ``controllers`` and ``seeds`` as lists, ``env_kwargs`` a dict).
+    ``observers``, ``controllers`` and ``seeds`` as lists, ``env_kwargs`` a dict). A
+    trained agent naming a multi-seed run (``ALGO:DIR`` with ``DIR/seed_<s>/``) stands
+    for one agent per seed: ``controllers`` lists those, ``named_controllers`` the names
+    as given and ``seed_groups`` each multi-seed name's agents (scores across seeds need
+    rliable).
 
     The cheap checks come first and build no env (:func:`check_request`); then each
     baseline controller is designed once on the env's state version with ``env_kwargs``
@@ -125,7 +130,17 @@ def check_request(
     for observer in observers:
         if observer not in task.OBSERVERS:
             raise ValueError(f"unknown observer {observer!r} for {env_id}; allowed: {known}")
-    controllers = _names("controllers", controllers, "a controller name or ALGO:DIR")
+    named = _names("controllers", controllers, "a controller name or ALGO:DIR")
+    seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}
+    controllers = [agent for name in named for agent in seed_groups.get(name, [name])]
+    duplicates = sorted({c for c in controllers if controllers.count(c) > 1})
+    if duplicates:
+        raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
+    if seed_groups:
+        try:
+            check_rliable()
+        except ImportError as exc:
+            raise ValueError(str(exc)) from None
     for controller in controllers:
         for observer in observers:
             check_controller(controller, env_id, observer)
@@ -156,6 +171,8 @@ def check_request(
         "env_id": env_id,
         "observers": observers,
         "controllers": controllers,
+        "named_controllers": named,
+        "seed_groups": seed_groups,
         "seeds": seeds,
         "env_kwargs": env_kwargs,
     }
@@ -232,6 +249,42 @@ def command_line(
     for key, value in (env_kwargs or {}).items():
         words += ["--env-option", option_text(key, value)]
     return shlex.join(words)
+
+
+# --- multi-seed agents ----------------------------------------------------------------------
+def across_seed_groups(
+    pairs: Sequence[Mapping[str, Any]], seed_groups: Mapping[str, Sequence[str]], metric: str
+) -> list[dict[str, Any]]:
+    """For each multi-seed agent of ``seed_groups`` (name -> its seeds' agents) and each
+    observer: each seed's agent's mean of ``metric`` over the episodes (its statistics'
+    mean), and across seeds their mean and IQM with its 95 % interval
+    (:func:`~observer_gym.train.aggregate.across_seeds`, None if no seed has a value)."""
+    lookup = {(p["observer"], p["controller"]): p for p in pairs}
+    observers = list(dict.fromkeys(p["observer"] for p in pairs))
+    entries = []
+    for name, agents in seed_groups.items():
+        for observer in observers:
+            per_seed = {
+                _seed_of(agent): lookup[observer, agent]["statistics"][metric]["mean"]
+                for agent in agents
+            }
+            scores = {seed: value for seed, value in per_seed.items() if value is not None}
+            entries.append(
+                {
+                    "observer": observer,
+                    "controller": name,
+                    "agents": list(agents),
+                    "metric": metric,
+                    "per_seed": {str(seed): value for seed, value in per_seed.items()},
+                    "statistics": across_seeds(scores).as_dict() if scores else None,
+                }
+            )
+    return entries
+
+
+def _seed_of(agent: str) -> int:
+    """The seed of ``ALGO:DIR/seed_<s>``."""
+    return int(Path(agent.partition(":")[2]).name.removeprefix(SEED_PREFIX))
 
 
 # --- running and the whole comparison ------------------------------------------------------
@@ -340,6 +393,7 @@ def run_comparison(
     )
     env_id, observers, controllers = (checked[k] for k in ("env_id", "observers", "controllers"))
     seeds, env_kwargs = checked["seeds"], checked["env_kwargs"]
+    named, seed_groups = checked["named_controllers"], checked["seed_groups"]
     task = task_for(env_id)
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
@@ -358,6 +412,7 @@ def run_comparison(
             progress,
         )
         analysis = analyse_pairs(task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records)
+        across = across_seed_groups(analysis.pairs, seed_groups, next(iter(metrics)))
         if not analysis.starts_match:
             warnings.warn(
                 "observer-gym compare: the pairs' episodes do not all start from the same state "
@@ -373,6 +428,7 @@ def run_comparison(
                 "env_id": env_id,
                 "observers": observers,
                 "controllers": controllers,
+                "seed_groups": seed_groups,
                 "seeds": seeds,
                 "episodes": len(seeds),
                 "steps": steps,
@@ -393,7 +449,7 @@ def run_comparison(
                 "command": command_line(
                     env_id,
                     observers,
-                    controllers,
+                    named,
                     seeds,
                     steps,
                     workers,
@@ -408,5 +464,6 @@ def run_comparison(
             "wall_time_s": runs.wall_time_s,
             "starts_match": analysis.starts_match,
             "pairs": analysis.pairs,
+            "across_seeds": across,
         }
         return write_comparison(out_dir, task, results, runs.by_pair(len(seeds)))

@@ -21,6 +21,7 @@ from observer_gym.train.cli_args import (
     nonnegative_int,
     positive_int,
     recorded_args,
+    seed_list,
 )
 
 DEFAULT_EPISODES = 10
@@ -33,27 +34,6 @@ def name_list(text: str) -> list[str]:
     if any(not name for name in names):
         raise argparse.ArgumentTypeError(f"expected comma-separated names, got {text!r}")
     return names
-
-
-def seed_list(text: str) -> list[int]:
-    """argparse type: comma-separated seeds >= 0 and ranges ``A-B`` (both ends included):
-    ``0-4,10,12-13`` -> [0, 1, 2, 3, 4, 10, 12, 13]."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        first, sep, last = part.strip().partition("-")
-        try:
-            low = int(first)
-            high = int(last) if sep else low
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{part.strip()!r} in {text!r} is not a seed or a range A-B of seeds >= 0"
-            ) from None
-        if low < 0 or high < low:
-            raise argparse.ArgumentTypeError(
-                f"{part.strip()!r} in {text!r}: seeds must be >= 0 and a range A-B needs A <= B"
-            )
-        seeds += range(low, high + 1)
-    return seeds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,7 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated controllers of the env, per env: "
             + per_env("controllers")
-            + "; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable)"
+            + "; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable; a multi-seed run's "
+            "DIR: every seed's agent, with the primary metric across seeds) or a shipped one "
+            "ALGO:NAME (ppo:ball_table-estimate)"
         ),
     )
     parser.add_argument(
@@ -172,9 +154,12 @@ def check_pairs(
         check_observer,
         names_for,
     )
+    from observer_gym.train.run_dir import expand_agent
 
     for observer in observers:
         env_id = check_observer(env_id, observer)
+    # a multi-seed run stands for its seeds' agents
+    controllers = [agent for name in controllers for agent in expand_agent(name)]
     for controller in controllers:
         for observer in observers:
             check_controller(controller, env_id, observer)

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.train.aggregate import METHOD
 from observer_gym.train.compare_stats import ORACLE, PERCENT, MetricSpec, compare_metrics
 from observer_gym.train.outputs import format_table, to_jsonable, write_json_atomic
 from observer_gym.train.plots import DPI, new_figure
@@ -131,6 +132,36 @@ def comparison_table(
     return format_table(headers, rows)
 
 
+def across_seeds_table(entries: Sequence[Mapping[str, Any]], spec: MetricSpec) -> str:
+    """The Markdown table of the multi-seed agents: per (observer, agent) each seed's mean
+    of the primary metric (``spec``), their mean and their IQM with its interval."""
+    label, unit, scale, digits, better = spec
+
+    def number(value: float | None) -> str:
+        return "n/a" if value is None else _number(value * scale, digits)
+
+    rows = []
+    for entry in entries:
+        stats = entry["statistics"]
+        per_seed = ", ".join(f"{seed}: {number(v)}" for seed, v in entry["per_seed"].items())
+        if stats is None:
+            mean = iqm = "n/a"
+        else:
+            mean = number(stats["mean"])
+            iqm = (
+                f"{number(stats['iqm'])} [{number(stats['iqm_low'])}, {number(stats['iqm_high'])}]"
+            )
+        rows.append([entry["observer"], entry["controller"], per_seed, mean, iqm])
+    headers = [
+        "observer",
+        "agent (multi-seed)",
+        f"per seed: {_header(label, unit, better)}",
+        "mean",
+        f"IQM [{PERCENT} interval]",
+    ]
+    return format_table(headers, rows)
+
+
 def write_markdown(
     path: Path,
     table: str,
@@ -140,8 +171,10 @@ def write_markdown(
     steps: int | None,
     command: str,
     cli_args: Mapping[str, Any] | None,
+    seeds_table: str | None = None,
 ) -> None:
-    """``table.md``: the command line (when run from it), what was run, the table, a key."""
+    """``table.md``: the command line (when run from it), what was run, the table, a key
+    and, with multi-seed agents, their table across seeds (``seeds_table``)."""
     primary_label = next(iter(metrics.values()))[0]
     lines = [f"`{command}`", ""] if cli_args is not None else []
     lines += [
@@ -159,6 +192,15 @@ def write_markdown(
         "means.",
         "",
     ]
+    if seeds_table is not None:
+        lines += [
+            "Multi-seed agents: each seed's agent is a row above; across seeds:",
+            "",
+            seeds_table,
+            "",
+            f"Per seed: its mean of {primary_label} over the episodes; across seeds: {METHOD}.",
+            "",
+        ]
     path.write_text("\n".join(lines), encoding="utf-8")
 
 
@@ -277,6 +319,8 @@ def write_comparison(
         files.append(name)
 
     table = comparison_table(pairs, metrics, n)
+    across = results.get("across_seeds") or []
+    seeds_table = across_seeds_table(across, next(iter(metrics.values()))) if across else None
     write_markdown(
         out_dir / "table.md",
         table,
@@ -286,6 +330,7 @@ def write_comparison(
         config["steps"],
         config["command"],
         config["cli_args"],
+        seeds_table,
     )
     write_csv(out_dir / "table.csv", pairs, metrics)
     files += ["table.md", "table.csv", "results.json"]
@@ -309,6 +354,11 @@ def comparison_text(results: Mapping[str, Any]) -> str:
             f"{format_seeds(config['seeds'])}), {config['backend']} backend, "
             f"{results['wall_time_s']:.1f} s",
             comparison_table(results["pairs"], metrics, n),
+            *(
+                ["across seeds:", across_seeds_table(across, next(iter(metrics.values())))]
+                if (across := results.get("across_seeds"))
+                else []
+            ),
             f"output: {config['out_dir']}",
         ]
     )

@@ -26,8 +26,16 @@ def make_env(env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None = 
         raise ValueError(
             f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
         )
-    obs_mode, pipeline_options = observers[observer]
+    obs_mode, _ = observers[observer]
     env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
+    return wrap_observer(env, env_id, observer)
+
+
+def wrap_observer(env: gym.Env, env_id: str, observer: str) -> gym.Env:
+    """``env`` (made in ``observer``'s obs_mode) wrapped in the :class:`VisionObserver` of
+    ``observer``'s pipeline options, or unchanged for "oracle" and an observer without a
+    pipeline; ``env`` is closed if this fails."""
+    _, pipeline_options = task_for(env_id).OBSERVERS[observer]
     if observer == "oracle" or pipeline_options is None:
         return env
     try:

@@ -1,7 +1,9 @@
-"""Episodes as Ray tasks: the ``ray`` backend of ``observer-gym compare`` and ``sweep``.
+"""Ray tasks: the ``ray`` backend of ``observer-gym compare``, ``sweep`` and ``train --seeds``.
 
 Each :class:`~observer_gym.train.run.EpisodeSpec` runs as one Ray task calling
-:func:`~observer_gym.train.run.run_episode`, on a local Ray instance or on an existing
+:func:`~observer_gym.train.run.run_episode` (and each seed of a multi-seed training run
+as one calling :func:`~observer_gym.train.training.continue_run`:
+:mod:`observer_gym.train.seeds`), on a local Ray instance or on an existing
 cluster (``ray start --head`` on one machine, ``ray start --address HEAD:6379`` on the
 others; every node needs observer-gym installed). An episode's result depends only on its
 spec, so the records equal the local backend's.
@@ -11,6 +13,7 @@ Ray is an optional dependency: ``pip install 'observer-gym[distributed]'``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -21,6 +24,7 @@ from tqdm import tqdm
 from observer_gym.train.run import EpisodeSpec, run_episode
 
 INSTALL_HINT = "pip install 'observer-gym[distributed]'"
+CANCEL_WAIT_S = 60.0  # how long cancelled tasks get to end before Ray shuts down
 
 
 def _import_ray() -> Any:
@@ -40,22 +44,22 @@ def local_cpus() -> int:
     return os.cpu_count() or 1
 
 
-def iter_episodes_ray(
-    specs: Sequence[EpisodeSpec],
+def iter_tasks_ray(
+    function: Callable[..., Any],
+    arguments: Sequence[tuple[Any, ...]],
     address: str | None = None,
-    run: Callable[[EpisodeSpec], Any] = run_episode,
 ) -> Iterator[tuple[int, Any]]:
-    """``(index, run(specs[index]))`` for every spec as each finishes, computed as Ray
-    tasks of one CPU each (``run``: a module-level function; the records of
-    :func:`run_episode` by default).
+    """``(index, function(*arguments[index]))`` for every entry as each finishes, each a
+    Ray task of one CPU (``function`` must be importable on every node).
 
     Connects to the cluster at ``address`` ("auto" for the one ``ray start`` set up on this
     machine, or ``HOST:PORT``), or, for None, starts a new local instance with this
     machine's CPUs (even if a cluster runs here; no dashboard, workers' output not
     forwarded). If Ray is already initialised in this process, its session is used as it
     is. Ray is shut down again only if this call started or connected it (a cluster keeps
-    running; the driver disconnects), also when the caller stops iterating early (the
-    tasks not finished are cancelled).
+    running; the driver disconnects). When the caller stops iterating early (an error,
+    Ctrl-C), the tasks still running are cancelled: Ray raises ``KeyboardInterrupt`` in
+    them, so they end as they would here.
 
     Raises:
         ImportError: Ray is not installed (the message says how to install it).
@@ -75,8 +79,8 @@ def iter_episodes_ray(
             ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
     pending: list[Any] = []
     try:
-        task = ray.remote(num_cpus=1)(run)
-        refs = [task.remote(spec) for spec in specs]
+        task = ray.remote(num_cpus=1)(function)
+        refs = [task.remote(*args) for args in arguments]
         index_of = {ref: index for index, ref in enumerate(refs)}
         pending = list(refs)
         while pending:
@@ -84,10 +88,47 @@ def iter_episodes_ray(
             for ref in done:
                 yield index_of[ref], ray.get(ref)
     finally:
-        for ref in pending:  # the caller stopped early (an error, Ctrl-C)
-            ray.cancel(ref)
+        if pending:  # the caller stopped early
+            for ref in pending:
+                ray.cancel(ref)
+            ray.wait(pending, num_returns=len(pending), timeout=CANCEL_WAIT_S)
         if connected_here:
             ray.shutdown()
+
+
+def run_tasks_ray(
+    function: Callable[..., Any],
+    arguments: Sequence[tuple[Any, ...]],
+    address: str | None = None,
+    progress: bool = True,
+    desc: str = "ray",
+    unit: str = "task",
+) -> list[Any]:
+    """``function(*args)`` for every ``args`` of ``arguments``, in order
+    (:func:`iter_tasks_ray`); a progress bar counts finished tasks."""
+    results: list[Any] = [None] * len(arguments)
+    # closing: an error or Ctrl-C here cancels the tasks at once, not when GC finds the
+    # generator
+    tasks = contextlib.closing(iter_tasks_ray(function, arguments, address))
+    with (
+        tasks as finished,
+        tqdm(total=len(arguments), unit=unit, desc=desc, disable=not progress) as bar,
+    ):
+        for index, result in finished:
+            results[index] = result
+            bar.update(1)
+    return results
+
+
+def iter_episodes_ray(
+    specs: Sequence[EpisodeSpec],
+    address: str | None = None,
+    run: Callable[[EpisodeSpec], Any] = run_episode,
+) -> Iterator[tuple[int, Any]]:
+    """``(index, run(specs[index]))`` for every spec as each finishes, as Ray tasks
+    (:func:`iter_tasks_ray`; ``run``: a module-level function, :func:`run_episode` by
+    default)."""
+    return iter_tasks_ray(run, [(spec,) for spec in specs], address)
 
 
 def run_episodes_ray(
@@ -97,16 +138,11 @@ def run_episodes_ray(
     desc: str = "compare",
 ) -> list[dict[str, Any]]:
     """The records of ``specs`` (:func:`run_episode`), in order, computed as Ray tasks of
-    one CPU each, on the cluster at ``address`` or a new local instance
-    (:func:`iter_episodes_ray`). A progress bar counts finished episodes.
+    one CPU each (:func:`run_tasks_ray`).
 
     Raises:
         ImportError: Ray is not installed (the message says how to install it).
     """
-    records: list[Any] = [None] * len(specs)
-    episodes = iter_episodes_ray(specs, address)
-    with tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress) as bar:
-        for index, record in episodes:
-            records[index] = record
-            bar.update(1)
-    return records
+    return run_tasks_ray(
+        run_episode, [(spec,) for spec in specs], address, progress, desc, "episode"
+    )

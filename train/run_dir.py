@@ -1,6 +1,8 @@
 """The folder of an ``observer-gym train`` run as the other commands read it: its
 ``config.json``, its ``state.json`` (how the run stands, a killed one told apart), its
-final model or latest checkpoint, and the ``ALGO:DIR`` names of trained agents.
+final model or latest checkpoint, and the ``ALGO:DIR`` names of trained agents; and the
+folder of a multi-seed run (``train --seeds``), which holds one such run per seed in
+``seed_<s>/``.
 
 Reading these imports neither PyTorch nor stable-baselines3, so ``observer-gym run``,
 ``evaluate`` and ``compare`` check a trained agent before any heavy import;
@@ -15,6 +17,7 @@ from typing import Any
 
 from observer_gym.train.hyperparams import ALGOS
 from observer_gym.train.outputs import writer_alive
+from observer_gym.train.shipped import shipped_path
 
 CONFIG_FILE = "config.json"
 STATE_FILE = "state.json"
@@ -22,17 +25,49 @@ FINAL_MODEL = "model.zip"
 FINAL_VECNORMALIZE = "vecnormalize.pkl"
 CHECKPOINTS = "checkpoints"
 LATEST = "latest.json"  # in checkpoints/: the newest complete checkpoint
+SEED_PREFIX = "seed_"  # a multi-seed run's folder holds seed_<s>/ per seed
+SEEDS_FILE = "seeds.json"  # and, written by train --seeds, what it trains
 
 
 def parse_agent_spec(name: str) -> tuple[str, Path] | None:
     """``("ppo", Path("runs/x"))`` for ``"ppo:runs/x"``; None for a name without ``ALGO:``
-    (a baseline controller's name)."""
+    (a baseline controller's name). ``ALGO:NAME`` where no folder ``NAME`` exists but an
+    agent of that name is shipped (:mod:`observer_gym.train.shipped`) gives the shipped
+    agent's folder."""
     algo, sep, run_dir = name.partition(":")
     if not sep or algo not in ALGOS:
         return None
     if not run_dir:
         raise ValueError(f"agent {name!r} names no folder; expected {algo}:DIR")
-    return algo, Path(run_dir)
+    shipped = None if Path(run_dir).exists() else shipped_path(run_dir)
+    return algo, shipped if shipped is not None else Path(run_dir)
+
+
+def seed_run_dirs(folder: str | Path) -> dict[int, Path]:
+    """The runs of a multi-seed folder: seed -> ``folder/seed_<seed>``, for every such
+    subfolder, by seed; empty for any other folder."""
+    folder = Path(folder)
+    runs = {}
+    for path in folder.glob(f"{SEED_PREFIX}*") if folder.is_dir() else []:
+        number = path.name.removeprefix(SEED_PREFIX)
+        if path.is_dir() and number.isdigit():
+            runs[int(number)] = path
+    return dict(sorted(runs.items()))
+
+
+def is_multi_seed(folder: str | Path) -> bool:
+    """Whether ``folder`` is a multi-seed run: no run of its own (no config.json) but
+    ``seed_<s>/`` subfolders."""
+    return not (Path(folder) / CONFIG_FILE).exists() and bool(seed_run_dirs(folder))
+
+
+def expand_agent(name: str) -> list[str]:
+    """``name`` as the controllers it stands for: ``ALGO:DIR`` of a multi-seed folder is
+    one agent per seed (``ALGO:DIR/seed_<s>``, by seed); any other name is itself."""
+    spec = parse_agent_spec(name)
+    if spec is None or not is_multi_seed(spec[1]):
+        return [name]
+    return [f"{spec[0]}:{path}" for path in seed_run_dirs(spec[1]).values()]
 
 
 def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
@@ -49,6 +84,13 @@ def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
             "make one with 'observer-gym train'"
         )
     if not path.is_file():
+        seeds = list(seed_run_dirs(run_dir))
+        if seeds:
+            raise ValueError(
+                f"{run_dir} holds a multi-seed run (seeds {', '.join(map(str, seeds))}), not "
+                "one agent: 'evaluate' and 'compare' take it whole; name one seed's run as "
+                f"{Path(run_dir) / f'{SEED_PREFIX}{seeds[0]}'}"
+            )
         raise ValueError(
             f"{run_dir} is not an observer-gym training run (no {CONFIG_FILE}); "
             "make one with 'observer-gym train'"
@@ -135,12 +177,17 @@ def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
 
 def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
     """(model, VecNormalize statistics or None, timesteps or None): the final model of a
-    finished run, else its latest checkpoint. ValueError if there is neither."""
+    finished run, else its latest checkpoint. ValueError if there is neither. The
+    timesteps of a final model without checkpoints (a shipped agent) are its
+    state.json's."""
     run_dir = Path(run_dir)
     checkpoint = latest_checkpoint(run_dir / CHECKPOINTS)
     if (run_dir / FINAL_MODEL).is_file():  # written last, after the final checkpoint
         stats = run_dir / FINAL_VECNORMALIZE
-        steps = None if checkpoint is None else checkpoint["timesteps"]
+        if checkpoint is not None:
+            steps = checkpoint["timesteps"]
+        else:
+            steps = (read_state(run_dir) or {}).get("timesteps")
         return run_dir / FINAL_MODEL, stats if stats.is_file() else None, steps
     if checkpoint is None:
         raise ValueError(f"{run_dir} has neither {FINAL_MODEL} nor a checkpoint yet")

@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import functools
+import shutil
 import signal
 import time
 import warnings
@@ -58,6 +59,7 @@ from observer_gym.train.run_dir import (
     killed_text,
     latest_checkpoint,
     read_config,
+    read_state,
 )
 
 TRAIN_SEED_OFFSET = 1_000_000
@@ -114,6 +116,50 @@ def train_agent(
     Raises:
         ValueError: any bad argument or hyperparameter, before anything is written.
     """
+    config = run_config(
+        env_id,
+        algo,
+        obs,
+        out_dir,
+        timesteps=timesteps,
+        seed=seed,
+        estimate_from=estimate_from,
+        observer=observer,
+        n_envs=n_envs,
+        vec_env=vec_env,
+        hyperparams=hyperparams,
+        env_kwargs=env_kwargs,
+        tensorboard=tensorboard,
+        cli_args=cli_args,
+    )
+    out_dir = Path(out_dir)
+    write_run_config(out_dir, config)
+    return _learn(out_dir, config, progress=progress)
+
+
+def run_config(
+    env_id: str,
+    algo: str,
+    obs: str,
+    out_dir: str | Path,
+    timesteps: int | None = None,
+    seed: int = 0,
+    estimate_from: str = "measurements",
+    observer: str | None = None,
+    n_envs: int | None = None,
+    vec_env: str | None = None,
+    hyperparams: Mapping[str, Any] | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    tensorboard: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The ``config.json`` of a new run (the arguments of :func:`train_agent`), after
+    its checks (:func:`check_training`) and a probe env that gives the action bounds;
+    nothing is written.
+
+    Raises:
+        ValueError: any bad argument or hyperparameter.
+    """
     env_id, feeding, params, env_kwargs = check_training(
         env_id,
         algo,
@@ -129,13 +175,12 @@ def train_agent(
         env_kwargs=env_kwargs,
         tensorboard=tensorboard,
     )
-    out_dir = Path(out_dir)
     probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"], observer)
     try:  # the action bounds a loaded agent maps back to, and a check that the env builds
         action_space = probe.unwrapped.action_space
     finally:
         probe.close()
-    config = to_jsonable(
+    return to_jsonable(
         {
             "env_id": env_id,
             "algo": algo,
@@ -152,10 +197,13 @@ def train_agent(
             "cli_args": cli_args,
         }
     )
-    # The folder: created (and removed again if nothing gets written), stale temps removed.
-    with output_folder(out_dir, "train", marker=False):
-        write_json_atomic(out_dir / CONFIG_FILE, config)
-    return _learn(out_dir, config, progress=progress)
+
+
+def write_run_config(run_dir: Path, config: Mapping[str, Any]) -> None:
+    """Create ``run_dir`` (removing stale temps there) and write ``config`` as its
+    config.json, atomically."""
+    with output_folder(run_dir, "train", marker=False):
+        write_json_atomic(run_dir / CONFIG_FILE, config)
 
 
 def check_training(
@@ -255,6 +303,45 @@ def resume_training(
     return _learn(run_dir, config, progress=progress, resume=True)
 
 
+def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str, Any]:
+    """Train the run in ``run_dir`` on, without a progress bar: from its latest checkpoint
+    (:func:`resume_training`, ``timesteps`` a new total), or, if it has none yet, from its
+    start with its config.json, after removing what an earlier start that saved no
+    checkpoint left (``eval.csv``, ``curve.png``, ``state.json``, ``monitor/``,
+    ``logs/``), with an :class:`~observer_gym.train.outputs.OutputFolderWarning`. A
+    finished run is left as it is. Returns the final ``state.json``; the one function a
+    worker process or a Ray task of ``train --seeds`` runs.
+
+    Raises:
+        ValueError: no run in ``run_dir``, one still writing there, or a bad ``timesteps``.
+    """
+    run_dir = Path(run_dir)
+    config = read_config(run_dir)
+    state = read_state(run_dir)
+    if state is not None and state["status"] == "finished" and timesteps is None:
+        return state
+    if latest_checkpoint(run_dir / "checkpoints") is not None:
+        return resume_training(run_dir, timesteps, progress=False)
+    if state is not None and state["status"] == "running":
+        raise ValueError(f"the training run in {run_dir} is still running; stop it first")
+    left = [run_dir / name for name in ("eval.csv", "curve.png", STATE_FILE, "monitor", "logs")]
+    left = [path for path in left if path.exists()]
+    if left:
+        warnings.warn(
+            f"{run_dir} saved no checkpoint before it stopped; training it from the start "
+            f"(removed {', '.join(path.name for path in left)})",
+            OutputFolderWarning,
+            stacklevel=2,
+        )
+        for path in left:
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    remove_stale_temps(run_dir, all_temps=True)
+    if timesteps is not None:
+        config["hyperparams"]["n_timesteps"] = int(timesteps)
+        write_json_atomic(run_dir / CONFIG_FILE, config)
+    return _learn(run_dir, config, progress=False)
+
+
 def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Path | None):
     """The training (or evaluation, ``monitor_dir`` None and one env) vector env."""
     from stable_baselines3.common.env_util import make_vec_env
@@ -347,7 +434,7 @@ def _learn(
             if "replay_buffer" in checkpoint:
                 model.load_replay_buffer(checkpoint["replay_buffer"])
         else:
-            policy = training["policy"] or _default_policy(venv.observation_space)
+            policy = training["policy"] or default_policy(venv.observation_space)
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
             model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
         segment = f"resume-{start_steps}" if resume else "start"
@@ -419,7 +506,9 @@ def _learn(
                 pass  # Ctrl-C reached the SubprocVecEnv workers too; they are gone
 
 
-def _default_policy(space: Any) -> str:
+def default_policy(space: Any) -> str:
+    """SB3's policy for an observation ``space``: MultiInputPolicy for a Dict, CnnPolicy
+    for an image, else MlpPolicy."""
     from gymnasium import spaces
     from stable_baselines3.common.preprocessing import is_image_space
 

@@ -177,6 +177,30 @@ CASES = {
         [*TRAIN, "--hyperparam", "n_envs=0"],
         "hyperparameter n_envs must be an integer >= 1",
     ),
+    # --- train --seeds: the list, and the options that go with it
+    "train-seeds-empty-item": ([*TRAIN, "--seeds", "0,,1"], "'' in '0,,1' is not a seed"),
+    "train-seeds-duplicate": ([*TRAIN, "--seeds", "0,1,0"], "lists seed(s) 0 more than once"),
+    "train-seeds-negative": ([*TRAIN, "--seeds=-1"], "seeds must be integers >= 0"),
+    "train-seed-and-seeds": (
+        [*TRAIN, "--seed", "1", "--seeds", "0,1"],
+        "--seed trains one agent, --seeds several: give one of them",
+    ),
+    "train-workers-without-seeds": (
+        [*TRAIN, "--workers", "2"],
+        "--workers apply to --seeds (several seeds) only",
+    ),
+    "train-seeds-address-without-ray": (
+        [*TRAIN, "--seeds", "0,1", "--address", "auto"],
+        "address 'auto' is a Ray cluster's address: it needs backend 'ray'",
+    ),
+    "train-resume-with-seeds": (
+        ["train", "--no-progress", "--resume", STATE_RUN, "--seeds", "0,1"],
+        "--resume continues a run with its own settings; drop --seeds",
+    ),
+    "run-multi-seed-agent": (
+        [*RUN, "--observer", "oracle", "--controller", "ppo:{seeds_run}"],
+        "holds a multi-seed run (seeds 0, 1), not one agent",
+    ),
     # --- --algo and --obs are required
     "train-without-algo": (
         ["train", "--obs", "state"],
@@ -209,9 +233,14 @@ CASES = {
 
 @pytest.fixture
 def runs(tmp_path: Path) -> dict[str, str]:
+    seeds_run = tmp_path / "seeds-run"
+    seeds_run.mkdir()
+    for seed in (0, 1):
+        _fake_run(seeds_run / f"seed_{seed}")
     return {
         "state_run": str(_fake_run(tmp_path / "state-run")),
         "empty_run": str(_fake_run(tmp_path / "empty-run", model=False)),
+        "seeds_run": str(seeds_run),
     }
 
 
@@ -275,6 +304,8 @@ print(code, "pybullet" in sys.modules, heavy)
         ("run-missing-agent", False),
         ("evaluate-missing-model", False),
         ("train-without-algo-and-obs", False),
+        ("train-seeds-duplicate", False),
+        ("run-multi-seed-agent", False),
         ("run-unknown-env-option", True),  # the env's config class lives with the env
         ("compare-bad-env-option", True),
         ("train-unknown-env-option", True),

@@ -1,0 +1,54 @@
+"""The agents shipped in the package: each loads by name (``ppo:<name>``), acts on its
+fingerprint's observation as it did when shipped, says in its README how it was trained,
+and stays small; and the mechanism on a freshly shipped agent."""
+
+from __future__ import annotations
+
+import pytest
+
+from observer_gym.envs import system_for_id
+from observer_gym.train import shipped
+from observer_gym.train.agent import Agent
+from observer_gym.train.run import build_controller
+from observer_gym.train.run_dir import model_files, parse_agent_spec, read_config
+from observer_gym.train.ship_agent import fingerprint_difference, read_fingerprint, ship_agent
+from observer_gym.train.training import train_agent
+
+MAX_AGENT_BYTES = 400_000  # the package stays small: a few hundred kB per agent at most
+
+
+@pytest.mark.parametrize("name", shipped.shipped_names())
+def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
+    folder = shipped.shipped_path(name)
+    config = read_config(folder)
+    assert parse_agent_spec(f"{config['algo']}:{name}") == (config["algo"], folder)
+    assert fingerprint_difference(folder) <= 1e-6
+    agent = Agent.load(folder)
+    assert agent.timesteps == model_files(folder)[2] > 0
+    assert name == f"{system_for_id(config['env_id']).name}-{config['obs']}"
+    readme = (folder / shipped.README_FILE).read_text()
+    assert "observer-gym train" in readme and f"--seed {config['seed']}" in readme
+    assert sum(p.stat().st_size for p in folder.iterdir()) < MAX_AGENT_BYTES
+
+
+def test_shipping_an_agent_makes_it_loadable_by_name(tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    train_agent(
+        "BallTable-v0", "ppo", "state", run, timesteps=128, n_envs=1, vec_env="dummy",
+        hyperparams={"n_steps": 128, "batch_size": 64, "eval_freq": 10_000, "eval_episodes": 1},
+        progress=False,
+    )  # fmt: skip
+    monkeypatch.setattr(shipped, "SHIPPED_DIR", tmp_path / "agents")
+    readme = "trained by `observer-gym train ... --seed 0`\n"
+    folder = ship_agent(run, "ball_table-state", readme, folder=tmp_path / "agents")
+    assert shipped.shipped_names() == ("ball_table-state",)
+    assert fingerprint_difference(folder) == 0.0
+    assert read_fingerprint(folder).observation.shape == (8,)
+    controller = build_controller("ppo:ball_table-state", None)
+    assert controller.run_dir == str(folder) and controller.timesteps == 128
+    # a folder of that name here wins over the shipped agent
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ball_table-state").mkdir()
+    assert parse_agent_spec("ppo:ball_table-state")[1].resolve() == tmp_path / "ball_table-state"
+    with pytest.raises(ValueError, match="only a finished run"):
+        ship_agent(tmp_path / "ball_table-state", "x", readme, folder=tmp_path / "agents")
