@@ -171,6 +171,7 @@ class FrameClock:
         self.schedules = [_CameraSchedule(t) for t in timings]
         for schedule in self.schedules:
             schedule.next_tick = self._draw_tick(schedule)
+        self._next_tick = min(s.next_tick for s in self.schedules)  # next_capture_tick()
 
     def _draw_tick(self, schedule: _CameraSchedule) -> int:
         t = schedule.timing.phase_s + schedule.index / self.rate_hz
@@ -181,6 +182,8 @@ class FrameClock:
 
     def captures_at(self, tick: int) -> list[int]:
         """The cameras that capture a kept frame at ``tick`` (advancing their schedules)."""
+        if tick < self._next_tick:  # no camera's next capture: nothing to advance or draw
+            return []
         cameras = []
         for camera_id, schedule in enumerate(self.schedules):
             if schedule.next_tick != tick:
@@ -192,11 +195,12 @@ class FrameClock:
                 if self.rng.uniform() < self.drop_prob:
                     continue
             cameras.append(camera_id)
+        self._next_tick = min(s.next_tick for s in self.schedules)
         return cameras
 
     def next_capture_tick(self) -> int:
         """The earliest tick at which some camera captures next (its frame may be lost)."""
-        return min(s.next_tick for s in self.schedules)
+        return self._next_tick
 
     def delivery_tick(self, camera_id: int, capture_tick: int) -> int:
         """When a frame of ``camera_id`` captured at ``capture_tick`` arrives."""
