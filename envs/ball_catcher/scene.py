@@ -36,6 +36,7 @@ from observer_gym.envs.ball_catcher.layout import STATE_DIM, StateIndex
 from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation, asset_path
+from observer_gym.envs.transforms import norm
 
 BOX_MASS_KG = 0.5
 MAX_SHAPES_PER_LINK = 16  # PyBullet's limit on the shapes of one link
@@ -48,6 +49,7 @@ MAX_SUBSTEP_MOTION_M = geo.WALL_M
 SUBSTEP_MOTION_M = geo.WALL_M / 2
 # The radius of the sphere around the box's centre that holds the box.
 BOX_BOUND_RADIUS_M = float(np.hypot(np.sqrt(2.0) * geo.BOX_OUTER_SIDE_M / 2, geo.BOX_DEPTH_M / 2))
+_BOX_CENTRE_BOX = np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])  # the box's centre, box frame
 # may_reach_box: room for gravity's bend over a step (g t^2 / 2 = 0.5 mm at 10 ms) and more.
 REACH_MARGIN_M = 0.05
 # Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
@@ -95,6 +97,26 @@ class GroundTruth:
     T_world_box: np.ndarray  # 4x4, origin at the hole's centre
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+class _Now:
+    """The ball and the box at one version of the world (``Simulation.version``), each
+    quantity computed on first use: the ground-truth queries of a tick are made once
+    however many of the scene's methods ask (their arrays are read-only: shared)."""
+
+    __slots__ = ("_ball_in_box", "_box_centre", "_query", "_speed", "version")
+
+    def __init__(self, version: int, query) -> None:
+        self.version = version
+        # (ball_pos, box_pos, R_world_box, v_rel, ball_pos_raw, ball_vel_raw, box_pos_raw,
+        # box_vel_raw, R_raw): arrays and PyBullet's tuples.
+        self._query = query
+        self._ball_in_box = self._box_centre = self._speed = None
+
+
 class BallCatcherScene:
     """Builds and drives the BallCatcher world.
 
@@ -134,6 +156,7 @@ class BallCatcherScene:
         self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
         self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
         self.air_drag = False
+        self._now: _Now | None = None  # the ground truth of the world's latest version
 
     def _build_box(self, hole_radius_m: float) -> int:
         """The box as one multibody: PyBullet keeps at most 16 shapes per link, so the
@@ -207,6 +230,7 @@ class BallCatcherScene:
         vel[2] += 0.5 * GRAVITY_MPS2 * self.sim.physics_dt_s
         client.resetBasePositionAndOrientation(self.ball, list(pos_world), [0, 0, 0, 1])
         client.resetBaseVelocity(self.ball, list(vel), [0.0, 0.0, 0.0])
+        self.sim.touch()
 
     def command_hole(self, hole_pos_world) -> None:
         """Send the arm the joint targets that put the hole at ``hole_pos_world``."""
@@ -219,13 +243,12 @@ class BallCatcherScene:
         more than MAX_SUBSTEP_MOTION_M relative to the box within reach of it (its centre
         nearer the box's centre than BOX_BOUND_RADIUS_M, the ball's radius and one step's
         motion); then enough that it moves at most SUBSTEP_MOTION_M per substep."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        motion_m = float(np.linalg.norm(v_rel)) * self.sim.physics_dt_s
+        now = self._world_now()
+        motion_m = self._relative_speed(now) * self.sim.physics_dt_s
         if motion_m <= MAX_SUBSTEP_MOTION_M:
             return 1
-        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
         reach_m = BOX_BOUND_RADIUS_M + geo.BALL_RADIUS_M + motion_m
-        if np.linalg.norm(ball_pos - box_centre) > reach_m:
+        if self._distance_to_box_centre(now) > reach_m:
             return 1
         return int(np.ceil(motion_m / SUBSTEP_MOTION_M))
 
@@ -233,27 +256,60 @@ class BallCatcherScene:
         """Whether the ball, moving at its velocity relative to the box, could come within
         reach of the box (BOX_BOUND_RADIUS_M of its centre, plus the ball's radius and a
         margin for gravity's bend) within ``horizon_s``."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        now = self._world_now()
         reach_m = (
             BOX_BOUND_RADIUS_M
             + geo.BALL_RADIUS_M
-            + float(np.linalg.norm(v_rel)) * horizon_s
+            + self._relative_speed(now) * horizon_s
             + REACH_MARGIN_M
         )
-        return bool(np.linalg.norm(ball_pos - box_centre) <= reach_m)
+        return self._distance_to_box_centre(now) <= reach_m
 
     def _ball_and_box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ball centre, box origin (the hole's centre), R_world_box, ball velocity relative
-        to the box), world frame."""
+        to the box), world frame (read-only arrays)."""
+        return self._world_now()._query[:4]
+
+    def _world_now(self) -> _Now:
+        """The ball and the box now: PyBullet is asked once per version of the world (the
+        world changes only by the scene's and the Simulation's steps and teleports, and
+        each of them moves ``sim.version`` on)."""
+        now, version = self._now, self.sim.version
+        if now is not None and now.version == version:
+            return now
         client = self.sim.client
         ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
         box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        v_rel = np.subtract(
-            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
+        ball_vel = client.getBaseVelocity(self.ball)[0]
+        box_vel = client.getBaseVelocity(self.box)[0]
+        R_raw = client.getMatrixFromQuaternion(box_quat)
+        query = (
+            _readonly(np.asarray(ball_pos)),
+            _readonly(np.asarray(box_pos)),
+            _readonly(np.reshape(R_raw, (3, 3))),
+            _readonly(np.subtract(ball_vel, box_vel)),
+            ball_pos,
+            ball_vel,
+            box_pos,
+            box_vel,
         )
-        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        return np.asarray(ball_pos), np.asarray(box_pos), R, v_rel
+        self._now = now = _Now(version, query)
+        return now
+
+    @staticmethod
+    def _relative_speed(now: _Now) -> float:
+        """The ball's speed relative to the box."""
+        if now._speed is None:
+            now._speed = norm(now._query[3])
+        return now._speed
+
+    @staticmethod
+    def _distance_to_box_centre(now: _Now) -> float:
+        """The ball's centre's distance from the box's centre."""
+        if now._box_centre is None:
+            ball_pos, box_pos, R, _ = now._query[:4]
+            now._box_centre = norm(ball_pos - (box_pos + R @ _BOX_CENTRE_BOX))
+        return now._box_centre
 
     def step(self, air_drag: bool, after_substep: Callable[[], None]) -> None:
         """One physics step of ``sim.physics_dt_s``, in :meth:`substeps` equal substeps
@@ -269,6 +325,7 @@ class BallCatcherScene:
                 if air_drag:
                     self.apply_drag()
                 client.stepSimulation()
+                self.sim.touch()
                 after_substep()
         finally:
             if n > 1:
@@ -286,12 +343,16 @@ class BallCatcherScene:
 
     # --- ground truth -----------------------------------------------------------------
     def ball_pos_world(self) -> np.ndarray:
-        return np.asarray(self.sim.client.getBasePositionAndOrientation(self.ball)[0])
+        return np.asarray(self._world_now()._query[4])
 
     def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ball's centre and its velocity relative to the box, box frame."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        return R.T @ (ball_pos - box_pos), R.T @ v_rel
+        """The ball's centre and its velocity relative to the box, box frame (read-only
+        arrays)."""
+        now = self._world_now()
+        if now._ball_in_box is None:
+            ball_pos, box_pos, R, v_rel = now._query[:4]
+            now._ball_in_box = (_readonly(R.T @ (ball_pos - box_pos)), _readonly(R.T @ v_rel))
+        return now._ball_in_box
 
     def ball_touches_box(self) -> bool:
         """Whether the last physics step pushed the ball off the box (a contact with a
@@ -300,17 +361,13 @@ class BallCatcherScene:
         return any(contact[9] > 0.0 for contact in contacts)
 
     def ground_truth(self) -> GroundTruth:
-        client = self.sim.client
-        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
-        ball_vel, _ = client.getBaseVelocity(self.ball)
-        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        box_vel, _ = client.getBaseVelocity(self.box)
+        _, _, R, _, ball_pos, ball_vel, box_pos, box_vel = self._world_now()._query
         state = np.empty(STATE_DIM)
         state[StateIndex.BALL_X : StateIndex.BALL_Z + 1] = ball_pos
         state[StateIndex.BALL_VX : StateIndex.BALL_VZ + 1] = ball_vel
         state[StateIndex.BOX_X : StateIndex.BOX_Z + 1] = box_pos
         state[StateIndex.BOX_VX : StateIndex.BOX_VZ + 1] = box_vel
         T = np.eye(4)
-        T[:3, :3] = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
+        T[:3, :3] = R
         T[:3, 3] = box_pos
         return GroundTruth(state, T)
