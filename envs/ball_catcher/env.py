@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -22,12 +23,15 @@ from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
 from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
+from observer_gym.envs.transforms import norm
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
 NO_FRAME_AGE_S = 10.0  # frame age reported for a camera that has delivered nothing yet
 PASSED_MARGIN_M = 0.2  # the ball this far behind the box's back plane has passed it
 NEAR_M, FAR_M = 0.1, 8.0  # the cameras' clipping planes; nearer points are not seen
 VIEWER_POSE = look_at(np.array([1.9, -3.2, 1.9]), np.array([1.9, 0.0, 0.9]))
+_WORKSPACE_LOW = geo.WORKSPACE_LOW_WORLD.tolist()
+_WORKSPACE_HIGH = geo.WORKSPACE_HIGH_WORLD.tolist()
 
 
 class BallCatcherEnv(CameraEnv):
@@ -380,27 +384,40 @@ class BallCatcherEnv(CameraEnv):
         (kept in the workspace) and send the arm there."""
         profile, dt = self.config.profile, self.config.control_dt_s
         desired = velocity_cmd.copy()
-        speed = np.linalg.norm(desired)
+        speed = norm(desired)
         if speed > profile.max_speed_mps:
             desired *= profile.max_speed_mps / speed
         change = desired - self._box_vel_cmd
         max_change = profile.max_accel_mps2 * dt
-        norm = np.linalg.norm(change)
-        if norm > max_change:
-            change *= max_change / norm
+        change_m = norm(change)
+        if change_m > max_change:
+            change *= max_change / change_m
         velocity = self._box_vel_cmd + change
         # Brake for the workspace's faces as the profile allows: along each axis, no faster
-        # than the speed that still stops at the face ahead, sqrt(2 a d).
-        low, high = geo.WORKSPACE_LOW_WORLD, geo.WORKSPACE_HIGH_WORLD
-        current = self.scene.hole_target_world
-        ahead_m = np.where(velocity > 0.0, high - current, current - low)
-        stoppable = np.sqrt(2.0 * profile.max_accel_mps2 * np.maximum(ahead_m, 0.0))
-        velocity = np.clip(velocity, -stoppable, stoppable)
-        target = current + velocity * dt
-        outside = (target < low) | (target > high)
-        velocity[outside] = 0.0
-        self._box_vel_cmd = velocity
-        self.scene.command_hole(np.clip(target, low, high))
+        # than the speed that still stops at the face ahead, sqrt(2 a d); then keep the
+        # target in the workspace. Per axis in floats: the values NumPy's where, maximum,
+        # sqrt and clip give (clip: x if x > low else low, then that if < high else high).
+        brake = 2.0 * profile.max_accel_mps2
+        velocities, targets = [], []
+        for v, current, low, high in zip(
+            velocity.tolist(),
+            self.scene.hole_target_world.tolist(),
+            _WORKSPACE_LOW,
+            _WORKSPACE_HIGH,
+            strict=True,
+        ):
+            ahead_m = high - current if v > 0.0 else current - low
+            stoppable = math.sqrt(brake * (ahead_m if ahead_m > 0.0 else 0.0))
+            v = v if v > -stoppable else -stoppable
+            v = v if v < stoppable else stoppable
+            target = current + v * dt
+            if target < low or target > high:
+                v = 0.0
+            target = target if target > low else low
+            targets.append(target if target < high else high)
+            velocities.append(v)
+        self._box_vel_cmd = np.array(velocities)
+        self.scene.command_hole(np.array(targets))
 
     def _judge(self) -> str:
         if self._entered_clean is not None:
@@ -421,7 +438,7 @@ class BallCatcherEnv(CameraEnv):
         crossing = plane_crossing(state[BALL_POS], state[BALL_VEL], state[BOX_POS][0])
         if crossing is None:
             return self._miss_m
-        return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
+        return norm(crossing[1][1:] - state[BOX_POS][1:])
 
 
 def _real_vector(value) -> np.ndarray:
