@@ -50,6 +50,9 @@ SUBSTEP_MOTION_M = geo.WALL_M / 2
 # The radius of the sphere around the box's centre that holds the box.
 BOX_BOUND_RADIUS_M = float(np.hypot(np.sqrt(2.0) * geo.BOX_OUTER_SIDE_M / 2, geo.BOX_DEPTH_M / 2))
 _BOX_CENTRE_BOX = np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])  # the box's centre, box frame
+# ground_truth writes the state as ball position, ball velocity, box position, box velocity.
+_STATE_STARTS = (StateIndex.BALL_X, StateIndex.BALL_VX, StateIndex.BOX_X, StateIndex.BOX_VX)
+assert _STATE_STARTS == (0, 3, 6, 9) and STATE_DIM == 12
 # may_reach_box: room for gravity's bend over a step (g t^2 / 2 = 0.5 mm at 10 ms) and more.
 REACH_MARGIN_M = 0.05
 # Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
@@ -103,18 +106,42 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 class _Now:
-    """The ball and the box at one version of the world (``Simulation.version``), each
-    quantity computed on first use: the ground-truth queries of a tick are made once
-    however many of the scene's methods ask (their arrays are read-only: shared)."""
+    """The ball and the box at one version of the world (``Simulation.version``): PyBullet's
+    answers, and what the scene derives from them, each computed on first use, so a tick's
+    ground truth is asked for once however many of the scene's methods need it (the
+    arrays are read-only: they are shared)."""
 
-    __slots__ = ("_ball_in_box", "_box_centre", "_query", "_speed", "version")
+    __slots__ = (
+        "R_raw",
+        "_arrays",
+        "_ball_in_box",
+        "_box_centre_distance",
+        "_speed",
+        "ball_pos",
+        "ball_vel",
+        "box_pos",
+        "box_vel",
+        "version",
+    )
 
-    def __init__(self, version: int, query) -> None:
+    def __init__(self, version: int, ball_pos, ball_vel, box_pos, box_vel, R_raw) -> None:
         self.version = version
-        # (ball_pos, box_pos, R_world_box, v_rel, ball_pos_raw, ball_vel_raw, box_pos_raw,
-        # box_vel_raw, R_raw): arrays and PyBullet's tuples.
-        self._query = query
-        self._ball_in_box = self._box_centre = self._speed = None
+        # PyBullet's tuples: positions, linear velocities, R_world_box row by row.
+        self.ball_pos, self.ball_vel = ball_pos, ball_vel
+        self.box_pos, self.box_vel = box_pos, box_vel
+        self.R_raw = R_raw
+        self._arrays = self._ball_in_box = self._box_centre_distance = self._speed = None
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ball centre, box origin, R_world_box, ball velocity relative to the box)."""
+        if self._arrays is None:
+            self._arrays = (
+                _readonly(np.array(self.ball_pos)),
+                _readonly(np.array(self.box_pos)),
+                _readonly(np.array(self.R_raw).reshape(3, 3)),
+                _readonly(np.subtract(self.ball_vel, self.box_vel)),
+            )
+        return self._arrays
 
 
 class BallCatcherScene:
@@ -268,7 +295,7 @@ class BallCatcherScene:
     def _ball_and_box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ball centre, box origin (the hole's centre), R_world_box, ball velocity relative
         to the box), world frame (read-only arrays)."""
-        return self._world_now()._query[:4]
+        return self._world_now().arrays()
 
     def _world_now(self) -> _Now:
         """The ball and the box now: PyBullet is asked once per version of the world (the
@@ -280,36 +307,30 @@ class BallCatcherScene:
         client = self.sim.client
         ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
         box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        ball_vel = client.getBaseVelocity(self.ball)[0]
-        box_vel = client.getBaseVelocity(self.box)[0]
-        R_raw = client.getMatrixFromQuaternion(box_quat)
-        query = (
-            _readonly(np.asarray(ball_pos)),
-            _readonly(np.asarray(box_pos)),
-            _readonly(np.reshape(R_raw, (3, 3))),
-            _readonly(np.subtract(ball_vel, box_vel)),
+        self._now = now = _Now(
+            version,
             ball_pos,
-            ball_vel,
+            client.getBaseVelocity(self.ball)[0],
             box_pos,
-            box_vel,
+            client.getBaseVelocity(self.box)[0],
+            client.getMatrixFromQuaternion(box_quat),
         )
-        self._now = now = _Now(version, query)
         return now
 
     @staticmethod
     def _relative_speed(now: _Now) -> float:
         """The ball's speed relative to the box."""
         if now._speed is None:
-            now._speed = norm(now._query[3])
+            now._speed = norm(now.arrays()[3])
         return now._speed
 
     @staticmethod
     def _distance_to_box_centre(now: _Now) -> float:
         """The ball's centre's distance from the box's centre."""
-        if now._box_centre is None:
-            ball_pos, box_pos, R, _ = now._query[:4]
-            now._box_centre = norm(ball_pos - (box_pos + R @ _BOX_CENTRE_BOX))
-        return now._box_centre
+        if now._box_centre_distance is None:
+            ball_pos, box_pos, R, _ = now.arrays()
+            now._box_centre_distance = norm(ball_pos - (box_pos + R @ _BOX_CENTRE_BOX))
+        return now._box_centre_distance
 
     def step(self, air_drag: bool, after_substep: Callable[[], None]) -> None:
         """One physics step of ``sim.physics_dt_s``, in :meth:`substeps` equal substeps
@@ -343,14 +364,14 @@ class BallCatcherScene:
 
     # --- ground truth -----------------------------------------------------------------
     def ball_pos_world(self) -> np.ndarray:
-        return np.asarray(self._world_now()._query[4])
+        return np.array(self._world_now().ball_pos)
 
     def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The ball's centre and its velocity relative to the box, box frame (read-only
         arrays)."""
         now = self._world_now()
         if now._ball_in_box is None:
-            ball_pos, box_pos, R, v_rel = now._query[:4]
+            ball_pos, box_pos, R, v_rel = now.arrays()
             now._ball_in_box = (_readonly(R.T @ (ball_pos - box_pos)), _readonly(R.T @ v_rel))
         return now._ball_in_box
 
@@ -361,13 +382,16 @@ class BallCatcherScene:
         return any(contact[9] > 0.0 for contact in contacts)
 
     def ground_truth(self) -> GroundTruth:
-        _, _, R, _, ball_pos, ball_vel, box_pos, box_vel = self._world_now()._query
-        state = np.empty(STATE_DIM)
-        state[StateIndex.BALL_X : StateIndex.BALL_Z + 1] = ball_pos
-        state[StateIndex.BALL_VX : StateIndex.BALL_VZ + 1] = ball_vel
-        state[StateIndex.BOX_X : StateIndex.BOX_Z + 1] = box_pos
-        state[StateIndex.BOX_VX : StateIndex.BOX_VZ + 1] = box_vel
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = box_pos
+        now = self._world_now()
+        # The STATE_NAMES layout: ball position and velocity, box position and velocity.
+        state = np.array(now.ball_pos + now.ball_vel + now.box_pos + now.box_vel)
+        R, (x, y, z) = now.R_raw, now.box_pos
+        T = np.array(
+            [
+                [R[0], R[1], R[2], x],
+                [R[3], R[4], R[5], y],
+                [R[6], R[7], R[8], z],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
         return GroundTruth(state, T)
