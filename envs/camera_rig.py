@@ -192,7 +192,7 @@ class FrameClock:
             schedule.index += 1
             schedule.next_tick = self._draw_tick(schedule)
             if tick > 0 and (self.drop_prob > 0.0 or self.always_draw_drops):
-                if self.rng.uniform() < self.drop_prob:
+                if self.rng.random() < self.drop_prob:  # uniform()'s number, cheaper
                     continue
             cameras.append(camera_id)
         self._next_tick = min(s.next_tick for s in self.schedules)
