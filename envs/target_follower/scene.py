@@ -34,6 +34,10 @@ from observer_gym.envs.target_follower.measurements import fully_hidden, in_imag
 from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
 
 TARGET_URDF_WIDTH_M = 0.12  # target_follower_target.urdf's sphere diameter; scaled to W
+# ground_truth writes the state in this order.
+assert (IMAGE, IMAGE_RATE, APPLIED) == (slice(0, 3), slice(3, 6), slice(10, 13))
+assert (StateIndex.ROBOT_X, StateIndex.ROBOT_YAW, StateIndex.TILT, STATE_DIM) == (6, 8, 9, 15)
+assert (StateIndex.TRACKING_VALID, StateIndex.TARGET_VISIBLE) == (13, 14)
 
 
 def _yaw_quaternion(yaw_rad: float) -> list[float]:
@@ -208,17 +212,27 @@ class TargetFollowerScene:
             T = T @ self.T_nominal_true
         pos, vel = self.motion.pos.copy(), self.motion.velocity
         W = self.target_width_m
-        depth = float(geo.target_in_camera(T, pos)[2])
-        state = np.empty(STATE_DIM)
-        state[IMAGE] = geo.image_state(self.K, T, pos, W)
-        state[IMAGE_RATE] = geo.target_image_velocity(self.K, T, pos, vel, W)
-        state[StateIndex.ROBOT_X : StateIndex.ROBOT_Y + 1] = self.robot_xy_m
-        state[StateIndex.ROBOT_YAW] = self.yaw_rad
-        state[StateIndex.TILT] = self.tilt_rad
-        state[APPLIED] = self.applied
+        # The target in the camera frame, once for the depth, the image state and its rate
+        # (geo.target_in_camera, image_state, target_image_velocity).
+        p = geo.target_in_camera(T, pos).tolist()
+        pdot = (T[:3, :3].T @ vel).tolist()
+        depth = p[2]
+        x_i, y_i, d_x = geo.image_state_in_camera(self.K, *p, W)
         in_front = depth > geo.MIN_DEPTH_M
-        on_image = in_front and in_image(self.K, self.image_size_px, *state[IMAGE][:2])
+        on_image = in_front and in_image(self.K, self.image_size_px, x_i, y_i)
         occluded = fully_hidden(T, pos, 0.5 * W, self.occluder_pose)
-        state[StateIndex.TRACKING_VALID] = float(in_front)
-        state[StateIndex.TARGET_VISIBLE] = float(on_image and not occluded)
+        state = np.array(  # STATE_NAMES
+            [
+                x_i,
+                y_i,
+                d_x,
+                *geo.image_velocity_in_camera(self.K, p, pdot, W),
+                *self.robot_xy_m.tolist(),
+                self.yaw_rad,
+                self.tilt_rad,
+                *self.applied.tolist(),
+                float(in_front),
+                float(on_image and not occluded),
+            ]
+        )
         return GroundTruth(state, T, pos, vel, depth, bool(on_image), bool(occluded))
