@@ -39,7 +39,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
-from observer_gym.envs.actions import box_bounds, checked_action
+from observer_gym.envs.actions import BoxBounds, checked_action
 from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.camera_rig import CameraRig, CameraTiming, Frame
 from observer_gym.envs.config import check_render_mode
@@ -71,9 +71,9 @@ class CameraEnv(gym.Env):
         self._episode: tuple[np.random.Generator, dict] | None = None
         self._actions: list[np.ndarray] = []
         self._tick: int | None = None  # None until the first reset
-        # id(space) -> (space, low, high): float64 bounds of the action and state Boxes,
-        # made once per space object (see _bounds).
-        self._bounds_cache: dict[int, tuple[spaces.Box, np.ndarray, np.ndarray]] = {}
+        # id(space) -> the bounds of the action and state Boxes, made once per space
+        # object (see _bounds).
+        self._bounds_cache: dict[int, BoxBounds] = {}
         self.sim = Simulation(self.tick_s)
         self.rig = CameraRig(
             self.sim,
@@ -192,21 +192,21 @@ class CameraEnv(gym.Env):
             return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
         return self._measurement_space()
 
-    def _bounds(self, space: spaces.Box) -> tuple[np.ndarray, np.ndarray]:
-        """``box_bounds(space)``, kept while ``space`` is the same object."""
-        cached = self._bounds_cache.get(id(space))
-        if cached is None or cached[0] is not space:
-            cached = self._bounds_cache[id(space)] = (space, *box_bounds(space))
-        return cached[1], cached[2]
+    def _bounds(self, space: spaces.Box) -> BoxBounds:
+        """``BoxBounds(space)``, kept while ``space`` is the same object."""
+        bounds = self._bounds_cache.get(id(space))
+        if bounds is None or bounds.space is not space:
+            bounds = self._bounds_cache[id(space)] = BoxBounds(space)
+        return bounds
 
     def _observation(self) -> Any:
         """The newest delivered frame (a copy), or the clipped ground truth."""
         mode = self.config.obs_mode
         if mode == "state":
             # np.clip(state, low, high) without its dispatch (the bounds are float64 already).
-            low, high = self._bounds(self.state_space)
-            clipped = np.maximum(self._ground_truth_state(), low)
-            return np.minimum(clipped, high, out=clipped).astype(np.float32)
+            bounds = self._bounds(self.state_space)
+            clipped = np.maximum(self._ground_truth_state(), bounds.low)
+            return np.minimum(clipped, bounds.high, out=clipped).astype(np.float32)
         latest = self.rig.latest[0]
         if latest is not None:
             return copy_observation(latest.payload)
