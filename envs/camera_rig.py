@@ -113,7 +113,7 @@ def draw_calibration_error(cfg: SensorConfig, rng: np.random.Generator) -> Calib
     )
 
 
-@dataclass
+@dataclass(slots=True)
 class Frame:
     """A captured frame: when, through which calibration, and what it holds (the
     calibration arrays are read-only: frames and ``info`` share them)."""
@@ -195,7 +195,10 @@ class FrameClock:
                 if self.rng.random() < self.drop_prob:  # uniform()'s number, cheaper
                     continue
             cameras.append(camera_id)
-        self._next_tick = min(s.next_tick for s in self.schedules)
+        schedules = self.schedules
+        self._next_tick = (
+            schedules[0].next_tick if len(schedules) == 1 else min(s.next_tick for s in schedules)
+        )
         return cameras
 
     def next_capture_tick(self) -> int:

@@ -23,14 +23,13 @@ import math
 
 import numpy as np
 
-from observer_gym.envs.transforms import pose_matrix
-
 # Tilt axis in the base frame (m): 1.2 m above the midpoint of the wheel axle, on the
 # robot's turning axis, as the spec's geometry has it (X_m is both the unicycle's position
 # and the tilt axis's); an axis ahead of the axle would add a lateral term to B_i's omega
 # column.
 TILT_AXIS_BASE_M = np.array([0.0, 0.0, 1.20])
 MIN_DEPTH_M = 0.05  # a target closer than this to the camera plane has no image state
+_TILT_AXIS_BASE = tuple(TILT_AXIS_BASE_M.tolist())
 
 
 def camera_pose(
@@ -39,15 +38,27 @@ def camera_pose(
     """``T_world_cam`` (OpenCV camera axes) of the robot's camera."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     ct, st = math.cos(tilt_rad), math.sin(tilt_rad)
-    # The optical axis (ct, 0, st) is tilted up by phi; the camera's up is (-st, 0, ct).
-    up_base = np.array([-st, 0.0, ct])
     R_world_base = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    # OpenCV: x right, y down, z forward: the columns (0, -1, 0), -up and the optical axis
-    # (-up's 0 is -0.0, as np.column_stack([right, -up, forward]) made it).
+    # OpenCV: x right, y down, z forward: the columns (0, -1, 0), minus the camera's up
+    # (-st, 0, ct) and the optical axis (ct, 0, st), tilted up by phi (-up's 0 is -0.0, as
+    # np.column_stack([right, -up, forward]) made it).
     R_base_cam = np.array([[0.0, st, ct], [-1.0, -0.0, 0.0], [0.0, -ct, st]])
-    centre_base = TILT_AXIS_BASE_M + delta_y_m * up_base
-    centre_world = R_world_base @ centre_base + np.array([robot_xy_m[0], robot_xy_m[1], 0.0])
-    return pose_matrix(R_world_base @ R_base_cam, centre_world)
+    # TILT_AXIS_BASE_M + delta_y_m * up and the robot's offset, elementwise in floats; the
+    # matrix products stay NumPy's.
+    axis_x, axis_y, axis_z = _TILT_AXIS_BASE
+    centre_base = np.array(
+        [axis_x + delta_y_m * -st, axis_y + delta_y_m * 0.0, axis_z + delta_y_m * ct]
+    )
+    x, y, z = (R_world_base @ centre_base).tolist()
+    r0, r1, r2 = (R_world_base @ R_base_cam).tolist()
+    return np.array(  # pose_matrix(R_world_cam, centre_world)
+        [
+            [*r0, x + float(robot_xy_m[0])],
+            [*r1, y + float(robot_xy_m[1])],
+            [*r2, z + 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def target_in_camera(T_world_cam: np.ndarray, target_pos_world: np.ndarray) -> np.ndarray:

@@ -86,6 +86,8 @@ class TargetMotion:
     @property
     def velocity(self) -> np.ndarray:
         """The target's world velocity now (m/s)."""
+        if self.kind == "random_walk":  # base_velocity's copy, without making it
+            return self._walk_vel + self._kick
         return self.base_velocity(self.time_s) + self._kick
 
     def advance(

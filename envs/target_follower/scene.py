@@ -34,6 +34,7 @@ from observer_gym.envs.target_follower.measurements import fully_hidden, in_imag
 from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
 
 TARGET_URDF_WIDTH_M = 0.12  # target_follower_target.urdf's sphere diameter; scaled to W
+_OCCLUDER_PARKED = OCCLUDER_PARKED_WORLD.tolist()
 # ground_truth writes the state in this order.
 assert (IMAGE, IMAGE_RATE, APPLIED) == (slice(0, 3), slice(3, 6), slice(10, 13))
 assert (StateIndex.ROBOT_X, StateIndex.ROBOT_YAW, StateIndex.TILT, STATE_DIM) == (6, 8, 9, 15)
@@ -139,15 +140,14 @@ class TargetFollowerScene:
         ``substeps`` steps. The bodies are placed in the world at the end, and after
         substep k (0-based, not the last) where ``stops(k)``: the robot at its exact arc
         there, the target where its integration is; then ``on_stop(k)`` is called."""
-        self.wheels_mps = applied_wheel_speeds(
-            float(command[0]), float(command[1]), self.wheels_mps, dt_s, self.limits
-        )
+        v_cmd, omega_cmd, tilt_rate_cmd = command.tolist()
+        self.wheels_mps = applied_wheel_speeds(v_cmd, omega_cmd, self.wheels_mps, dt_s, self.limits)
         v, omega = body_velocity(self.wheels_mps, self.limits.wheel_base_m)
         low, high = self.tilt_range_rad
         tilt_start = self.tilt_rad
-        tilt_end = min(max(tilt_start + float(command[2]) * dt_s, low), high)
+        tilt_end = min(max(tilt_start + tilt_rate_cmd * dt_s, low), high)
         omega_t = (tilt_end - tilt_start) / dt_s  # the tilt stops at its end stops
-        start = (*self.robot_xy_m, self.yaw_rad)
+        start = (*self.robot_xy_m.tolist(), self.yaw_rad)
         self.applied = np.array([v, omega, omega_t])
 
         def place_robot(t_s: float, tilt_rad: float) -> None:
@@ -175,23 +175,21 @@ class TargetFollowerScene:
         if self.occluder is None:
             return
         self.occluder_pose = pose
-        centre, yaw = (OCCLUDER_PARKED_WORLD, 0.0) if pose is None else pose
-        self.sim.client.resetBasePositionAndOrientation(
-            self.occluder, list(centre), _yaw_quaternion(yaw)
-        )
+        centre, yaw = (_OCCLUDER_PARKED, 0.0) if pose is None else (list(pose[0]), pose[1])
+        self.sim.client.resetBasePositionAndOrientation(self.occluder, centre, _yaw_quaternion(yaw))
 
     def _place(self) -> None:
         self._T_world_cam = geo.camera_pose(
             self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m
         )
         client = self.sim.client
-        x, y = self.robot_xy_m
+        x, y = self.robot_xy_m.tolist()
         client.resetBasePositionAndOrientation(
             self.robot, [x, y, 0.0], _yaw_quaternion(self.yaw_rad)
         )
         client.resetJointState(self.robot, 0, self.tilt_rad)
         client.resetBasePositionAndOrientation(
-            self.target, list(self.motion.pos), [0.0, 0.0, 0.0, 1.0]
+            self.target, self.motion.pos.tolist(), [0.0, 0.0, 0.0, 1.0]
         )
 
     # --- ground truth -----------------------------------------------------------------
