@@ -22,7 +22,7 @@ from observer_gym.envs.ball_catcher.throws import (
 from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
 from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
-from observer_gym.envs.sim import Simulation
+from observer_gym.envs.sim import GRAVITY_MPS2, Simulation
 from observer_gym.envs.transforms import norm
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
@@ -254,7 +254,7 @@ class BallCatcherEnv(CameraEnv):
         if self._approach_clean is None and self.scene.ball_touches_box():
             point = geo.approach_point(p_prev, v_prev)
             self._approach_clean = point is not None and geo.is_clean(point, hole_m)
-        if self._entered_clean is None:
+        if self._entered_clean is None and p_prev[2] >= 0.0 > p[2]:  # front_plane_entry's test
             point = geo.front_plane_entry(p_prev, p)
             if point is not None and geo.on_front_face(point):
                 clean = geo.is_clean(point, hole_m)
@@ -434,11 +434,17 @@ class BallCatcherEnv(CameraEnv):
     def _miss_distance_m(self) -> float:
         """Distance between the hole and where the ball will cross its plane (the last
         value once the ball no longer approaches it)."""
-        state = self._truth.state
-        crossing = plane_crossing(state[BALL_POS], state[BALL_VEL], state[BOX_POS][0])
-        if crossing is None:
+        # plane_crossing(ball_pos, ball_vel, box_x) in floats, the same operations.
+        (px, py, pz), (vx, vy, vz), (bx, by, bz) = (
+            self._truth.state[index].tolist() for index in (BALL_POS, BALL_VEL, BOX_POS)
+        )
+        if not vx < 0.0:
             return self._miss_m
-        return norm(crossing[1][1:] - state[BOX_POS][1:])
+        t = (bx - px) / vx
+        if t < 0.0:
+            return self._miss_m
+        y, z = py + vy * t, (pz + vz * t) - 0.5 * GRAVITY_MPS2 * t * t
+        return norm(np.array([y - by, z - bz]))
 
 
 def _real_vector(value) -> np.ndarray:
