@@ -195,4 +195,6 @@ class Camera:
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
             shadow=0,
         )
-        return cv2.cvtColor(np.reshape(rgba, (h, w, 4)), cv2.COLOR_RGBA2RGB)  # a new array
+        if getattr(rgba, "shape", None) != (h, w, 4):  # NumPy-enabled PyBullet: it is already
+            rgba = np.reshape(rgba, (h, w, 4))
+        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # a new array

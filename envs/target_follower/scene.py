@@ -212,8 +212,9 @@ class TargetFollowerScene:
         W = self.target_width_m
         # The target in the camera frame, once for the depth, the image state and its rate
         # (geo.target_in_camera, image_state, target_image_velocity).
-        p = geo.target_in_camera(T, pos).tolist()
-        pdot = (T[:3, :3].T @ vel).tolist()
+        R_cam_world = T[:3, :3].T
+        p = (R_cam_world @ (pos - T[:3, 3])).tolist()
+        pdot = (R_cam_world @ vel).tolist()
         depth = p[2]
         x_i, y_i, d_x = geo.image_state_in_camera(self.K, *p, W)
         in_front = depth > geo.MIN_DEPTH_M
