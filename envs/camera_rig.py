@@ -347,8 +347,12 @@ class CameraRig:
         due = [f for f in self.pending if f.delivery_tick <= tick]
         if not due:
             return []
-        self.pending = [f for f in self.pending if f.delivery_tick > tick]
-        due.sort(key=lambda f: (f.capture_tick, f.camera_id))
+        if len(due) == len(self.pending):  # the usual case: all of them
+            self.pending = []
+        else:
+            self.pending = [f for f in self.pending if f.delivery_tick > tick]
+        if len(due) > 1:
+            due.sort(key=lambda f: (f.capture_tick, f.camera_id))
         for f in due:
             newest = self.latest[f.camera_id]
             if newest is None or f.capture_tick >= newest.capture_tick:
