@@ -12,7 +12,7 @@ from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.camera_presets import preset_timings
 from observer_gym.envs.ball_catcher.config import BallCatcherConfig
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS, BOX_VEL, STATE_HIGH
-from observer_gym.envs.ball_catcher.scene import BallCatcherScene
+from observer_gym.envs.ball_catcher.scene import BallCatcherScene, WorldNow
 from observer_gym.envs.ball_catcher.throws import (
     MAX_THROW_SPEED_MPS,
     Throw,
@@ -152,11 +152,11 @@ class BallCatcherEnv(CameraEnv):
         self._throw: Throw | None = None
         self._truth = None
         self._miss_m = 0.0
-        # The catch judgement: the ball's centre and velocity (box frame) after the last
-        # physics (sub)step, whether the line it flew on before first touching the box
-        # would have passed cleanly (None: no touch yet), and whether it entered cleanly
-        # (None: not entered).
-        self._ball_box: tuple[np.ndarray, np.ndarray] | None = None
+        # The catch judgement: the world after the last physics (sub)step (the ball's
+        # centre and velocity there, box frame, are scene.ball_in_box(it)), whether the
+        # line it flew on before first touching the box would have passed cleanly (None:
+        # no touch yet), and whether it entered cleanly (None: not entered).
+        self._ball_box: WorldNow | None = None
         self._approach_clean: bool | None = None
         self._entered_clean: bool | None = None
         super().__init__(render_mode, **options)
@@ -214,7 +214,7 @@ class BallCatcherEnv(CameraEnv):
         if throw is None:
             throw = sample_throw(self.config, rng)
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
-        self._ball_box = self.scene.ball_in_box()
+        self._ball_box = self.scene.world_now()
         self._approach_clean = self._entered_clean = None
         self._throw = throw
         self._box_vel_cmd = np.zeros(3)
@@ -239,7 +239,7 @@ class BallCatcherEnv(CameraEnv):
             if not drag and not self.scene.may_reach_box(ticks * self.tick_s):
                 # Far from the box: no substeps, no contact, no crossing to judge.
                 self.sim.step(ticks)
-                self._ball_box = self.scene.ball_in_box()
+                self._ball_box = self.scene.world_now()  # transformed only if needed
             else:
                 for _ in range(ticks):
                     self.scene.step(drag, self._track_ball)
@@ -248,9 +248,9 @@ class BallCatcherEnv(CameraEnv):
     def _track_ball(self) -> None:
         """After every physics (sub)step: the catch judgement's record (see Episode End)."""
         hole_m = self.config.hole_diameter_m
-        p_prev, v_prev = self._ball_box
-        self._ball_box = self.scene.ball_in_box()
-        p = self._ball_box[0]
+        p_prev, v_prev = self.scene.ball_in_box(self._ball_box)
+        self._ball_box = self.scene.world_now()
+        p = self.scene.ball_in_box(self._ball_box)[0]
         if self._approach_clean is None and self.scene.ball_touches_box():
             point = geo.approach_point(p_prev, v_prev)
             self._approach_clean = point is not None and geo.is_clean(point, hole_m)

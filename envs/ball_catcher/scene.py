@@ -105,7 +105,7 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
-class _Now:
+class WorldNow:
     """The ball and the box at one version of the world (``Simulation.version``): PyBullet's
     answers, and what the scene derives from them, each computed on first use, so a tick's
     ground truth is asked for once however many of the scene's methods need it (the
@@ -183,7 +183,7 @@ class BallCatcherScene:
         self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
         self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
         self.air_drag = False
-        self._now: _Now | None = None  # the ground truth of the world's latest version
+        self._now: WorldNow | None = None  # the ground truth of the world's latest version
 
     def _build_box(self, hole_radius_m: float) -> int:
         """The box as one multibody: PyBullet keeps at most 16 shapes per link, so the
@@ -270,7 +270,7 @@ class BallCatcherScene:
         more than MAX_SUBSTEP_MOTION_M relative to the box within reach of it (its centre
         nearer the box's centre than BOX_BOUND_RADIUS_M, the ball's radius and one step's
         motion); then enough that it moves at most SUBSTEP_MOTION_M per substep."""
-        now = self._world_now()
+        now = self.world_now()
         motion_m = self._relative_speed(now) * self.sim.physics_dt_s
         if motion_m <= MAX_SUBSTEP_MOTION_M:
             return 1
@@ -283,7 +283,7 @@ class BallCatcherScene:
         """Whether the ball, moving at its velocity relative to the box, could come within
         reach of the box (BOX_BOUND_RADIUS_M of its centre, plus the ball's radius and a
         margin for gravity's bend) within ``horizon_s``."""
-        now = self._world_now()
+        now = self.world_now()
         reach_m = (
             BOX_BOUND_RADIUS_M
             + geo.BALL_RADIUS_M
@@ -295,9 +295,9 @@ class BallCatcherScene:
     def _ball_and_box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ball centre, box origin (the hole's centre), R_world_box, ball velocity relative
         to the box), world frame (read-only arrays)."""
-        return self._world_now().arrays()
+        return self.world_now().arrays()
 
-    def _world_now(self) -> _Now:
+    def world_now(self) -> WorldNow:
         """The ball and the box now: PyBullet is asked once per version of the world (the
         world changes only by the scene's and the Simulation's steps and teleports, and
         each of them moves ``sim.version`` on)."""
@@ -307,7 +307,7 @@ class BallCatcherScene:
         client = self.sim.client
         ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
         box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        self._now = now = _Now(
+        self._now = now = WorldNow(
             version,
             ball_pos,
             client.getBaseVelocity(self.ball)[0],
@@ -318,14 +318,14 @@ class BallCatcherScene:
         return now
 
     @staticmethod
-    def _relative_speed(now: _Now) -> float:
+    def _relative_speed(now: WorldNow) -> float:
         """The ball's speed relative to the box."""
         if now._speed is None:
             now._speed = norm(now.arrays()[3])
         return now._speed
 
     @staticmethod
-    def _distance_to_box_centre(now: _Now) -> float:
+    def _distance_to_box_centre(now: WorldNow) -> float:
         """The ball's centre's distance from the box's centre."""
         if now._box_centre_distance is None:
             ball_pos, box_pos, R, _ = now.arrays()
@@ -364,12 +364,13 @@ class BallCatcherScene:
 
     # --- ground truth -----------------------------------------------------------------
     def ball_pos_world(self) -> np.ndarray:
-        return np.array(self._world_now().ball_pos)
+        return np.array(self.world_now().ball_pos)
 
-    def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
+    def ball_in_box(self, now: WorldNow | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The ball's centre and its velocity relative to the box, box frame (read-only
-        arrays)."""
-        now = self._world_now()
+        arrays), now or at ``now`` (an earlier :meth:`world_now`)."""
+        if now is None:
+            now = self.world_now()
         if now._ball_in_box is None:
             ball_pos, box_pos, R, v_rel = now.arrays()
             now._ball_in_box = (_readonly(R.T @ (ball_pos - box_pos)), _readonly(R.T @ v_rel))
@@ -382,7 +383,7 @@ class BallCatcherScene:
         return any(contact[9] > 0.0 for contact in contacts)
 
     def ground_truth(self) -> GroundTruth:
-        now = self._world_now()
+        now = self.world_now()
         # The STATE_NAMES layout: ball position and velocity, box position and velocity.
         state = np.array(now.ball_pos + now.ball_vel + now.box_pos + now.box_vel)
         R, (x, y, z) = now.R_raw, now.box_pos
