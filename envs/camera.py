@@ -23,9 +23,6 @@ from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.transforms import pose_matrix
 
-# OpenCV camera axes expressed in OpenGL camera axes (x right, y up, z backwards).
-_CV_TO_GL = np.diag([1.0, -1.0, -1.0])
-
 
 @dataclass(frozen=True)
 class PinholeIntrinsics:
@@ -90,14 +87,22 @@ def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0,
 
 
 def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
-    """OpenGL view matrix (column-major) of a camera with pose ``T_world_cam``."""
-    R_world_cam = T_world_cam[:3, :3]
-    t_world_cam = T_world_cam[:3, 3]
-    view = np.eye(4)
-    R_gl_world = _CV_TO_GL @ R_world_cam.T
-    view[:3, :3] = R_gl_world
-    view[:3, 3] = -R_gl_world @ t_world_cam
-    return view.T.reshape(-1).tolist()
+    """OpenGL view matrix (column-major) of a camera with pose ``T_world_cam``.
+
+    ``R_gl_world = diag(1, -1, -1) @ R_world_cam.T`` (OpenCV camera axes in OpenGL's: x
+    right, y up, z backwards) is written out: every entry of that matrix product has one
+    nonzero term, +-R[j, i], so the product is exactly it, except that its sum starts
+    at +0.0 and so turns a -0.0 into +0.0, as ``+ 0.0`` does (the view matrix is
+    NumPy's bit for bit: tests/envs/test_ball_table_camera.py)."""
+    (r00, r01, r02, _), (r10, r11, r12, _), (r20, r21, r22, _), _ = T_world_cam.tolist()
+    R_gl_world = [
+        [r00 + 0.0, r10 + 0.0, r20 + 0.0],
+        [-r01 + 0.0, -r11 + 0.0, -r21 + 0.0],
+        [-r02 + 0.0, -r12 + 0.0, -r22 + 0.0],
+    ]
+    tx, ty, tz = (-np.array(R_gl_world) @ T_world_cam[:3, 3]).tolist()
+    (g00, g01, g02), (g10, g11, g12), (g20, g21, g22) = R_gl_world
+    return [g00, g10, g20, 0.0, g01, g11, g21, 0.0, g02, g12, g22, 0.0, tx, ty, tz, 1.0]
 
 
 def world_to_camera(T_world_cam: np.ndarray, points_world: np.ndarray) -> np.ndarray:
@@ -173,17 +178,23 @@ class Camera:
         self.intrinsics = intrinsics
         self.K = intrinsics.K
         self._projection = intrinsics.gl_projection(near_m, far_m)
+        self._view: tuple[bytes, list[float]] | None = None  # the last pose's view matrix
 
     def render(self, T_world_cam: np.ndarray) -> np.ndarray:
         """An RGB frame, uint8, shape (height, width, 3)."""
         w, h = self.intrinsics.width_px, self.intrinsics.height_px
+        pose = T_world_cam.tobytes()  # a camera that stays put keeps its view matrix
+        if self._view is None or self._view[0] != pose:
+            self._view = (pose, gl_view_matrix(T_world_cam))
         _, _, rgba, _, _ = self.sim.client.getCameraImage(
             w,
             h,
-            viewMatrix=gl_view_matrix(T_world_cam),
+            viewMatrix=self._view[1],
             projectionMatrix=self._projection,
             renderer=pybullet.ER_TINY_RENDERER,
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
             shadow=0,
         )
-        return cv2.cvtColor(np.reshape(rgba, (h, w, 4)), cv2.COLOR_RGBA2RGB)  # a new array
+        if getattr(rgba, "shape", None) != (h, w, 4):  # NumPy-enabled PyBullet: it is already
+            rgba = np.reshape(rgba, (h, w, 4))
+        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # a new array

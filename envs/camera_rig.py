@@ -113,7 +113,7 @@ def draw_calibration_error(cfg: SensorConfig, rng: np.random.Generator) -> Calib
     )
 
 
-@dataclass
+@dataclass(slots=True)
 class Frame:
     """A captured frame: when, through which calibration, and what it holds (the
     calibration arrays are read-only: frames and ``info`` share them)."""
@@ -171,6 +171,7 @@ class FrameClock:
         self.schedules = [_CameraSchedule(t) for t in timings]
         for schedule in self.schedules:
             schedule.next_tick = self._draw_tick(schedule)
+        self._next_tick = min(s.next_tick for s in self.schedules)  # next_capture_tick()
 
     def _draw_tick(self, schedule: _CameraSchedule) -> int:
         t = schedule.timing.phase_s + schedule.index / self.rate_hz
@@ -181,6 +182,8 @@ class FrameClock:
 
     def captures_at(self, tick: int) -> list[int]:
         """The cameras that capture a kept frame at ``tick`` (advancing their schedules)."""
+        if tick < self._next_tick:  # no camera's next capture: nothing to advance or draw
+            return []
         cameras = []
         for camera_id, schedule in enumerate(self.schedules):
             if schedule.next_tick != tick:
@@ -189,14 +192,18 @@ class FrameClock:
             schedule.index += 1
             schedule.next_tick = self._draw_tick(schedule)
             if tick > 0 and (self.drop_prob > 0.0 or self.always_draw_drops):
-                if self.rng.uniform() < self.drop_prob:
+                if self.rng.random() < self.drop_prob:  # uniform()'s number, cheaper
                     continue
             cameras.append(camera_id)
+        schedules = self.schedules
+        self._next_tick = (
+            schedules[0].next_tick if len(schedules) == 1 else min(s.next_tick for s in schedules)
+        )
         return cameras
 
     def next_capture_tick(self) -> int:
         """The earliest tick at which some camera captures next (its frame may be lost)."""
-        return min(s.next_tick for s in self.schedules)
+        return self._next_tick
 
     def delivery_tick(self, camera_id: int, capture_tick: int) -> int:
         """When a frame of ``camera_id`` captured at ``capture_tick`` arrives."""
@@ -340,8 +347,12 @@ class CameraRig:
         due = [f for f in self.pending if f.delivery_tick <= tick]
         if not due:
             return []
-        self.pending = [f for f in self.pending if f.delivery_tick > tick]
-        due.sort(key=lambda f: (f.capture_tick, f.camera_id))
+        if len(due) == len(self.pending):  # the usual case: all of them
+            self.pending = []
+        else:
+            self.pending = [f for f in self.pending if f.delivery_tick > tick]
+        if len(due) > 1:
+            due.sort(key=lambda f: (f.capture_tick, f.camera_id))
         for f in due:
             newest = self.latest[f.camera_id]
             if newest is None or f.capture_tick >= newest.capture_tick:

@@ -39,7 +39,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
-from observer_gym.envs.actions import checked_action
+from observer_gym.envs.actions import BoxBounds, checked_action
 from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.camera_rig import CameraRig, CameraTiming, Frame
 from observer_gym.envs.config import check_render_mode
@@ -71,6 +71,9 @@ class CameraEnv(gym.Env):
         self._episode: tuple[np.random.Generator, dict] | None = None
         self._actions: list[np.ndarray] = []
         self._tick: int | None = None  # None until the first reset
+        # id(space) -> the bounds of the action and state Boxes, made once per space
+        # object (see _bounds).
+        self._bounds_cache: dict[int, BoxBounds] = {}
         self.sim = Simulation(self.tick_s)
         self.rig = CameraRig(
             self.sim,
@@ -189,12 +192,21 @@ class CameraEnv(gym.Env):
             return spaces.Box(0, 255, (h, w, 3), dtype=np.uint8)
         return self._measurement_space()
 
+    def _bounds(self, space: spaces.Box) -> BoxBounds:
+        """``BoxBounds(space)``, kept while ``space`` is the same object."""
+        bounds = self._bounds_cache.get(id(space))
+        if bounds is None or bounds.space is not space:
+            bounds = self._bounds_cache[id(space)] = BoxBounds(space)
+        return bounds
+
     def _observation(self) -> Any:
         """The newest delivered frame (a copy), or the clipped ground truth."""
         mode = self.config.obs_mode
         if mode == "state":
-            space = self.state_space
-            return np.clip(self._ground_truth_state(), space.low, space.high).astype(np.float32)
+            # np.clip(state, low, high) without its dispatch (the bounds are float64 already).
+            bounds = self._bounds(self.state_space)
+            clipped = np.maximum(self._ground_truth_state(), bounds.low)
+            return np.minimum(clipped, bounds.high, out=clipped).astype(np.float32)
         latest = self.rig.latest[0]
         if latest is not None:
             return copy_observation(latest.payload)
@@ -241,7 +253,8 @@ class CameraEnv(gym.Env):
     def step(self, action):
         if self._tick is None:
             raise ResetNeeded("call reset() before step()")
-        action = checked_action(action, self.action_space)
+        space = self.action_space
+        action = checked_action(action, space, self._bounds(space))
         self._actions.append(action)
         self._apply_action(action)
         end_tick = self._tick + self.ticks_per_step
@@ -276,11 +289,12 @@ class CameraEnv(gym.Env):
         self, delivered: list[Frame], applied: np.ndarray | None = None
     ) -> dict[str, Any]:
         frames, truth = [], []
+        now, tick_s = self.time_s, self.tick_s
         for f in delivered:  # copies: an info shares nothing with another (Gymnasium's check)
             info = {
                 "camera_id": f.camera_id,
-                "capture_time_s": f.capture_tick * self.tick_s,
-                "delivery_time_s": self.time_s,
+                "capture_time_s": f.capture_tick * tick_s,
+                "delivery_time_s": now,
                 "K": f.K.copy(),
                 "T_world_cam": f.T_world_cam.copy(),
                 "image_size_px": self.rig.image_size_px,
@@ -292,7 +306,7 @@ class CameraEnv(gym.Env):
             )
         return {
             "state": self._ground_truth_state().copy(),
-            "time_s": self.time_s,
+            "time_s": now,
             # The action this step applied, after clipping (None after a reset); an
             # observer reads it here, so wrappers that rescale actions cannot fool it.
             "applied_action": None if applied is None else applied.copy(),

@@ -34,6 +34,11 @@ class Simulation:
         if not physics_dt_s > 0:
             raise ValueError(f"physics_dt_s must be > 0, got {physics_dt_s}")
         self.physics_dt_s = float(physics_dt_s)
+        # Counts the changes of the world: every step and clear here, and every step or
+        # teleport a scene makes through the client (it calls touch()). A query of the
+        # world made at one version holds until the version changes (envs cache their
+        # per-tick ground truth on it).
+        self.version = 0
         with silenced(1):  # PyBullet prints "argv[0]=" on every connection
             self.client = BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
@@ -54,6 +59,11 @@ class Simulation:
         """
         self.client.resetSimulation()
         self._configure()
+        self.version += 1
+
+    def touch(self) -> None:
+        """Record a change of the world made through the client (a step or a teleport)."""
+        self.version += 1
 
     @property
     def client_id(self) -> int:
@@ -67,6 +77,7 @@ class Simulation:
 
     def step(self, substeps: int = 1) -> None:
         step, client_id = pybullet.stepSimulation, self.client._client
+        self.version += 1
         for _ in range(substeps):
             step(physicsClientId=client_id)
 

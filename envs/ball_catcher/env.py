@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -11,7 +12,7 @@ from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.camera_presets import preset_timings
 from observer_gym.envs.ball_catcher.config import BallCatcherConfig
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS, BOX_VEL, STATE_HIGH
-from observer_gym.envs.ball_catcher.scene import BallCatcherScene
+from observer_gym.envs.ball_catcher.scene import BallCatcherScene, WorldNow
 from observer_gym.envs.ball_catcher.throws import (
     MAX_THROW_SPEED_MPS,
     Throw,
@@ -21,13 +22,16 @@ from observer_gym.envs.ball_catcher.throws import (
 from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
 from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
-from observer_gym.envs.sim import Simulation
+from observer_gym.envs.sim import GRAVITY_MPS2, Simulation
+from observer_gym.envs.transforms import norm
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
 NO_FRAME_AGE_S = 10.0  # frame age reported for a camera that has delivered nothing yet
 PASSED_MARGIN_M = 0.2  # the ball this far behind the box's back plane has passed it
 NEAR_M, FAR_M = 0.1, 8.0  # the cameras' clipping planes; nearer points are not seen
 VIEWER_POSE = look_at(np.array([1.9, -3.2, 1.9]), np.array([1.9, 0.0, 0.9]))
+_WORKSPACE_LOW = geo.WORKSPACE_LOW_WORLD.tolist()
+_WORKSPACE_HIGH = geo.WORKSPACE_HIGH_WORLD.tolist()
 
 
 class BallCatcherEnv(CameraEnv):
@@ -148,11 +152,11 @@ class BallCatcherEnv(CameraEnv):
         self._throw: Throw | None = None
         self._truth = None
         self._miss_m = 0.0
-        # The catch judgement: the ball's centre and velocity (box frame) after the last
-        # physics (sub)step, whether the line it flew on before first touching the box
-        # would have passed cleanly (None: no touch yet), and whether it entered cleanly
-        # (None: not entered).
-        self._ball_box: tuple[np.ndarray, np.ndarray] | None = None
+        # The catch judgement: the world after the last physics (sub)step (the ball's
+        # centre and velocity there, box frame, are scene.ball_in_box(it)), whether the
+        # line it flew on before first touching the box would have passed cleanly (None:
+        # no touch yet), and whether it entered cleanly (None: not entered).
+        self._ball_box: WorldNow | None = None
         self._approach_clean: bool | None = None
         self._entered_clean: bool | None = None
         super().__init__(render_mode, **options)
@@ -210,7 +214,7 @@ class BallCatcherEnv(CameraEnv):
         if throw is None:
             throw = sample_throw(self.config, rng)
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
-        self._ball_box = self.scene.ball_in_box()
+        self._ball_box = self.scene.world_now()
         self._approach_clean = self._entered_clean = None
         self._throw = throw
         self._box_vel_cmd = np.zeros(3)
@@ -235,7 +239,7 @@ class BallCatcherEnv(CameraEnv):
             if not drag and not self.scene.may_reach_box(ticks * self.tick_s):
                 # Far from the box: no substeps, no contact, no crossing to judge.
                 self.sim.step(ticks)
-                self._ball_box = self.scene.ball_in_box()
+                self._ball_box = self.scene.world_now()  # transformed only if needed
             else:
                 for _ in range(ticks):
                     self.scene.step(drag, self._track_ball)
@@ -244,13 +248,13 @@ class BallCatcherEnv(CameraEnv):
     def _track_ball(self) -> None:
         """After every physics (sub)step: the catch judgement's record (see Episode End)."""
         hole_m = self.config.hole_diameter_m
-        p_prev, v_prev = self._ball_box
-        self._ball_box = self.scene.ball_in_box()
-        p = self._ball_box[0]
+        p_prev, v_prev = self.scene.ball_in_box(self._ball_box)
+        self._ball_box = self.scene.world_now()
+        p = self.scene.ball_in_box(self._ball_box)[0]
         if self._approach_clean is None and self.scene.ball_touches_box():
             point = geo.approach_point(p_prev, v_prev)
             self._approach_clean = point is not None and geo.is_clean(point, hole_m)
-        if self._entered_clean is None:
+        if self._entered_clean is None and p_prev[2] >= 0.0 > p[2]:  # front_plane_entry's test
             point = geo.front_plane_entry(p_prev, p)
             if point is not None and geo.on_front_face(point):
                 clean = geo.is_clean(point, hole_m)
@@ -380,27 +384,40 @@ class BallCatcherEnv(CameraEnv):
         (kept in the workspace) and send the arm there."""
         profile, dt = self.config.profile, self.config.control_dt_s
         desired = velocity_cmd.copy()
-        speed = np.linalg.norm(desired)
+        speed = norm(desired)
         if speed > profile.max_speed_mps:
             desired *= profile.max_speed_mps / speed
         change = desired - self._box_vel_cmd
         max_change = profile.max_accel_mps2 * dt
-        norm = np.linalg.norm(change)
-        if norm > max_change:
-            change *= max_change / norm
+        change_m = norm(change)
+        if change_m > max_change:
+            change *= max_change / change_m
         velocity = self._box_vel_cmd + change
         # Brake for the workspace's faces as the profile allows: along each axis, no faster
-        # than the speed that still stops at the face ahead, sqrt(2 a d).
-        low, high = geo.WORKSPACE_LOW_WORLD, geo.WORKSPACE_HIGH_WORLD
-        current = self.scene.hole_target_world
-        ahead_m = np.where(velocity > 0.0, high - current, current - low)
-        stoppable = np.sqrt(2.0 * profile.max_accel_mps2 * np.maximum(ahead_m, 0.0))
-        velocity = np.clip(velocity, -stoppable, stoppable)
-        target = current + velocity * dt
-        outside = (target < low) | (target > high)
-        velocity[outside] = 0.0
-        self._box_vel_cmd = velocity
-        self.scene.command_hole(np.clip(target, low, high))
+        # than the speed that still stops at the face ahead, sqrt(2 a d); then keep the
+        # target in the workspace. Per axis in floats: the values NumPy's where, maximum,
+        # sqrt and clip give (clip: x if x > low else low, then that if < high else high).
+        brake = 2.0 * profile.max_accel_mps2
+        velocities, targets = [], []
+        for v, current, low, high in zip(
+            velocity.tolist(),
+            self.scene.hole_target_world.tolist(),
+            _WORKSPACE_LOW,
+            _WORKSPACE_HIGH,
+            strict=True,
+        ):
+            ahead_m = high - current if v > 0.0 else current - low
+            stoppable = math.sqrt(brake * (ahead_m if ahead_m > 0.0 else 0.0))
+            v = v if v > -stoppable else -stoppable
+            v = v if v < stoppable else stoppable
+            target = current + v * dt
+            if target < low or target > high:
+                v = 0.0
+            target = target if target > low else low
+            targets.append(target if target < high else high)
+            velocities.append(v)
+        self._box_vel_cmd = np.array(velocities)
+        self.scene.command_hole(np.array(targets))
 
     def _judge(self) -> str:
         if self._entered_clean is not None:
@@ -417,11 +434,17 @@ class BallCatcherEnv(CameraEnv):
     def _miss_distance_m(self) -> float:
         """Distance between the hole and where the ball will cross its plane (the last
         value once the ball no longer approaches it)."""
-        state = self._truth.state
-        crossing = plane_crossing(state[BALL_POS], state[BALL_VEL], state[BOX_POS][0])
-        if crossing is None:
+        # plane_crossing(ball_pos, ball_vel, box_x) in floats, the same operations.
+        (px, py, pz), (vx, vy, vz), (bx, by, bz) = (
+            self._truth.state[index].tolist() for index in (BALL_POS, BALL_VEL, BOX_POS)
+        )
+        if not vx < 0.0:
             return self._miss_m
-        return float(np.linalg.norm(crossing[1][1:] - state[BOX_POS][1:]))
+        t = (bx - px) / vx
+        if t < 0.0:
+            return self._miss_m
+        y, z = py + vy * t, (pz + vz * t) - 0.5 * GRAVITY_MPS2 * t * t
+        return norm(np.array([y - by, z - bz]))
 
 
 def _real_vector(value) -> np.ndarray:

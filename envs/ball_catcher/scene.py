@@ -36,6 +36,7 @@ from observer_gym.envs.ball_catcher.layout import STATE_DIM, StateIndex
 from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation, asset_path
+from observer_gym.envs.transforms import norm
 
 BOX_MASS_KG = 0.5
 MAX_SHAPES_PER_LINK = 16  # PyBullet's limit on the shapes of one link
@@ -48,6 +49,10 @@ MAX_SUBSTEP_MOTION_M = geo.WALL_M
 SUBSTEP_MOTION_M = geo.WALL_M / 2
 # The radius of the sphere around the box's centre that holds the box.
 BOX_BOUND_RADIUS_M = float(np.hypot(np.sqrt(2.0) * geo.BOX_OUTER_SIDE_M / 2, geo.BOX_DEPTH_M / 2))
+_BOX_CENTRE_BOX = np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])  # the box's centre, box frame
+# ground_truth writes the state as ball position, ball velocity, box position, box velocity.
+_STATE_STARTS = (StateIndex.BALL_X, StateIndex.BALL_VX, StateIndex.BOX_X, StateIndex.BOX_VX)
+assert _STATE_STARTS == (0, 3, 6, 9) and STATE_DIM == 12
 # may_reach_box: room for gravity's bend over a step (g t^2 / 2 = 0.5 mm at 10 ms) and more.
 REACH_MARGIN_M = 0.05
 # Quadratic drag (optional): F = -1/2 rho C_d A |v| v, air at 20 C, smooth sphere.
@@ -95,6 +100,50 @@ class GroundTruth:
     T_world_box: np.ndarray  # 4x4, origin at the hole's centre
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+class WorldNow:
+    """The ball and the box at one version of the world (``Simulation.version``): PyBullet's
+    answers, and what the scene derives from them, each computed on first use, so a tick's
+    ground truth is asked for once however many of the scene's methods need it (the
+    arrays are read-only: they are shared)."""
+
+    __slots__ = (
+        "R_raw",
+        "_arrays",
+        "_ball_in_box",
+        "_box_centre_distance",
+        "_speed",
+        "ball_pos",
+        "ball_vel",
+        "box_pos",
+        "box_vel",
+        "version",
+    )
+
+    def __init__(self, version: int, ball_pos, ball_vel, box_pos, box_vel, R_raw) -> None:
+        self.version = version
+        # PyBullet's tuples: positions, linear velocities, R_world_box row by row.
+        self.ball_pos, self.ball_vel = ball_pos, ball_vel
+        self.box_pos, self.box_vel = box_pos, box_vel
+        self.R_raw = R_raw
+        self._arrays = self._ball_in_box = self._box_centre_distance = self._speed = None
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ball centre, box origin, R_world_box, ball velocity relative to the box)."""
+        if self._arrays is None:
+            self._arrays = (
+                _readonly(np.array(self.ball_pos)),
+                _readonly(np.array(self.box_pos)),
+                _readonly(np.array(self.R_raw).reshape(3, 3)),
+                _readonly(np.subtract(self.ball_vel, self.box_vel)),
+            )
+        return self._arrays
+
+
 class BallCatcherScene:
     """Builds and drives the BallCatcher world.
 
@@ -134,6 +183,7 @@ class BallCatcherScene:
         self.ball_mass_kg = client.getDynamicsInfo(self.ball, -1)[0]
         self.hole_target_world = geo.HOLE_HOME_WORLD.copy()
         self.air_drag = False
+        self._now: WorldNow | None = None  # the ground truth of the world's latest version
 
     def _build_box(self, hole_radius_m: float) -> int:
         """The box as one multibody: PyBullet keeps at most 16 shapes per link, so the
@@ -207,6 +257,7 @@ class BallCatcherScene:
         vel[2] += 0.5 * GRAVITY_MPS2 * self.sim.physics_dt_s
         client.resetBasePositionAndOrientation(self.ball, list(pos_world), [0, 0, 0, 1])
         client.resetBaseVelocity(self.ball, list(vel), [0.0, 0.0, 0.0])
+        self.sim.touch()
 
     def command_hole(self, hole_pos_world) -> None:
         """Send the arm the joint targets that put the hole at ``hole_pos_world``."""
@@ -219,13 +270,12 @@ class BallCatcherScene:
         more than MAX_SUBSTEP_MOTION_M relative to the box within reach of it (its centre
         nearer the box's centre than BOX_BOUND_RADIUS_M, the ball's radius and one step's
         motion); then enough that it moves at most SUBSTEP_MOTION_M per substep."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        motion_m = float(np.linalg.norm(v_rel)) * self.sim.physics_dt_s
+        now = self.world_now()
+        motion_m = self._relative_speed(now) * self.sim.physics_dt_s
         if motion_m <= MAX_SUBSTEP_MOTION_M:
             return 1
-        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
         reach_m = BOX_BOUND_RADIUS_M + geo.BALL_RADIUS_M + motion_m
-        if np.linalg.norm(ball_pos - box_centre) > reach_m:
+        if self._distance_to_box_centre(now) > reach_m:
             return 1
         return int(np.ceil(motion_m / SUBSTEP_MOTION_M))
 
@@ -233,27 +283,54 @@ class BallCatcherScene:
         """Whether the ball, moving at its velocity relative to the box, could come within
         reach of the box (BOX_BOUND_RADIUS_M of its centre, plus the ball's radius and a
         margin for gravity's bend) within ``horizon_s``."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        box_centre = box_pos + R @ np.array([0.0, 0.0, -geo.BOX_DEPTH_M / 2])
+        now = self.world_now()
         reach_m = (
             BOX_BOUND_RADIUS_M
             + geo.BALL_RADIUS_M
-            + float(np.linalg.norm(v_rel)) * horizon_s
+            + self._relative_speed(now) * horizon_s
             + REACH_MARGIN_M
         )
-        return bool(np.linalg.norm(ball_pos - box_centre) <= reach_m)
+        return self._distance_to_box_centre(now) <= reach_m
 
     def _ball_and_box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ball centre, box origin (the hole's centre), R_world_box, ball velocity relative
-        to the box), world frame."""
+        to the box), world frame (read-only arrays)."""
+        return self.world_now().arrays()
+
+    def world_now(self) -> WorldNow:
+        """The ball and the box now: PyBullet is asked once per version of the world (the
+        world changes only by the scene's and the Simulation's steps and teleports, and
+        each of them moves ``sim.version`` on)."""
+        now, version = self._now, self.sim.version
+        if now is not None and now.version == version:
+            return now
         client = self.sim.client
         ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
         box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        v_rel = np.subtract(
-            client.getBaseVelocity(self.ball)[0], client.getBaseVelocity(self.box)[0]
+        self._now = now = WorldNow(
+            version,
+            ball_pos,
+            client.getBaseVelocity(self.ball)[0],
+            box_pos,
+            client.getBaseVelocity(self.box)[0],
+            client.getMatrixFromQuaternion(box_quat),
         )
-        R = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        return np.asarray(ball_pos), np.asarray(box_pos), R, v_rel
+        return now
+
+    @staticmethod
+    def _relative_speed(now: WorldNow) -> float:
+        """The ball's speed relative to the box."""
+        if now._speed is None:
+            now._speed = norm(now.arrays()[3])
+        return now._speed
+
+    @staticmethod
+    def _distance_to_box_centre(now: WorldNow) -> float:
+        """The ball's centre's distance from the box's centre."""
+        if now._box_centre_distance is None:
+            ball_pos, box_pos, R, _ = now.arrays()
+            now._box_centre_distance = norm(ball_pos - (box_pos + R @ _BOX_CENTRE_BOX))
+        return now._box_centre_distance
 
     def step(self, air_drag: bool, after_substep: Callable[[], None]) -> None:
         """One physics step of ``sim.physics_dt_s``, in :meth:`substeps` equal substeps
@@ -269,6 +346,7 @@ class BallCatcherScene:
                 if air_drag:
                     self.apply_drag()
                 client.stepSimulation()
+                self.sim.touch()
                 after_substep()
         finally:
             if n > 1:
@@ -286,12 +364,17 @@ class BallCatcherScene:
 
     # --- ground truth -----------------------------------------------------------------
     def ball_pos_world(self) -> np.ndarray:
-        return np.asarray(self.sim.client.getBasePositionAndOrientation(self.ball)[0])
+        return np.array(self.world_now().ball_pos)
 
-    def ball_in_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ball's centre and its velocity relative to the box, box frame."""
-        ball_pos, box_pos, R, v_rel = self._ball_and_box()
-        return R.T @ (ball_pos - box_pos), R.T @ v_rel
+    def ball_in_box(self, now: WorldNow | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ball's centre and its velocity relative to the box, box frame (read-only
+        arrays), now or at ``now`` (an earlier :meth:`world_now`)."""
+        if now is None:
+            now = self.world_now()
+        if now._ball_in_box is None:
+            ball_pos, box_pos, R, v_rel = now.arrays()
+            now._ball_in_box = (_readonly(R.T @ (ball_pos - box_pos)), _readonly(R.T @ v_rel))
+        return now._ball_in_box
 
     def ball_touches_box(self) -> bool:
         """Whether the last physics step pushed the ball off the box (a contact with a
@@ -300,17 +383,16 @@ class BallCatcherScene:
         return any(contact[9] > 0.0 for contact in contacts)
 
     def ground_truth(self) -> GroundTruth:
-        client = self.sim.client
-        ball_pos, _ = client.getBasePositionAndOrientation(self.ball)
-        ball_vel, _ = client.getBaseVelocity(self.ball)
-        box_pos, box_quat = client.getBasePositionAndOrientation(self.box)
-        box_vel, _ = client.getBaseVelocity(self.box)
-        state = np.empty(STATE_DIM)
-        state[StateIndex.BALL_X : StateIndex.BALL_Z + 1] = ball_pos
-        state[StateIndex.BALL_VX : StateIndex.BALL_VZ + 1] = ball_vel
-        state[StateIndex.BOX_X : StateIndex.BOX_Z + 1] = box_pos
-        state[StateIndex.BOX_VX : StateIndex.BOX_VZ + 1] = box_vel
-        T = np.eye(4)
-        T[:3, :3] = np.reshape(client.getMatrixFromQuaternion(box_quat), (3, 3))
-        T[:3, 3] = box_pos
+        now = self.world_now()
+        # The STATE_NAMES layout: ball position and velocity, box position and velocity.
+        state = np.array(now.ball_pos + now.ball_vel + now.box_pos + now.box_vel)
+        R, (x, y, z) = now.R_raw, now.box_pos
+        T = np.array(
+            [
+                [R[0], R[1], R[2], x],
+                [R[3], R[4], R[5], y],
+                [R[6], R[7], R[8], z],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
         return GroundTruth(state, T)

@@ -23,6 +23,7 @@ from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.config import real_array
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
+from observer_gym.envs.transforms import norm
 
 RESET_OPTIONS = ("ball_pos_table_m", "ball_vel_table_mps")
 
@@ -229,12 +230,18 @@ class BallTableEnv(CameraEnv):
 
     def _reward(self, action: np.ndarray) -> float:
         cfg = self.config
-        distance = float(np.linalg.norm(self._truth.state[BALL_POS]))
-        effort = float(np.mean((action / cfg.max_tilt_rad) ** 2))
+        distance = norm(self._truth.state[BALL_POS])
+        # np.mean((action / max_tilt_rad) ** 2) in floats: NumPy sums two terms in order.
+        tilt_x, tilt_y = action.tolist()
+        tilt_x, tilt_y = tilt_x / cfg.max_tilt_rad, tilt_y / cfg.max_tilt_rad
+        effort = (tilt_x * tilt_x + tilt_y * tilt_y) / 2
         return 1.0 - distance / geo.BALL_TRAVEL_M - cfg.effort_weight * effort
 
     def _terminated(self) -> bool:
-        return bool(np.max(np.abs(self._truth.ball_pos_table[:2])) > geo.TABLE_SIDE_M / 2)
+        x, y, _ = self._truth.ball_pos_table.tolist()
+        if x != x or y != y:  # NaN: np.max gave NaN, never beyond the border
+            return False
+        return max(abs(x), abs(y)) > geo.TABLE_SIDE_M / 2
 
     def _info(self) -> dict[str, Any]:
         T_world_cam = self.camera_pose()

@@ -16,7 +16,7 @@ from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.layout import STATE_DIM, StateIndex
 from observer_gym.envs.robots.kuka_iiwa import KukaIiwa
 from observer_gym.envs.sim import Simulation, asset_path
-from observer_gym.envs.transforms import cross3, pose_matrix, rotation_from_quaternion
+from observer_gym.envs.transforms import cross3
 
 BALL_FRICTION = 0.8  # ample to roll without slipping: needs > (2/7) tan(tilt)
 TABLE_FRICTION = 0.8
@@ -28,6 +28,19 @@ def tilt_quaternion(tilt_x: float, tilt_y: float) -> list[float]:
     sx, cx = np.sin(tilt_x / 2), np.cos(tilt_x / 2)
     sy, cy = np.sin(tilt_y / 2), np.cos(tilt_y / 2)
     return [sx * cy, cx * sy, sx * sy, cx * cy]
+
+
+# ground_truth writes the state in this order.
+assert tuple(StateIndex) == tuple(range(STATE_DIM)) and [i.name for i in StateIndex] == [
+    "BALL_X",
+    "BALL_Y",
+    "BALL_VX",
+    "BALL_VY",
+    "TILT_X",
+    "TILT_Y",
+    "TILT_RATE_X",
+    "TILT_RATE_Y",
+]
 
 
 @dataclass
@@ -129,8 +142,18 @@ class BallTableScene:
 
     # --- ground truth -----------------------------------------------------------------
     def table_pose(self) -> np.ndarray:
-        pos, quat = self.sim.client.getBasePositionAndOrientation(self.table)
-        return pose_matrix(rotation_from_quaternion(quat), pos)
+        client = self.sim.client
+        (x, y, z), quat = client.getBasePositionAndOrientation(self.table)
+        R = client.getMatrixFromQuaternion(quat)  # row by row
+        # pose_matrix(rotation_from_quaternion(quat), pos) in one array.
+        return np.array(
+            [
+                [R[0], R[1], R[2], x],
+                [R[3], R[4], R[5], y],
+                [R[6], R[7], R[8], z],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
 
     def ground_truth(self) -> GroundTruth:
         client = self.sim.client
@@ -139,18 +162,14 @@ class BallTableScene:
         v_o, w_world = client.getBaseVelocity(self.table)
         p_ball, _ = client.getBasePositionAndOrientation(self.ball)
         v_ball, _ = client.getBaseVelocity(self.ball)
-        p_ball = np.asarray(p_ball)
+        p_ball = np.array(p_ball)
         rel = p_ball - o
         ball_pos_table = R.T @ rel
         # Velocity of the ball as seen from the (moving, rotating) table frame.
-        ball_vel_table = R.T @ (np.asarray(v_ball) - np.asarray(v_o) - cross3(w_world, rel))
+        ball_vel_table = R.T @ (np.subtract(v_ball, v_o) - cross3(w_world, rel))
         tilt_x, tilt_y = geo.tilt_angles(R)  # TRF is parallel to the world at home
-        rate_x, rate_y = geo.tilt_rates(R.T @ np.asarray(w_world), tilt_y)
-        state = np.empty(STATE_DIM)
-        state[StateIndex.BALL_X : StateIndex.BALL_Y + 1] = ball_pos_table[:2]
-        state[StateIndex.BALL_VX : StateIndex.BALL_VY + 1] = ball_vel_table[:2]
-        state[StateIndex.TILT_X] = tilt_x
-        state[StateIndex.TILT_Y] = tilt_y
-        state[StateIndex.TILT_RATE_X] = rate_x
-        state[StateIndex.TILT_RATE_Y] = rate_y
+        rate_x, rate_y = geo.tilt_rates(R.T @ np.array(w_world), tilt_y)
+        x, y, _ = ball_pos_table.tolist()
+        vx, vy, _ = ball_vel_table.tolist()
+        state = np.array([x, y, vx, vy, tilt_x, tilt_y, rate_x, rate_y])  # STATE_NAMES
         return GroundTruth(state, T, p_ball, ball_pos_table)

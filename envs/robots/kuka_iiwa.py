@@ -76,7 +76,7 @@ class KukaIiwa:
             self.body,
             self.joints,
             pybullet.POSITION_CONTROL,
-            targetPositions=list(q),
+            targetPositions=q.tolist() if isinstance(q, np.ndarray) else list(q),
             forces=self._torques,
             positionGains=self._gains,
         )
@@ -96,7 +96,7 @@ class KukaIiwa:
         q = self.sim.client.calculateInverseKinematics(
             self.body,
             EE_LINK,
-            list(ee_pos_world),
+            ee_pos_world.tolist() if isinstance(ee_pos_world, np.ndarray) else list(ee_pos_world),
             list(ee_quat_world),
             maxNumIterations=iterations or self._ik_iterations,
             residualThreshold=1e-10,

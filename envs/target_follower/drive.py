@@ -57,10 +57,14 @@ def applied_wheel_speeds(
 ) -> np.ndarray:
     """The wheel speeds the robot runs at for a commanded (v, omega): velocity scaling,
     then acceleration scaling from the previous wheel speeds, then 8-bit quantisation."""
-    wheels = wheel_speeds(v_mps, omega_radps, limits.wheel_base_m)
-    peak = float(np.max(np.abs(wheels)))
+    # wheel_speeds and the velocity scaling in floats (the command is finite).
+    half = 0.5 * omega_radps * limits.wheel_base_m
+    left, right = v_mps - half, v_mps + half
+    peak = max(abs(left), abs(right))
     if peak > limits.wheel_speed_max_mps:
-        wheels *= limits.wheel_speed_max_mps / peak
+        scale = limits.wheel_speed_max_mps / peak
+        left, right = left * scale, right * scale
+    wheels = np.array([left, right])
     if limits.wheel_accel_max_mps2 > 0.0:
         change = wheels - previous_wheels_mps
         largest = float(np.max(np.abs(change)))

@@ -143,6 +143,7 @@ class TargetFollowerEnv(CameraEnv):
         self._command = np.zeros(3)
         self._lost_s = 0.0
         self._truth = None
+        self._calibration: dict[str, float] | None = None
         super().__init__(render_mode, **options)
 
     @property
@@ -152,7 +153,12 @@ class TargetFollowerEnv(CameraEnv):
 
     @property
     def calibration(self) -> dict[str, float]:
-        """What a calibrated rig knows: intrinsics, W, delta_y, D and T."""
+        """What a calibrated rig knows: intrinsics, W, delta_y, D and T (a new dict)."""
+        if self._calibration is None:  # made once: the config and the nominal camera are fixed
+            self._calibration = self._make_calibration()
+        return dict(self._calibration)
+
+    def _make_calibration(self) -> dict[str, float]:
         cfg, intr = self.config, self.intrinsics
         return {
             "fx_px": intr.fx_px,
@@ -302,10 +308,12 @@ class TargetFollowerEnv(CameraEnv):
             scene.set_true_camera(
                 self.rig.cameras[0].K, None if error is None else error.T_nominal_true
             )
-        walk = self.occluder_walk
-        walk.update(self.time_s, cfg.dt_s, self.np_random)
-        T_world_cam = scene.camera_pose()
-        scene.place_occluder(walk.pose(self.time_s, T_world_cam[:3, 3], scene.motion.pos))
+        walk, now = self.occluder_walk, self.time_s
+        walk.update(now, cfg.dt_s, self.np_random)
+        pose = None  # walk.pose's answer when no event is under way
+        if walk.active_start_s is not None:
+            pose = walk.pose(now, scene.camera_pose()[:3, 3], scene.motion.pos)
+        scene.place_occluder(pose)
         self._truth = scene.ground_truth()
 
     def camera_pose(self, camera_id: int = 0) -> np.ndarray:
@@ -332,13 +340,18 @@ class TargetFollowerEnv(CameraEnv):
         return self._truth.state
 
     def _reward(self, action: np.ndarray) -> float:
-        cfg = self.config
-        error = self._truth.state[IMAGE] - np.array([0.0, 0.0, cfg.desired_width_px])
-        w, h = self.rig.image_size_px
-        scale = np.array([w / 2.0, h / 2.0, cfg.desired_width_px])
         if not self._truth.in_image:
             return 0.0
-        return 1.0 - float(np.mean(np.minimum(np.abs(error) / scale, 1.0)))
+        d_star = self.config.desired_width_px
+        w, h = self.rig.image_size_px
+        x_i, y_i, d_x = self._truth.state[IMAGE].tolist()
+        # 1 - mean(minimum(|X_i - (0, 0, d*)| / s, 1)) in floats, as NumPy computes it:
+        # minimum keeps NaN, and the mean of three terms sums them in order.
+        total = 0.0
+        for error, scale in ((x_i - 0.0, w / 2.0), (y_i - 0.0, h / 2.0), (d_x - d_star, d_star)):
+            term = abs(error) / scale
+            total += term if term < 1.0 or term != term else 1.0
+        return 1.0 - total / 3
 
     def _terminated(self) -> bool:
         """Called once per step: it also advances the time the target has been lost."""

@@ -23,14 +23,13 @@ import math
 
 import numpy as np
 
-from observer_gym.envs.transforms import pose_matrix
-
 # Tilt axis in the base frame (m): 1.2 m above the midpoint of the wheel axle, on the
 # robot's turning axis, as the spec's geometry has it (X_m is both the unicycle's position
 # and the tilt axis's); an axis ahead of the axle would add a lateral term to B_i's omega
 # column.
 TILT_AXIS_BASE_M = np.array([0.0, 0.0, 1.20])
 MIN_DEPTH_M = 0.05  # a target closer than this to the camera plane has no image state
+_TILT_AXIS_BASE = tuple(TILT_AXIS_BASE_M.tolist())
 
 
 def camera_pose(
@@ -39,15 +38,27 @@ def camera_pose(
     """``T_world_cam`` (OpenCV camera axes) of the robot's camera."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     ct, st = math.cos(tilt_rad), math.sin(tilt_rad)
-    forward_base = np.array([ct, 0.0, st])  # optical axis, tilted up by phi
-    up_base = np.array([-st, 0.0, ct])
-    right_base = np.array([0.0, -1.0, 0.0])
     R_world_base = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    # OpenCV: x right, y down, z forward.
-    R_base_cam = np.column_stack([right_base, -up_base, forward_base])
-    centre_base = TILT_AXIS_BASE_M + delta_y_m * up_base
-    centre_world = R_world_base @ centre_base + np.array([robot_xy_m[0], robot_xy_m[1], 0.0])
-    return pose_matrix(R_world_base @ R_base_cam, centre_world)
+    # OpenCV: x right, y down, z forward: the columns (0, -1, 0), minus the camera's up
+    # (-st, 0, ct) and the optical axis (ct, 0, st), tilted up by phi (-up's 0 is -0.0, as
+    # np.column_stack([right, -up, forward]) made it).
+    R_base_cam = np.array([[0.0, st, ct], [-1.0, -0.0, 0.0], [0.0, -ct, st]])
+    # TILT_AXIS_BASE_M + delta_y_m * up and the robot's offset, elementwise in floats; the
+    # matrix products stay NumPy's.
+    axis_x, axis_y, axis_z = _TILT_AXIS_BASE
+    centre_base = np.array(
+        [axis_x + delta_y_m * -st, axis_y + delta_y_m * 0.0, axis_z + delta_y_m * ct]
+    )
+    x, y, z = (R_world_base @ centre_base).tolist()
+    r0, r1, r2 = (R_world_base @ R_base_cam).tolist()
+    return np.array(  # pose_matrix(R_world_cam, centre_world)
+        [
+            [*r0, x + float(robot_xy_m[0])],
+            [*r1, y + float(robot_xy_m[1])],
+            [*r2, z + 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def target_in_camera(T_world_cam: np.ndarray, target_pos_world: np.ndarray) -> np.ndarray:
@@ -61,9 +72,16 @@ def image_state(
     """(x_i, y_i, d_x) in pixels; depth clamped at MIN_DEPTH_M (the target is then
     behind or beside the camera and the numbers only mark it as far out of view)."""
     p = target_in_camera(T_world_cam, target_pos_world)
-    z = max(p[2], MIN_DEPTH_M)
+    return np.array(image_state_in_camera(K, *p.tolist(), width_m))
+
+
+def image_state_in_camera(
+    K: np.ndarray, x_m: float, y_m: float, z_m: float, width_m: float
+) -> tuple[float, float, float]:
+    """:func:`image_state` of the target at (x_m, y_m, z_m) in the camera frame."""
+    z = max(z_m, MIN_DEPTH_M)
     fx, fy = K[0, 0], K[1, 1]
-    return np.array([fx * p[0] / z, -fy * p[1] / z, fx * width_m / z])
+    return fx * x_m / z, -fy * y_m / z, fx * width_m / z
 
 
 def target_image_velocity(
@@ -77,14 +95,21 @@ def target_image_velocity(
     alone, in px/s, the exact derivative of :func:`image_state` with the camera held."""
     p = target_in_camera(T_world_cam, target_pos_world)
     pdot = T_world_cam[:3, :3].T @ np.asarray(target_vel_world, dtype=float)
-    z = max(p[2], MIN_DEPTH_M)
+    return np.array(image_velocity_in_camera(K, p.tolist(), pdot.tolist(), width_m))
+
+
+def image_velocity_in_camera(
+    K: np.ndarray, p_m: list[float], pdot_mps: list[float], width_m: float
+) -> tuple[float, float, float]:
+    """:func:`target_image_velocity` of the target at ``p_m`` moving at ``pdot_mps``
+    (camera frame)."""
+    (x, y, z), (vx, vy, vz) = p_m, pdot_mps
+    z = max(z, MIN_DEPTH_M)
     fx, fy = K[0, 0], K[1, 1]
-    return np.array(
-        [
-            fx * (pdot[0] * z - p[0] * pdot[2]) / (z * z),
-            -fy * (pdot[1] * z - p[1] * pdot[2]) / (z * z),
-            -fx * width_m * pdot[2] / (z * z),
-        ]
+    return (
+        fx * (vx * z - x * vz) / (z * z),
+        -fy * (vy * z - y * vz) / (z * z),
+        -fx * width_m * vz / (z * z),
     )
 
 

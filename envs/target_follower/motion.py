@@ -86,6 +86,8 @@ class TargetMotion:
     @property
     def velocity(self) -> np.ndarray:
         """The target's world velocity now (m/s)."""
+        if self.kind == "random_walk":  # base_velocity's copy, without making it
+            return self._walk_vel + self._kick
         return self.base_velocity(self.time_s) + self._kick
 
     def advance(
@@ -147,8 +149,9 @@ class OccluderWalk:
         return 2.0 * OCCLUDER_WALK_S + self.hold_s
 
     def update(self, t_s: float, dt_s: float, rng: np.random.Generator) -> None:
-        """Start or end an event at time ``t_s`` (one random draw per call)."""
-        draw, side_draw = rng.uniform(), rng.uniform()
+        """Start or end an event at time ``t_s`` (two uniform draws per call: ``random()``
+        is ``uniform()``'s number, cheaper)."""
+        draw, side_draw = rng.random(), rng.random()
         if self.active_start_s is not None and t_s >= self.active_start_s + self.duration_s:
             self.active_start_s = None
         if self.active_start_s is not None:

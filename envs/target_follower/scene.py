@@ -34,6 +34,11 @@ from observer_gym.envs.target_follower.measurements import fully_hidden, in_imag
 from observer_gym.envs.target_follower.motion import OCCLUDER_PARKED_WORLD, TargetMotion
 
 TARGET_URDF_WIDTH_M = 0.12  # target_follower_target.urdf's sphere diameter; scaled to W
+_OCCLUDER_PARKED = OCCLUDER_PARKED_WORLD.tolist()
+# ground_truth writes the state in this order.
+assert (IMAGE, IMAGE_RATE, APPLIED) == (slice(0, 3), slice(3, 6), slice(10, 13))
+assert (StateIndex.ROBOT_X, StateIndex.ROBOT_YAW, StateIndex.TILT, STATE_DIM) == (6, 8, 9, 15)
+assert (StateIndex.TRACKING_VALID, StateIndex.TARGET_VISIBLE) == (13, 14)
 
 
 def _yaw_quaternion(yaw_rad: float) -> list[float]:
@@ -135,15 +140,14 @@ class TargetFollowerScene:
         ``substeps`` steps. The bodies are placed in the world at the end, and after
         substep k (0-based, not the last) where ``stops(k)``: the robot at its exact arc
         there, the target where its integration is; then ``on_stop(k)`` is called."""
-        self.wheels_mps = applied_wheel_speeds(
-            float(command[0]), float(command[1]), self.wheels_mps, dt_s, self.limits
-        )
+        v_cmd, omega_cmd, tilt_rate_cmd = command.tolist()
+        self.wheels_mps = applied_wheel_speeds(v_cmd, omega_cmd, self.wheels_mps, dt_s, self.limits)
         v, omega = body_velocity(self.wheels_mps, self.limits.wheel_base_m)
         low, high = self.tilt_range_rad
         tilt_start = self.tilt_rad
-        tilt_end = min(max(tilt_start + float(command[2]) * dt_s, low), high)
+        tilt_end = min(max(tilt_start + tilt_rate_cmd * dt_s, low), high)
         omega_t = (tilt_end - tilt_start) / dt_s  # the tilt stops at its end stops
-        start = (*self.robot_xy_m, self.yaw_rad)
+        start = (*self.robot_xy_m.tolist(), self.yaw_rad)
         self.applied = np.array([v, omega, omega_t])
 
         def place_robot(t_s: float, tilt_rad: float) -> None:
@@ -171,23 +175,21 @@ class TargetFollowerScene:
         if self.occluder is None:
             return
         self.occluder_pose = pose
-        centre, yaw = (OCCLUDER_PARKED_WORLD, 0.0) if pose is None else pose
-        self.sim.client.resetBasePositionAndOrientation(
-            self.occluder, list(centre), _yaw_quaternion(yaw)
-        )
+        centre, yaw = (_OCCLUDER_PARKED, 0.0) if pose is None else (list(pose[0]), pose[1])
+        self.sim.client.resetBasePositionAndOrientation(self.occluder, centre, _yaw_quaternion(yaw))
 
     def _place(self) -> None:
         self._T_world_cam = geo.camera_pose(
             self.robot_xy_m, self.yaw_rad, self.tilt_rad, self.delta_y_m
         )
         client = self.sim.client
-        x, y = self.robot_xy_m
+        x, y = self.robot_xy_m.tolist()
         client.resetBasePositionAndOrientation(
             self.robot, [x, y, 0.0], _yaw_quaternion(self.yaw_rad)
         )
         client.resetJointState(self.robot, 0, self.tilt_rad)
         client.resetBasePositionAndOrientation(
-            self.target, list(self.motion.pos), [0.0, 0.0, 0.0, 1.0]
+            self.target, self.motion.pos.tolist(), [0.0, 0.0, 0.0, 1.0]
         )
 
     # --- ground truth -----------------------------------------------------------------
@@ -208,17 +210,28 @@ class TargetFollowerScene:
             T = T @ self.T_nominal_true
         pos, vel = self.motion.pos.copy(), self.motion.velocity
         W = self.target_width_m
-        depth = float(geo.target_in_camera(T, pos)[2])
-        state = np.empty(STATE_DIM)
-        state[IMAGE] = geo.image_state(self.K, T, pos, W)
-        state[IMAGE_RATE] = geo.target_image_velocity(self.K, T, pos, vel, W)
-        state[StateIndex.ROBOT_X : StateIndex.ROBOT_Y + 1] = self.robot_xy_m
-        state[StateIndex.ROBOT_YAW] = self.yaw_rad
-        state[StateIndex.TILT] = self.tilt_rad
-        state[APPLIED] = self.applied
+        # The target in the camera frame, once for the depth, the image state and its rate
+        # (geo.target_in_camera, image_state, target_image_velocity).
+        R_cam_world = T[:3, :3].T
+        p = (R_cam_world @ (pos - T[:3, 3])).tolist()
+        pdot = (R_cam_world @ vel).tolist()
+        depth = p[2]
+        x_i, y_i, d_x = geo.image_state_in_camera(self.K, *p, W)
         in_front = depth > geo.MIN_DEPTH_M
-        on_image = in_front and in_image(self.K, self.image_size_px, *state[IMAGE][:2])
+        on_image = in_front and in_image(self.K, self.image_size_px, x_i, y_i)
         occluded = fully_hidden(T, pos, 0.5 * W, self.occluder_pose)
-        state[StateIndex.TRACKING_VALID] = float(in_front)
-        state[StateIndex.TARGET_VISIBLE] = float(on_image and not occluded)
+        state = np.array(  # STATE_NAMES
+            [
+                x_i,
+                y_i,
+                d_x,
+                *geo.image_velocity_in_camera(self.K, p, pdot, W),
+                *self.robot_xy_m.tolist(),
+                self.yaw_rad,
+                self.tilt_rad,
+                *self.applied.tolist(),
+                float(in_front),
+                float(on_image and not occluded),
+            ]
+        )
         return GroundTruth(state, T, pos, vel, depth, bool(on_image), bool(occluded))

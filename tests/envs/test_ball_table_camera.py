@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
-from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points, sphere_image
+from observer_gym.envs.camera import (
+    PinholeIntrinsics,
+    gl_view_matrix,
+    look_at,
+    project_points,
+    sphere_image,
+)
+from observer_gym.envs.target_follower import geometry as follower_geo
 
 
 def test_intrinsics_from_fov_match_the_spec():
@@ -22,6 +29,34 @@ def test_look_at_target_projects_to_the_principal_point():
     uv, depth = project_points(K, T, np.array([[0.6, 0.1, 0.9], [0.3, -0.2, 2.0]]))
     np.testing.assert_allclose(uv[0], K[:2, 2], atol=1e-9)
     assert depth[0] > 0 and depth[1] < 0  # the second point is behind the camera
+
+
+def _gl_view_matrix_by_matrix_products(T_world_cam):
+    """gl_view_matrix as NumPy's matrix products (as it was computed before)."""
+    view = np.eye(4)
+    R_gl_world = np.diag([1.0, -1.0, -1.0]) @ T_world_cam[:3, :3].T
+    view[:3, :3] = R_gl_world
+    view[:3, 3] = -R_gl_world @ T_world_cam[:3, 3]
+    return view.T.reshape(-1).tolist()
+
+
+def test_gl_view_matrix_equals_the_matrix_products_bit_for_bit():
+    rng = np.random.default_rng(0)
+    poses = [look_at(rng.normal(size=3), rng.normal(size=3)) for _ in range(3000)]
+    # Poses with zero entries of both signs: axis-aligned cameras, the follower's camera.
+    poses += [look_at([0.0, 0.0, 1.0], [0.0, 0.5, 0.0]), look_at([1.0, -0.0, 0.0], [0.0, 0.0, 0.0])]
+    angles = [0.0, -0.0, 0.3, np.pi / 2, -np.pi]
+    poses += [
+        follower_geo.camera_pose(np.array([x, -x]), yaw, tilt, 0.1)
+        for x in (0.0, -0.0, 0.7)
+        for yaw in angles
+        for tilt in angles
+    ]
+    poses += [T.copy() for T in poses[-20:]]
+    for T in poses:
+        T[np.abs(T) < 1e-3] *= rng.choice([0.0, -0.0])  # more exact zeros
+        expected = np.array(_gl_view_matrix_by_matrix_products(T))
+        assert np.array(gl_view_matrix(T)).tobytes() == expected.tobytes()
 
 
 def test_sphere_image_touches_the_projected_tangent_circle():

@@ -109,6 +109,41 @@ def test_tilt_stops_at_its_limits(make_env):
     assert info["applied_action"][2] == 0.0  # the platform is at its end stop
 
 
+def _camera_pose_by_matrix_products(robot_xy_m, yaw_rad, tilt_rad, delta_y_m):
+    """geo.camera_pose with R_base_cam by np.column_stack, as it was built before."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    ct, st = math.cos(tilt_rad), math.sin(tilt_rad)
+    forward_base = np.array([ct, 0.0, st])
+    up_base = np.array([-st, 0.0, ct])
+    right_base = np.array([0.0, -1.0, 0.0])
+    R_world_base = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    R_base_cam = np.column_stack([right_base, -up_base, forward_base])
+    centre_base = geo.TILT_AXIS_BASE_M + delta_y_m * up_base
+    centre_world = R_world_base @ centre_base + np.array([robot_xy_m[0], robot_xy_m[1], 0.0])
+    T = np.eye(4)
+    T[:3, :3] = R_world_base @ R_base_cam
+    T[:3, 3] = centre_world
+    return T
+
+
+def test_camera_pose_equals_the_matrix_products_bit_for_bit():
+    rng = np.random.default_rng(0)
+    special = [0.0, -0.0, math.pi / 2, -math.pi / 2, math.pi, 1e-300, -1e-300]
+    cases = [
+        (rng.normal(size=2) * 3, *rng.uniform(-4, 4, 2), rng.uniform(0, 0.5)) for _ in range(20000)
+    ]
+    cases += [
+        (np.array([x, -x]), yaw, tilt, d)
+        for x in (0.0, -0.0, 1.5)
+        for yaw in special
+        for tilt in special
+        for d in (0.0, 0.1)
+    ]
+    for xy, yaw, tilt, delta_y in cases:
+        expected = _camera_pose_by_matrix_products(xy, yaw, tilt, delta_y)
+        assert geo.camera_pose(xy, yaw, tilt, delta_y).tobytes() == expected.tobytes()
+
+
 def test_wheel_quantisation_floors_to_whole_cm_per_s():
     limits = DriveLimits(wheel_base_m=0.4, quantize=True)
     # v_l = 0.1 - 0.33 * 0.2 = 0.034 -> 0.03; v_r = 0.166 -> 0.16 (floor, 8-bit cm/s)
