@@ -41,7 +41,7 @@ from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
-from observer_gym.estimation.target_follower.observer import FILTERS
+from observer_gym.estimation.target_follower.observer import filter_params
 from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
 
 __all__ = ["HeldInput", "LatencyAwareObserver", "VSECore"]
@@ -193,11 +193,8 @@ class LatencyAwareObserver:
         camera_params: TargetFollowerCameraParams | None = None,
         detector: TargetFollowerDetector | None = None,
     ) -> None:
-        if filter not in FILTERS:
-            raise ValueError(f"filter={filter!r} is not allowed; choose one of {list(FILTERS)}")
+        self.params = filter_params(filter, params)
         self.filter = filter
-        base = params or VSEParams()
-        self.params = VSEParams(**{**base.__dict__, "self_tuning": filter == "stkf"})
         self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
             env.calibration
         )

@@ -47,6 +47,15 @@ from observer_gym.estimation.target_follower.state_layout import RobotStep, stat
 FILTERS = ("stkf", "kf")
 
 
+def filter_params(filter: str, params: VSEParams | None = None) -> VSEParams:
+    """``params`` (default: spec Table 1, k = 10) with ``self_tuning`` set by ``filter``,
+    "stkf" (self-tuning R) or "kf" (R = R_0); ValueError for another name."""
+    if filter not in FILTERS:
+        raise ValueError(f"filter={filter!r} is not allowed; choose one of {list(FILTERS)}")
+    base = params or VSEParams()
+    return VSEParams(**{**base.__dict__, "self_tuning": filter == "stkf"})
+
+
 class TargetFollowerObserver:
     """The default observer pipeline for TargetFollower-v0 (see the module docstring).
 
@@ -68,11 +77,8 @@ class TargetFollowerObserver:
         camera_params: TargetFollowerCameraParams | None = None,
         detector: TargetFollowerDetector | None = None,
     ) -> None:
-        if filter not in FILTERS:
-            raise ValueError(f"filter={filter!r} is not allowed; choose one of {list(FILTERS)}")
+        self.params = filter_params(filter, params)
         self.filter = filter
-        base = params or VSEParams()
-        self.params = VSEParams(**{**base.__dict__, "self_tuning": filter == "stkf"})
         self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
             env.calibration
         )
