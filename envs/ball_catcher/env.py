@@ -88,11 +88,14 @@ class BallCatcherEnv(CameraEnv):
     +1 on the step of the catch, plus potential-based shaping (Ng, Harada and Russell,
     1999): each step earns ``shaping_weight`` times the decrease of the predicted miss,
     the distance (m) between the hole's centre and the point where the ball, flying on
-    without drag, will cross the box's front plane (it keeps its last value once the
-    ball no longer approaches the plane). The shaping telescopes to ``shaping_weight``
-    times (first - last predicted miss), so it cannot be farmed and ending an episode
-    early earns nothing; a per-step penalty instead taught PPO to rush the box forward
-    to end episodes sooner.
+    without drag, will cross the box's front plane. It keeps its last value once the
+    ball no longer flies freely toward the plane: when it moves away from it, and from
+    the ball's first touch of the box on (a ball bouncing off the plate has no crossing
+    to predict; before this rule its "prediction" swung by up to a metre within a step
+    and gave rewards of -8 to one throw in twenty that the agent could not affect).
+    The shaping telescopes to ``shaping_weight`` times (first - last predicted miss),
+    so it cannot be farmed and ending an episode early earns nothing; a per-step
+    penalty instead taught PPO to rush the box forward to end episodes sooner.
 
     ## Starting State
     The box at its home (0.7, 0, 0.5) m at rest; the ball just launched by a throw from
@@ -132,7 +135,8 @@ class BallCatcherEnv(CameraEnv):
     or an unknown option raises ``ValueError``.
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version; the shaping stops at the ball's first touch of the box since
+      2026-11-23 (Rewards).
     """
 
     config_class = BallCatcherConfig
@@ -433,7 +437,9 @@ class BallCatcherEnv(CameraEnv):
 
     def _miss_distance_m(self) -> float:
         """Distance between the hole and where the ball will cross its plane (the last
-        value once the ball no longer approaches it)."""
+        value once the ball no longer approaches it or has touched the box)."""
+        if self._approach_clean is not None:  # touched the box: no free flight to predict
+            return self._miss_m
         # plane_crossing(ball_pos, ball_vel, box_x) in floats, the same operations.
         (px, py, pz), (vx, vy, vz), (bx, by, bz) = (
             self._truth.state[index].tolist() for index in (BALL_POS, BALL_VEL, BOX_POS)

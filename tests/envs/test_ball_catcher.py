@@ -254,17 +254,27 @@ def test_bad_reset_throw_raises(state_env):
         state_env.reset(seed=0, options={"throw": (np.zeros(2), np.zeros(3))})
 
 
-@pytest.mark.parametrize(("offset_m", "outcome"), [(0.0, "caught"), (0.05, "missed")])
+@pytest.mark.parametrize(
+    ("offset_m", "outcome"), [(0.0, "caught"), (0.02, "missed"), (0.03, "missed"), (0.05, "missed")]
+)
 def test_shaping_is_potential_based_and_the_catch_adds_one(offset_m, outcome):
     """Each reward is w (m_prev - m) + [caught], m the predicted miss: where the ball,
     drag-free, crosses the box's front plane, relative to the hole (from the ground
-    truth; kept once the ball stops approaching). The sum telescopes."""
+    truth; kept once the ball stops approaching, and from its first touch of the box on,
+    seen here as the first step whose velocity change is not gravity's). The sum
+    telescopes."""
     weight = 3.0
     env = BallCatcherEnv(obs_mode="state", shaping_weight=weight)
+    dv_gravity = np.array([0.0, 0.0, -GRAVITY_MPS2 * env.config.control_dt_s])
+    touched = []
 
-    def predicted_miss_m(state, previous_m):
+    def predicted_miss_m(state, previous_m, previous_state=None):
+        if previous_state is not None and not touched:
+            dv = state[3:6] - previous_state[3:6] - dv_gravity
+            if np.linalg.norm(dv) > 1e-3:  # a contact's impulse, not free flight
+                touched.append(True)
         crossing = plane_crossing(state[0:3], state[3:6], state[6])
-        if crossing is None:
+        if crossing is None or touched:
             return previous_m
         return float(np.linalg.norm(crossing[1][1:] - state[7:9]))
 
@@ -279,14 +289,17 @@ def test_shaping_is_potential_based_and_the_catch_adds_one(offset_m, outcome):
         # 0.02 m/s the ball met the rim 8 mm off, no catch by the geometric rule): the
         # predicted miss changes.
         for _ in range(200):
+            state = info["state"]
             _, reward, terminated, _, info = env.step(np.array([0.0, 0.005, 0.0], np.float32))
-            previous_m, miss_m = miss_m, predicted_miss_m(info["state"], miss_m)
+            previous_m, miss_m = miss_m, predicted_miss_m(info["state"], miss_m, state)
             expected = weight * (previous_m - miss_m) + (info["outcome"] == "caught")
             assert reward == pytest.approx(expected, abs=1e-9)
             rewards.append(reward)
             if terminated:
                 break
         assert info["outcome"] == outcome
+        if outcome == "missed":
+            assert touched  # it struck the plate and bounced: the shaping stopped there
         assert np.sum(rewards) == pytest.approx(
             weight * (first_m - miss_m) + (outcome == "caught"), abs=1e-9
         )
