@@ -19,6 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from observer_gym.train.agent_env import ImageOptions, to_env_action, wrap_images
+from observer_gym.train.features import wrap_features
 from observer_gym.train.run_dir import model_files, read_config
 
 
@@ -60,10 +61,12 @@ class Agent:
 
     def wrap_env(self, env: gym.Env) -> gym.Env:
         """``env`` as the agent saw it in training: camera frames preprocessed for an rgb
-        agent; unchanged otherwise (actions are mapped back by :meth:`predict`)."""
+        agent, its feature set appended (hyperparameter ``features``); actions are mapped
+        back by :meth:`predict`."""
+        hyperparams = self.config["hyperparams"]
         if self.obs == "rgb":
-            return wrap_images(env, ImageOptions(**self.config["hyperparams"]["image"]))
-        return env
+            env = wrap_images(env, ImageOptions(**hyperparams["image"]))
+        return wrap_features(env, hyperparams.get("features"))
 
     def reset(self) -> None:
         """Nothing to reset: the policies are feed-forward (frame stacks live in the env)."""

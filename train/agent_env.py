@@ -12,9 +12,15 @@
   (OpenCV, area interpolation), converted to grayscale, and the last ``frame_stack``
   observations stacked by Gymnasium's ``FrameStackObservation``, so a BallTable
   observation is a (4, 84, 84) uint8 image stack for SB3's CnnPolicy and a BallCatcher
-  one a Dict of such stacks (and the stacked frame ages) for its MultiInputPolicy.
+  one a Dict of such stacks (and the stacked frame ages) for its MultiInputPolicy. With
+  the image option ``encoder`` a pretrained CNN turns each frame into what it shows of
+  the state (:mod:`observer_gym.train.pixel_encoder`; BallTable: ball position and tilt)
+  before stacking, and the policy is an MLP on the newest vector and the differences
+  between consecutive ones, (frame_stack, 4).
 
-Training envs also rescale the action space to [-1, 1] (Gymnasium's ``RescaleAction``),
+With the hyperparameter ``features`` a state or estimate observation gets that feature
+set of :mod:`observer_gym.train.features` appended. Training envs also rescale the action
+space to [-1, 1] (Gymnasium's ``RescaleAction``),
 the range SB3's Gaussian and squashed policies are built for; a loaded agent maps its
 actions back to the env's units itself, so recorded actions are physical.
 """
@@ -32,6 +38,7 @@ from gymnasium import spaces
 from gymnasium.wrappers import FrameStackObservation, RescaleAction
 
 from observer_gym.train.checks import agent_observer
+from observer_gym.train.features import wrap_features
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.tasks import task_for
 
@@ -46,6 +53,9 @@ class ImageOptions:
     size_px: int = 84
     grayscale: bool = True
     frame_stack: int = 4
+    # a pretrained frame encoder (observer_gym.train.pixel_encoder) between each frame and
+    # the stack: a shipped encoder's name or a file; None: the policy reads image stacks
+    encoder: str | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.size_px, int) and 8 <= self.size_px <= 512):
@@ -56,7 +66,11 @@ class ImageOptions:
             )
         if not isinstance(self.grayscale, bool):
             raise ValueError(f"image grayscale must be true or false, got {self.grayscale!r}")
-        if self.frame_stack > 1 and not self.grayscale:
+        if not (self.encoder is None or isinstance(self.encoder, str)):
+            raise ValueError(
+                f"image encoder must be a shipped encoder's name or a file, got {self.encoder!r}"
+            )
+        if self.frame_stack > 1 and not self.grayscale and self.encoder is None:
             raise ValueError(
                 "image frame_stack > 1 needs grayscale: true (SB3's CnnPolicy reads a "
                 "(stack, H, W) image; colour frames would stack to (stack, H, W, 3))"
@@ -124,8 +138,19 @@ class ResizeImages(gym.ObservationWrapper):
 
 
 def wrap_images(env: gym.Env, options: ImageOptions) -> gym.Env:
-    """``env``'s camera frames resized, grayscale and stacked as ``options`` says."""
+    """``env``'s camera frames resized and made grayscale as ``options`` says, each
+    turned into a vector by its encoder if it names one
+    (:class:`~observer_gym.train.pixel_encoder.EncodedFrames`), and stacked (an encoder's
+    stack as the newest vector and its differences,
+    :class:`~observer_gym.train.pixel_encoder.StackDifferences`)."""
     env = ResizeImages(env, options.size_px, options.grayscale)
+    if options.encoder is not None:
+        from observer_gym.train.pixel_encoder import EncodedFrames, StackDifferences, load_encoder
+
+        env = EncodedFrames(env, load_encoder(options.encoder))
+        if options.frame_stack > 1:
+            env = StackDifferences(FrameStackObservation(env, options.frame_stack))
+        return env
     if options.frame_stack > 1:
         env = FrameStackObservation(env, options.frame_stack)
     return env
@@ -138,23 +163,31 @@ def make_agent_env(
     env_kwargs: Mapping[str, Any] | None = None,
     image: Mapping[str, Any] | None = None,
     observer: str | None = None,
+    features: str | None = None,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
     (``observer_gym.train.observer_env.make_env``), for ``rgb`` with :func:`wrap_images` (``image``:
-    :class:`ImageOptions` fields), and the action space rescaled to [-1, 1]. A top-level
-    function of plain arguments, so ``functools.partial`` of it pickles into spawned
-    SubprocVecEnv workers."""
+    :class:`ImageOptions` fields), with the feature set ``features`` appended, and the action
+    space rescaled to [-1, 1]. A top-level function of plain arguments, so
+    ``functools.partial`` of it pickles into spawned SubprocVecEnv workers."""
     env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
-    return finish_agent_env(env, obs, image)
+    return finish_agent_env(env, obs, image, features)
 
 
-def finish_agent_env(env: gym.Env, obs: str, image: Mapping[str, Any] | None = None) -> gym.Env:
+def finish_agent_env(
+    env: gym.Env,
+    obs: str,
+    image: Mapping[str, Any] | None = None,
+    features: str | None = None,
+) -> gym.Env:
     """The observer's ``env`` as an agent reading ``obs`` sees it: for ``rgb`` with
-    :func:`wrap_images` (``image``: :class:`ImageOptions` fields), and the action space
+    :func:`wrap_images` (``image``: :class:`ImageOptions` fields), with the feature set
+    ``features`` (:func:`~observer_gym.train.features.wrap_features`), and the action space
     rescaled to [-1, 1]; ``env`` is closed if this fails."""
     try:
         if obs == "rgb":
             env = wrap_images(env, ImageOptions(**dict(image or {})))
+        env = wrap_features(env, features)
         return RescaleAction(env, np.float32(-1.0), np.float32(1.0))
     except BaseException:
         env.close()

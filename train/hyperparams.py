@@ -8,8 +8,10 @@ An env's entry holds two kinds of keys:
   VecNormalize's options), ``image`` (:class:`~observer_gym.train.agent_env.ImageOptions`
   for ``--obs rgb``), ``checkpoint_freq`` and ``eval_freq`` (env steps), ``eval_episodes``,
   ``torch_threads``, ``policy`` (default: MlpPolicy for a vector, CnnPolicy for an
-  image, MultiInputPolicy for a Dict) and ``env_kwargs`` (``gym.make`` options, e.g. a
-  smaller camera image for ``--obs rgb``; ``--env-option`` overrides them);
+  image, MultiInputPolicy for a Dict), ``env_kwargs`` (``gym.make`` options, e.g. a
+  smaller camera image for ``--obs rgb``; ``--env-option`` overrides them) and
+  ``features`` (null or a feature set of :mod:`observer_gym.train.features` appended to
+  a state or estimate observation);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
   against its signature (:func:`algorithm_parameters`: its public parameters but those
   ``observer-gym train`` sets itself). Two values are written as text and built on use:
@@ -49,6 +51,7 @@ TRAINING_DEFAULTS: dict[str, Any] = {
     "torch_threads": 1,
     "policy": None,
     "env_kwargs": {},
+    "features": None,
 }
 INTEGER_KEYS = ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes")
 VEC_ENVS = ("subproc", "dummy")
@@ -187,6 +190,10 @@ def check_training_keys(params: Mapping[str, Any]) -> None:
             raise ValueError(f"hyperparameter {key} must be an integer >= 1, got {value!r}")
     if params["vec_env"] not in VEC_ENVS:
         raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {params['vec_env']!r}")
+    if not (params["features"] is None or isinstance(params["features"], str)):
+        raise ValueError(
+            f"features must be null or a feature set's name, got {params['features']!r}"
+        )
     if not isinstance(params["env_kwargs"], Mapping):
         raise ValueError(f"env_kwargs must be a mapping, got {params['env_kwargs']!r}")
     if not (params["normalize"] is False or isinstance(params["normalize"], Mapping)):

@@ -175,7 +175,9 @@ def run_config(
         env_kwargs=env_kwargs,
         tensorboard=tensorboard,
     )
-    probe = make_agent_env(env_id, obs, estimate_from, env_kwargs, params["image"], observer)
+    probe = make_agent_env(
+        env_id, obs, estimate_from, env_kwargs, params["image"], observer, params["features"]
+    )
     try:  # the action bounds a loaded agent maps back to, and a check that the env builds
         action_space = probe.unwrapped.action_space
     finally:
@@ -256,6 +258,7 @@ def check_training(
         observer,
     )
     check_algorithm_keys(params, algo)
+    check_features(env_id, obs, params["features"])
     if obs == "rgb":
         try:
             ImageOptions(**params["image"])
@@ -265,6 +268,29 @@ def check_training(
                 f"hyperparameter image must have only {fields}, got {params['image']!r}"
             ) from None
     return env_id, feeding, params, {**params["env_kwargs"], **dict(env_kwargs or {})}
+
+
+def check_features(env_id: str, obs: str, features: str | None) -> None:
+    """ValueError unless ``features`` is None or a feature set of ``env_id``'s system
+    (:mod:`observer_gym.train.features`) and ``obs`` reads the state's layout."""
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.features import feature_names
+
+    if features is None:
+        return
+    system = system_for_id(env_id)
+    allowed = feature_names(system.name)
+    if features not in allowed:
+        listed = ", ".join(allowed) if allowed else "none (leave features null)"
+        raise ValueError(
+            f"hyperparameter features={features!r} is no feature set of {system.short_id}; "
+            f"allowed: {listed}"
+        )
+    if obs == "rgb":
+        raise ValueError(
+            f"hyperparameter features={features!r} appends to a state-layout observation; "
+            "it needs --obs state or estimate, not rgb"
+        )
 
 
 def resume_training(
@@ -357,6 +383,7 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
         # the observer by name for an estimate (runs written before config.json recorded
         # it as chosen are the estimate_from default, which is what observer_for gives)
         config.get("observer") if config["obs"] == "estimate" else None,
+        config["hyperparams"].get("features"),  # absent from runs written before it existed
     )
     subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
     return make_vec_env(

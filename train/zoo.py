@@ -71,12 +71,13 @@ def agent_wrapper(
     obs: str,
     observer: str | None = None,
     image: Mapping[str, Any] | None = None,
+    features: str | None = None,
 ) -> gym.Env:
     """``env`` (made by Zoo with ``env_kwargs``) as ``observer-gym train`` gives it to an
     agent reading ``obs``: for ``estimate``, wrapped in the VisionObserver of ``observer``
     (default: the system's on measurements); for ``rgb``, its frames preprocessed as
-    ``image`` (:class:`~observer_gym.train.agent_env.ImageOptions`) says; actions
-    rescaled to [-1, 1]. Zoo's ``env_wrapper`` names it.
+    ``image`` (:class:`~observer_gym.train.agent_env.ImageOptions`) says; with the
+    feature set ``features``; actions rescaled to [-1, 1]. Zoo's ``env_wrapper`` names it.
 
     Raises:
         ValueError: ``env``'s obs_mode is not the one the observer reads, or a bad
@@ -90,7 +91,7 @@ def agent_wrapper(
             f"observer {feeding!r} reads obs_mode {obs_mode!r}; the env was made with "
             f"obs_mode {env.unwrapped.config.obs_mode!r} (set env_kwargs.obs_mode: {obs_mode})"
         )
-    return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image)
+    return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image, features)
 
 
 class ZooFile(NamedTuple):
@@ -125,11 +126,19 @@ def zoo_path(algo: str, env_id: str, obs: str) -> Path:
 
 
 @functools.cache
-def _default_policy(env_id: str, obs: str, image: tuple[tuple[str, Any], ...]) -> str:
+def _default_policy(
+    env_id: str,
+    obs: str,
+    image: tuple[tuple[str, Any], ...],
+    env_kwargs: tuple[tuple[str, Any], ...],
+    features: str | None,
+) -> str:
     """The policy ``observer-gym train`` picks for the agent env's observation space."""
     from observer_gym.train.training import default_policy  # deferred: stable-baselines3
 
-    env = make_agent_env(env_id, obs, image=dict(image))
+    env = make_agent_env(
+        env_id, obs, env_kwargs=dict(env_kwargs), image=dict(image), features=features
+    )
     try:
         return default_policy(env.observation_space)
     finally:
@@ -150,8 +159,14 @@ def zoo_hyperparams(env_id: str, algo: str, obs: str) -> ZooFile:
         wrapper["observer"] = feeding
     if obs == "rgb":
         wrapper["image"] = dict(params["image"])
+    if params["features"] is not None:
+        wrapper["features"] = params["features"]
     policy = params["policy"] or _default_policy(
-        system.env_id, obs, tuple(sorted(params["image"].items()))
+        system.env_id,
+        obs,
+        tuple(sorted(params["image"].items())),
+        tuple(sorted(params["env_kwargs"].items())),
+        params["features"],
     )
     zoo: dict[str, Any] = {
         "n_timesteps": params["n_timesteps"],
@@ -161,7 +176,7 @@ def zoo_hyperparams(env_id: str, algo: str, obs: str) -> ZooFile:
         "env_wrapper": [{WRAPPER: wrapper}],
         "normalize": params["normalize"],
     }
-    training = {"n_timesteps", "n_envs", "policy", "env_kwargs", "normalize", "image"}
+    training = {"n_timesteps", "n_envs", "policy", "env_kwargs", "normalize", "image", "features"}
     for key, value in params.items():
         if key in training or key in COMMAND_LINE_KEYS:
             continue
