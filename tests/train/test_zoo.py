@@ -87,7 +87,11 @@ def test_zoo_makes_the_env_observer_gym_train_makes(system, obs):
     ours_params = resolve_hyperparams(system.env_id, "ppo", obs)
     theirs = _zoo_env(zoo.zoo_path("ppo", system.short_id, obs))
     ours = make_agent_env(
-        system.env_id, obs, env_kwargs=ours_params["env_kwargs"], image=ours_params["image"]
+        system.env_id,
+        obs,
+        env_kwargs=ours_params["env_kwargs"],
+        image=ours_params["image"],
+        features=ours_params["features"],
     )
     try:
         assert theirs.observation_space == ours.observation_space
