@@ -18,14 +18,19 @@ from pathlib import Path
 from observer_gym.train.outputs import format_table
 from observer_gym.train.training import train_agent
 
-# (label, obs, estimate_from, n_envs, vec_env)
+# (label, obs, estimate_from, n_envs, vec_env, hyperparameter overrides); the rgb rows
+# read 84 x 84 frames: through the YAML's frame encoder (BallTable) or, with the encoder
+# switched off, through SB3's CnnPolicy trained by PPO
+CNN = {"image.encoder": None}
 CASES = (
-    ("state", "state", "measurements", 1, "dummy"),
-    ("estimate (measurements)", "estimate", "measurements", 1, "dummy"),
-    ("estimate (rgb)", "estimate", "rgb", 1, "dummy"),
-    ("rgb (84x84 gray, 4 stacked)", "rgb", "measurements", 1, "dummy"),
-    ("state, 2 subproc envs", "state", "measurements", 2, "subproc"),
-    ("rgb, 2 subproc envs", "rgb", "measurements", 2, "subproc"),
+    ("state", "state", "measurements", 1, "dummy", {}),
+    ("estimate (measurements)", "estimate", "measurements", 1, "dummy", {}),
+    ("estimate (rgb)", "estimate", "rgb", 1, "dummy", {}),
+    ("rgb (YAML's image options)", "rgb", "measurements", 1, "dummy", {}),
+    ("rgb, CnnPolicy (4 stacked frames)", "rgb", "measurements", 1, "dummy", CNN),
+    ("state, 2 subproc envs", "state", "measurements", 2, "subproc", {}),
+    ("rgb (YAML's), 2 subproc envs", "rgb", "measurements", 2, "subproc", {}),
+    ("rgb, CnnPolicy, 2 subproc envs", "rgb", "measurements", 2, "subproc", CNN),
 )
 
 
@@ -37,7 +42,7 @@ def main() -> None:
     args = parser.parse_args()
     rows, rates = [], {}
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (label, obs, source, n_envs, vec_env) in enumerate(CASES):
+        for i, (label, obs, source, n_envs, vec_env, overrides) in enumerate(CASES):
             pixels = obs == "rgb" or source == "rgb"
             steps = args.rgb_steps if pixels else args.steps
             state = train_agent(
@@ -49,7 +54,7 @@ def main() -> None:
                 estimate_from=source,
                 n_envs=n_envs,
                 vec_env=vec_env,
-                hyperparams={"n_steps": 256 if pixels else 512, "eval_freq": 10**9},
+                hyperparams={"n_steps": 256 if pixels else 512, "eval_freq": 10**9, **overrides},
                 progress=False,
             )
             rates[label] = state["train_steps_per_s"]

@@ -26,11 +26,11 @@ from observer_gym.train import compare_cli, sweep_cli
 from observer_gym.train.cli_args import (
     Parser,
     UsageError,
+    add_env_option_argument,
     add_output_arguments,
     controller_name,
     distinct_seeds,
     env_name,
-    env_option,
     error_line,
     folder_path,
     hyperparam_option,
@@ -158,16 +158,10 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="W",
         help="run the episodes in W processes; results are identical (default: %(default)s)",
     )
-    parser.add_argument(
-        "--env-option",
-        type=env_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help=(
-            "a gym.make option of the env, repeatable (e.g. camera_preset=single, "
-            "robot_profile=fast); the observer sets obs_mode"
-        ),
+    add_env_option_argument(
+        parser,
+        "a gym.make option of the env, repeatable (e.g. camera_preset=single, "
+        "robot_profile=fast); the observer sets obs_mode",
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
 
@@ -333,14 +327,7 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
             "policy_kwargs.net_arch=[128,128], normalize=False)"
         ),
     )
-    parser.add_argument(
-        "--env-option",
-        type=env_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a gym.make option of the env, repeatable; --obs sets obs_mode",
-    )
+    add_env_option_argument(parser, "a gym.make option of the env, repeatable; --obs sets obs_mode")
     parser.add_argument(
         "--tensorboard", action="store_true", help="also write TensorBoard logs (logs/)"
     )

@@ -191,6 +191,18 @@ def env_option(text: str) -> tuple[str, object]:
     return key, literal(value)
 
 
+def add_env_option_argument(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--env-option KEY=VALUE`` (repeatable, :func:`env_option`) with ``help_text``."""
+    parser.add_argument(
+        "--env-option",
+        type=env_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=help_text,
+    )
+
+
 def hyperparam_option(text: str) -> tuple[str, object]:
     """argparse type: ``KEY=VALUE`` with a dotted key for nested values
     (``learning_rate=1e-4``, ``normalize.norm_reward=False``); the value is read as a

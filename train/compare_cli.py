@@ -14,9 +14,9 @@ import argparse
 import sys
 
 from observer_gym.train.cli_args import (
+    add_env_option_argument,
     add_output_arguments,
     env_name,
-    env_option,
     error_line,
     nonnegative_int,
     positive_int,
@@ -123,13 +123,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="cap each episode at K steps (default: the env's time limit)",
     )
-    parser.add_argument(
-        "--env-option",
-        type=env_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)",
+    add_env_option_argument(
+        parser, "a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)"
     )
     add_output_arguments(parser, "compare")
 

@@ -415,8 +415,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from observer_gym.envs import system_for_id
     from observer_gym.train.cli_args import (
         Parser,
+        add_env_option_argument,
         env_name,
-        env_option,
         error_line,
         nonnegative_int,
         positive_int,
@@ -430,14 +430,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--frames", type=positive_int, default=30_000, help="default: %(default)s")
     parser.add_argument("--epochs", type=positive_int, default=12, help="default: %(default)s")
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="default: %(default)s")
-    parser.add_argument(
-        "--env-option",
-        type=env_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="gym.make option over ppo.yml's rgb env_kwargs (repeatable)",
-    )
+    add_env_option_argument(parser, "a gym.make option over ppo.yml's rgb env_kwargs, repeatable")
     parser.add_argument("--progress", action="store_true", help="print each epoch's errors")
     parser.add_argument(
         "--data",

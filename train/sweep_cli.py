@@ -15,8 +15,8 @@ import argparse
 import sys
 
 from observer_gym.train.cli_args import (
+    add_env_option_argument,
     env_name,
-    env_option,
     error_line,
     folder_path,
     nonnegative_int,
@@ -113,13 +113,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="cap each episode at K steps (default: the env's time limit)",
     )
-    parser.add_argument(
-        "--env-option",
-        type=env_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a fixed gym.make option for every cell, repeatable (e.g. push_rate_hz=0.5)",
+    add_env_option_argument(
+        parser, "a fixed gym.make option for every cell, repeatable (e.g. push_rate_hz=0.5)"
     )
     parser.add_argument(
         "--second-metric",
