@@ -50,6 +50,7 @@ class Agent:
         from observer_gym.train.hyperparams import algorithm_class
 
         config = read_config(run_dir, algo)
+        _check_encoder(config, run_dir)
         model_path, stats_path, steps = model_files(run_dir)
         model = algorithm_class(config["algo"]).load(model_path, device="cpu")
         obs_normalizer = None
@@ -83,3 +84,19 @@ class Agent:
             observation = self.obs_normalizer.normalize_obs(observation)
         action, _ = self.model.predict(observation, deterministic=deterministic)
         return to_env_action(action, self._low, self._high), state
+
+
+def _check_encoder(config: dict[str, Any], run_dir: str | Path) -> None:
+    """ValueError if the frame encoder an rgb agent trained with (its sha256 in
+    config.json) is not the file its name points to now."""
+    recorded = config.get("encoder_sha256")
+    if recorded is None:
+        return
+    from observer_gym.train.pixel_encoder import encoder_sha256
+
+    name = config["hyperparams"]["image"]["encoder"]
+    if encoder_sha256(name) != recorded:
+        raise ValueError(
+            f"the agent in {run_dir} was trained with another image encoder {name!r} "
+            f"(sha256 {recorded[:12]}...); the file it names now has changed"
+        )

@@ -5,6 +5,7 @@ shipped BallTable encoder against the simulator's ground truth."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -13,6 +14,7 @@ import torch
 from gymnasium.wrappers import FrameStackObservation
 
 from observer_gym.controllers.registry import make_controller
+from observer_gym.train.agent import Agent
 from observer_gym.train.agent_env import make_agent_env
 from observer_gym.train.pixel_encoder import (
     ENCODERS_DIR,
@@ -22,10 +24,11 @@ from observer_gym.train.pixel_encoder import (
     ImageCoordinates,
     StackDifferences,
     encoder_path,
-    fit_encoder,
+    encoder_sha256,
     load_encoder,
-    main,
 )
+from observer_gym.train.pretrain_encoder import fit_encoder, main
+from observer_gym.train.shipped import shipped_path
 
 
 def test_coordinate_channels_hold_each_pixels_position():
@@ -161,3 +164,17 @@ def test_the_shipped_ball_table_encoder_reads_the_ball_from_fresh_frames():
     rmse = np.sqrt(np.mean(np.square(errors), axis=0))
     assert len(errors) > 200
     assert np.all(rmse < 2 * reported), (rmse, reported)
+
+
+def test_an_agent_refuses_an_encoder_that_changed(tmp_path):
+    """The shipped rgb agent records its encoder's sha256; a copy whose record differs
+    from the file the name points to is refused on loading."""
+    shipped = shipped_path("ball_table-rgb")
+    assert Agent.load(shipped).config["encoder_sha256"] == encoder_sha256("ball_table")
+    copy = tmp_path / "agent"
+    shutil.copytree(shipped, copy)
+    config = json.loads((copy / "config.json").read_text())
+    config["encoder_sha256"] = "0" * 64
+    (copy / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ValueError, match="trained with another image encoder 'ball_table'"):
+        Agent.load(copy)
