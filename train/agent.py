@@ -62,7 +62,7 @@ class Agent:
 
     def wrap_env(self, env: gym.Env) -> gym.Env:
         """``env`` as the agent saw it in training: camera frames preprocessed for an rgb
-        agent, its feature set appended (hyperparameter ``features``); actions are mapped
+        agent, through its feature set (hyperparameter ``features``); actions are mapped
         back by :meth:`predict`."""
         hyperparams = self.config["hyperparams"]
         if self.obs == "rgb":

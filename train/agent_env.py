@@ -18,10 +18,10 @@
   before stacking, and the policy is an MLP on the newest vector and the differences
   between consecutive ones, (frame_stack, 4).
 
-With the hyperparameter ``features`` a state or estimate observation gets that feature
-set of :mod:`observer_gym.train.features` appended. Training envs also rescale the action
-space to [-1, 1] (Gymnasium's ``RescaleAction``),
-the range SB3's Gaussian and squashed policies are built for; a loaded agent maps its
+With the hyperparameter ``features`` a state or estimate observation is replaced by (or
+extended with) that feature set of :mod:`observer_gym.train.features`. Training envs also
+rescale the action space to [-1, 1] (Gymnasium's ``RescaleAction``), the range SB3's
+Gaussian and squashed policies are built for; a loaded agent maps its
 actions back to the env's units itself, so recorded actions are physical.
 """
 
@@ -167,7 +167,7 @@ def make_agent_env(
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
     (``observer_gym.train.observer_env.make_env``), for ``rgb`` with :func:`wrap_images` (``image``:
-    :class:`ImageOptions` fields), with the feature set ``features`` appended, and the action
+    :class:`ImageOptions` fields), through the feature set ``features``, and the action
     space rescaled to [-1, 1]. A top-level function of plain arguments, so
     ``functools.partial`` of it pickles into spawned SubprocVecEnv workers."""
     env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)

@@ -10,8 +10,8 @@ An env's entry holds two kinds of keys:
   ``torch_threads``, ``policy`` (default: MlpPolicy for a vector, CnnPolicy for an
   image, MultiInputPolicy for a Dict), ``env_kwargs`` (``gym.make`` options, e.g. a
   smaller camera image for ``--obs rgb``; ``--env-option`` overrides them) and
-  ``features`` (null or a feature set of :mod:`observer_gym.train.features` appended to
-  a state or estimate observation);
+  ``features`` (null or a feature set of :mod:`observer_gym.train.features` that replaces
+  or extends a state or estimate observation);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
   against its signature (:func:`algorithm_parameters`: its public parameters but those
   ``observer-gym train`` sets itself). Two values are written as text and built on use:

@@ -178,16 +178,16 @@ def run_config(
     probe = make_agent_env(
         env_id, obs, estimate_from, env_kwargs, params["image"], observer, params["features"]
     )
+    try:  # the action bounds a loaded agent maps back to, and a check that the env builds
+        action_space = probe.unwrapped.action_space
+    finally:
+        probe.close()
     encoder = params["image"].get("encoder") if obs == "rgb" else None
     recorded = {}  # the frame encoder's file, which a loaded agent checks
     if encoder is not None:
         from observer_gym.train.pixel_encoder import encoder_sha256  # deferred: PyTorch
 
         recorded["encoder_sha256"] = encoder_sha256(encoder)
-    try:  # the action bounds a loaded agent maps back to, and a check that the env builds
-        action_space = probe.unwrapped.action_space
-    finally:
-        probe.close()
     return to_jsonable(
         {
             "env_id": env_id,

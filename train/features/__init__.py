@@ -1,10 +1,11 @@
 """Observation features an agent may read besides its observation: the hyperparameter
 ``features: NAME`` of ``observer-gym train`` (default: none).
 
-A feature set is an observation wrapper that appends quantities computed from the
-observation itself (nothing the observation does not hold: no ground truth), so the agent
-reads them from the true state and from an observer's estimate alike. Each system's sets
-live in the module of this package named after it; :data:`FEATURES` lists them.
+A feature set is a wrapper that replaces or extends the observation with quantities
+computed from it and from the observer's ``info["estimate"]`` (its covariance; never the
+ground truth), so the agent reads them from the true state and from an estimate alike.
+Each system's sets live in the module of this package named after it; :data:`FEATURES`
+lists them.
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ def feature_names(system_name: str) -> tuple[str, ...]:
 
 
 def wrap_features(env: gym.Env, name: str | None) -> gym.Env:
-    """``env`` (an agent's env reading a state-layout vector) with the feature set
-    ``name`` of its system appended to each observation; unchanged for None.
+    """``env`` (an agent's env reading a state-layout vector) through the feature set
+    ``name`` of its system; unchanged for None.
 
     Raises:
         ValueError: ``name`` is no feature set of the env's system (the message lists
