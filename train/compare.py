@@ -24,9 +24,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
-
 from observer_gym.train.aggregate import across_seeds, check_rliable
+from observer_gym.train.checks import check_seeds
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
 from observer_gym.train.observer_env import make_env
@@ -55,19 +54,6 @@ def _names(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
     if duplicates:
         raise ValueError(f"{kind} lists {', '.join(map(repr, duplicates))} more than once")
     return names
-
-
-def _seeds(seeds: Sequence[int]) -> list[int]:
-    seeds = list(seeds)
-    if not seeds:
-        raise ValueError("seeds must hold at least one seed")
-    for seed in seeds:
-        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-            raise ValueError(f"seeds must be integers >= 0, got {seed!r}")
-    duplicates = sorted({int(s) for s in seeds if seeds.count(s) > 1})
-    if duplicates:
-        raise ValueError(f"seeds must be distinct; {duplicates} appear more than once")
-    return [int(s) for s in seeds]
 
 
 def check_comparison(
@@ -144,7 +130,7 @@ def check_request(
     for controller in controllers:
         for observer in observers:
             check_controller(controller, env_id, observer)
-    seeds = _seeds(seeds)
+    seeds = list(check_seeds(seeds))
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
