@@ -42,7 +42,11 @@ from observer_gym.estimation.target_follower.models import (
     robot_jacobian,
 )
 from observer_gym.estimation.target_follower.observer import filter_params
-from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
+from observer_gym.estimation.target_follower.state_layout import (
+    RobotStep,
+    lost_estimate,
+    state_estimate,
+)
 
 __all__ = ["HeldInput", "LatencyAwareObserver", "VSECore"]
 
@@ -236,9 +240,8 @@ class LatencyAwareObserver:
             self._last_image = vse.x[:3].copy()
             mean, cov = state_estimate(vse.x[:3], vse.x[3:], vse.P, robot, True, visible)
         else:
-            unknown = np.eye(6) * self.params.reliability_threshold
-            mean, cov = state_estimate(
-                self._last_image, np.zeros(3), unknown, robot, False, visible
+            mean, cov = lost_estimate(
+                self._last_image, self.params.reliability_threshold, robot, visible
             )
         z = None if frame is None else frame.z_px
         nis = [core.nis_of[id(m.measurement)] for m in new if id(m.measurement) in core.nis_of]

@@ -42,7 +42,11 @@ from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
-from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
+from observer_gym.estimation.target_follower.state_layout import (
+    RobotStep,
+    lost_estimate,
+    state_estimate,
+)
 
 FILTERS = ("stkf", "kf")
 
@@ -121,9 +125,8 @@ class TargetFollowerObserver:
             self._last_image = vse.x[:3].copy()
             mean, cov = state_estimate(vse.x[:3], vse.x[3:], vse.P, robot, True, visible)
         else:
-            unknown = np.eye(6) * self.params.reliability_threshold
-            mean, cov = state_estimate(
-                self._last_image, np.zeros(3), unknown, robot, False, visible
+            mean, cov = lost_estimate(
+                self._last_image, self.params.reliability_threshold, robot, visible
             )
         update = vse.last_update
         if update is not None and update.accepted:

@@ -48,7 +48,11 @@ from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader, history_s
-from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
+from observer_gym.estimation.target_follower.state_layout import (
+    RobotStep,
+    lost_estimate,
+    state_estimate,
+)
 from observer_gym.estimation.target_follower.target_projection import (
     back_project,
     image_state_and_rate,
@@ -221,9 +225,8 @@ class PixelEKFObserver:
             self._last_image = s[:3].copy()
             mean, cov = state_estimate(s[:3], s[3:], 0.5 * (cov + cov.T), robot, True, visible)
         else:
-            unknown = self.params.reliability_threshold * np.eye(6)
-            mean, cov = state_estimate(
-                self._last_image, np.zeros(3), unknown, robot, False, visible
+            mean, cov = lost_estimate(
+                self._last_image, self.params.reliability_threshold, robot, visible
             )
         z = None if frame is None else frame.z_px
         nis = [core.nis_of[id(m.measurement)] for m in new if id(m.measurement) in core.nis_of]

@@ -40,7 +40,11 @@ from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
-from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
+from observer_gym.estimation.target_follower.state_layout import (
+    RobotStep,
+    lost_estimate,
+    state_estimate,
+)
 
 __all__ = ["RawObserver"]
 
@@ -116,9 +120,8 @@ class RawObserver:
             oldest_s = min(oldest_s, self._last.capture_time_s)
         self._inputs = [i for i in self._inputs if i[1] > oldest_s]
         visible = frame is not None and frame.z_px is not None
-        unknown = self.params.reliability_threshold * np.eye(6)
         if self._valid:
-            cov = unknown.copy()
+            cov = self.params.reliability_threshold * np.eye(6)  # rates unknown until a difference
             cov[:3, :3] = self.R0
             if self._rate_dt_s is not None:
                 dt_s = self._rate_dt_s
@@ -127,6 +130,6 @@ class RawObserver:
             mean, cov = state_estimate(self._last.z_px, self._rate_pxps, cov, robot, True, visible)
         else:
             image = np.zeros(3) if self._last is None else self._last.z_px
-            mean, cov = state_estimate(image, np.zeros(3), unknown, robot, False, visible)
+            mean, cov = lost_estimate(image, self.params.reliability_threshold, robot, visible)
         z = None if frame is None else frame.z_px
         return Estimate(mean, cov, visible, z, robot.time_s)

@@ -19,7 +19,7 @@ import numpy as np
 from observer_gym.envs.target_follower import APPLIED, IMAGE, IMAGE_RATE, STATE_DIM, StateIndex
 from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
 
-__all__ = ["RobotStep", "state_estimate"]
+__all__ = ["RobotStep", "lost_estimate", "state_estimate"]
 
 
 @dataclass(frozen=True)
@@ -67,3 +67,13 @@ def state_estimate(
     mean[StateIndex.TRACKING_VALID] = float(valid)
     mean[StateIndex.TARGET_VISIBLE] = float(visible)
     return mean, cov
+
+
+def lost_estimate(
+    last_image_px: np.ndarray, reliability_threshold: float, robot: RobotStep, visible: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, covariance) while tracking is not reliable: the last reliable image state,
+    zero rates, covariance ``reliability_threshold`` x I, ``tracking_valid`` False
+    (:func:`state_estimate`)."""
+    unknown = reliability_threshold * np.eye(6)
+    return state_estimate(last_image_px, np.zeros(3), unknown, robot, False, visible)
