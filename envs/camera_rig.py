@@ -141,13 +141,14 @@ class FrameClock:
 
     Camera c captures its k-th frame at ``phase_c + k / rate`` (+ Gaussian jitter, clipped
     to a quarter period, rounded to a tick and kept after the previous capture). A frame
-    is lost with probability ``drop_prob`` (one uniform draw per frame when > 0, or always
-    with ``always_draw_drops``; frames at tick 0 are never lost and draw nothing). A kept
+    is lost with probability ``drop_prob`` (one uniform draw per frame when > 0; frames at
+    tick 0 are never lost and draw nothing). A kept
     frame is delivered ``latency_c`` (+ Gaussian latency jitter, kept >= 0) after its
     capture, rounded to a tick.
 
     Args:
-        rng: the env's generator, drawn in a fixed order so episodes are reproducible.
+        rng: the sensor's timing stream (spawned from the env's generator at reset), drawn
+            in a fixed order so episodes are reproducible.
     """
 
     def __init__(
@@ -159,7 +160,6 @@ class FrameClock:
         jitter_s: float = 0.0,
         latency_jitter_s: float = 0.0,
         drop_prob: float = 0.0,
-        always_draw_drops: bool = False,
     ) -> None:
         self.rate_hz = float(rate_hz)
         self.tick_s = float(tick_s)
@@ -167,7 +167,6 @@ class FrameClock:
         self.jitter_s = float(jitter_s)
         self.latency_jitter_s = float(latency_jitter_s)
         self.drop_prob = float(drop_prob)
-        self.always_draw_drops = always_draw_drops
         self.schedules = [_CameraSchedule(t) for t in timings]
         for schedule in self.schedules:
             schedule.next_tick = self._draw_tick(schedule)
@@ -191,7 +190,7 @@ class FrameClock:
             schedule.last_tick = tick
             schedule.index += 1
             schedule.next_tick = self._draw_tick(schedule)
-            if tick > 0 and (self.drop_prob > 0.0 or self.always_draw_drops):
+            if tick > 0 and self.drop_prob > 0.0:
                 if self.rng.random() < self.drop_prob:  # uniform()'s number, cheaper
                     continue
             cameras.append(camera_id)
@@ -224,8 +223,6 @@ class CameraRig:
         intrinsics: each camera's nominal calibration.
         config: the env's sensor options.
         near_m, far_m: the renderer's clipping planes.
-        always_draw_drops: draw a uniform for every frame even when ``frame_drop_prob``
-            is 0 (TargetFollower-v0 always has, and keeps its seeds' episodes).
     """
 
     def __init__(
@@ -235,13 +232,11 @@ class CameraRig:
         config: SensorConfig,
         near_m: float,
         far_m: float,
-        always_draw_drops: bool = False,
     ) -> None:
         self.sim = sim
         self.nominal = list(intrinsics)
         self.config = config
         self.near_m, self.far_m = near_m, far_m
-        self.always_draw_drops = always_draw_drops
         self.num_cameras = len(self.nominal)
         self.image_size_px = (config.image_width_px, config.image_height_px)
         self._K_nominal = [_readonly(i.K) for i in self.nominal]  # every frame shares them
@@ -260,21 +255,21 @@ class CameraRig:
     def reset(
         self, sim: Simulation, rng: np.random.Generator, timings: Sequence[CameraTiming]
     ) -> None:
-        """A new episode: the schedule from ``timings``; noise and calibration streams
-        spawned from ``rng`` (spawning draws nothing from it)."""
+        """A new episode: the schedule from ``timings``; the sensor's noise, calibration
+        and timing streams spawned from the env's ``rng`` (spawning draws nothing from
+        it, so the world's draws do not depend on the sensor)."""
         cfg = self.config
         self.sim = sim
+        self.noise_rng, calibration_rng, timing_rng = rng.spawn(3)
         self.clock = FrameClock(
             timings,
             cfg.frame_rate_hz,
             sim.physics_dt_s,
-            rng,
+            timing_rng,
             jitter_s=cfg.jitter_s,
             latency_jitter_s=cfg.latency_jitter_s,
             drop_prob=cfg.frame_drop_prob,
-            always_draw_drops=self.always_draw_drops,
         )
-        self.noise_rng, calibration_rng = rng.spawn(2)
         self.errors = [draw_calibration_error(cfg, calibration_rng) for _ in self.nominal]
         self._exact = [e.is_exact for e in self.errors]
         self.cameras = [

@@ -10,12 +10,15 @@ wiring of those hooks (envs/ball_table/env.py, envs/ball_catcher/env.py,
 envs/target_follower/env.py).
 
 One env step, in this order (the random draws of the world come from ``np_random`` in
-this order in every obs_mode, so a seed gives the same world whatever the agent observes):
+this order in every obs_mode, so a seed gives the same world whatever the agent observes;
+the sensor draws from streams of its own, so the world is also the same whatever the
+sensor options, envs/sensor.py):
 
 1. ``_apply_action(action)`` (the action already checked and clipped);
 2. ``_advance(end_tick)``: the physics of one step, stopping at every inner tick where a
    camera captures (``_next_stop``, ``_reach``) and running the ticks between in one go;
-3. the frames of the step's last tick are decided (drops drawn), then
+3. the frames of the step's last tick are decided (drops drawn from the sensor's stream),
+   then
    ``_after_physics()`` updates what changes once a step (occluders, ground truth), then
    those frames are captured;
 4. frames due by the end of the step are delivered; the observation is the newest
@@ -44,7 +47,7 @@ from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.camera_rig import CameraRig, CameraTiming, Frame
 from observer_gym.envs.config import check_render_mode
 from observer_gym.envs.observations import copy_observation
-from observer_gym.envs.sensor import SensorConfig
+from observer_gym.envs.sensor import SensorConfig, SensorSpec
 from observer_gym.envs.sim import Simulation
 
 
@@ -60,8 +63,16 @@ class CameraEnv(gym.Env):
 
     config_class: type[SensorConfig] = SensorConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012
-    # Draw a uniform for every frame's drop even when frame_drop_prob is 0.
-    always_draw_drops: bool = False
+    # Draw one uniform from np_random per step, before _after_physics, and discard it: where
+    # v0 of an env drew its frame drops from the world's generator (one per frame, one
+    # frame per step), this keeps v0's seeds' episodes now that drops have their own stream.
+    keeps_v0_drop_draw: bool = False
+    # Sensor options that are also part of the world's dynamics (a frame rate that is the
+    # control rate): varying one of them changes the world; varying any other does not.
+    world_shaping_sensor_options: tuple[str, ...] = ()
+    # The info key (a bool per step) marking the steps where the observers' process model
+    # holds, so that NEES and NIS are taken over those steps only (None: every step).
+    model_holds_key: str | None = None
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         self.config = self.config_class.from_kwargs(**options)
@@ -76,12 +87,9 @@ class CameraEnv(gym.Env):
         self._bounds_cache: dict[int, BoxBounds] = {}
         self.sim = Simulation(self.tick_s)
         self.rig = CameraRig(
-            self.sim,
-            self.camera_intrinsics(),
-            self.config,
-            *self.clipping_planes_m,
-            always_draw_drops=self.always_draw_drops,
+            self.sim, self.camera_intrinsics(), self.config, *self.clipping_planes_m
         )
+        self.sensor_spec = self._sensor_spec()
         self.action_space = self._make_action_space()
         self.state_space = self._make_state_space()
         self.observation_space = self._make_observation_space()
@@ -127,6 +135,11 @@ class CameraEnv(gym.Env):
         arrays), or ValueError naming a bad value; called before the reset changes
         anything."""
         return options
+
+    def _sensor_spec(self) -> SensorSpec:
+        """The declared sensor (``config.sensor_spec()``; a system with its own pixel-noise
+        model or camera timings overrides the entries it computes)."""
+        return self.config.sensor_spec()
 
     def _camera_timings(self, rng: np.random.Generator) -> list[CameraTiming]:
         """Each camera's phase and latency for the episode."""
@@ -235,7 +248,7 @@ class CameraEnv(gym.Env):
         self._episode = (generator, copy.deepcopy(options))
         self._actions = []
         delivered = self.rig.deliver(0)
-        return self._observation(), self._step_info(delivered)
+        return self._observation(), {**self._step_info(delivered), "sensor": self.sensor_spec}
 
     def _begin_episode(self, options: dict) -> None:
         rng = self.np_random
@@ -260,6 +273,8 @@ class CameraEnv(gym.Env):
         end_tick = self._tick + self.ticks_per_step
         self._advance(end_tick)
         due = self.rig.due(self._tick)
+        if self.keeps_v0_drop_draw:
+            self.np_random.random()
         self._after_physics()
         self._capture(due)
         reward = float(self._reward(action))

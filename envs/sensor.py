@@ -22,14 +22,21 @@ calibration exact.
   fixed (``calib_error_draw="fixed"``: +, and the diagonal (1, 1) or (1, 1, 1) direction)
   or drawn per episode and per camera (``"per_episode"``: a uniform direction).
 
-Randomness: the timing draws (jitters, drops) come from the env's ``np_random`` in a
-fixed order, so they are the same in every obs_mode; noise and calibration errors come
-from generators spawned from it at each reset (see :class:`observer_gym.envs.camera_rig.
-CameraRig`).
+Randomness: the sensor draws from streams of its own, spawned from the env's
+``np_random`` at each reset (``Generator.spawn`` draws nothing from it): one for the
+timing (capture jitter, latency jitter, drops), one for pixel and image noise, one for the
+calibration errors' directions (see :class:`observer_gym.envs.camera_rig.CameraRig`). So a
+seed gives the same world (pushes, throws, target motion) whatever the sensor options.
+
+What an observer may know of the sensor is :class:`SensorSpec`: the nominal (declared)
+specification a calibrated rig comes with, the same numbers as the options but never the
+realised draws. Every env gives it as ``env.unwrapped.sensor_spec`` and in the ``info``
+of ``reset`` (``info["sensor"]``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from observer_gym.envs.config import EnvConfig, config_field
@@ -106,6 +113,98 @@ class SensorConfig(EnvConfig):
                 f"frame_phase_s={self.frame_phase_s!r} must be below one frame period "
                 f"(1 / frame_rate_hz = {period_s:g} s)"
             )
+
+    def sensor_spec(self, **system: float) -> SensorSpec:
+        """The declared sensor specification of these options (see :class:`SensorSpec`);
+        ``system`` overrides the entries an env computes itself (its pixel-noise model,
+        the spread of its cameras' latencies)."""
+        return SensorSpec(
+            frame_rate_hz=self.frame_rate_hz,
+            frame_phase_s=self.frame_phase_s,
+            latency_s=self.latency_s,
+            latency_jitter_s=self.latency_jitter_s,
+            jitter_s=self.jitter_s,
+            frame_drop_prob=self.frame_drop_prob,
+            measurement_noise_px=self.measurement_noise_px,
+            image_noise_std=self.image_noise_std,
+            calib_focal_error=self.calib_focal_error,
+            calib_principal_point_error_px=self.calib_principal_point_error_px,
+            calib_rotation_error_deg=self.calib_rotation_error_deg,
+            calib_translation_error_m=self.calib_translation_error_m,
+            image_size_px=(self.image_width_px, self.image_height_px),
+            **system,
+        )
+
+    @property
+    def has_calibration_error(self) -> bool:
+        return (
+            self.calib_focal_error > 0.0
+            or self.calib_principal_point_error_px > 0.0
+            or self.calib_rotation_error_deg > 0.0
+            or self.calib_translation_error_m > 0.0
+        )
+
+
+# float32 keeps 24 significant bits: a pixel coordinate below 2048 px is stored to within
+# half of 2^-13 px, a uniform rounding error of variance ulp^2 / 12.
+_FLOAT32_ULP_PX = 2.0**-13
+
+
+@dataclass(frozen=True, slots=True)
+class SensorSpec:
+    """The nominal sensor: what a calibrated rig's data sheet and calibration report say.
+
+    The options of :class:`SensorConfig` as declared numbers (sizes of the calibration
+    errors, not their drawn directions; std of the jitters, not their draws), plus what
+    the env knows of its own measurement model:
+
+    - ``measurement_noise_std_px``: the std of the error of every reported pixel
+      coordinate in ``obs_mode="measurements"`` (the noise's std under the env's noise
+      model, with the rounding it applies; at least the float32 storage's);
+    - ``latency_spread_s``: how much later than ``latency_s`` a camera of the rig may
+      deliver by design (BallCatcher's ``random_offsets`` preset: one frame period).
+
+    An observer derives its measurement noise and how far back it keeps its past from
+    these numbers and nothing it could not know on a real rig.
+    """
+
+    frame_rate_hz: float
+    frame_phase_s: float
+    latency_s: float
+    latency_jitter_s: float
+    jitter_s: float
+    frame_drop_prob: float
+    measurement_noise_px: float
+    image_noise_std: float
+    calib_focal_error: float
+    calib_principal_point_error_px: float
+    calib_rotation_error_deg: float
+    calib_translation_error_m: float
+    image_size_px: tuple[int, int]
+    measurement_noise_std_px: float = -1.0  # -1: Gaussian of measurement_noise_px
+    latency_spread_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.measurement_noise_std_px < 0.0:
+            # Gaussian noise of the declared std, stored as float32 (its rounding floor).
+            std = math.hypot(self.measurement_noise_px, _FLOAT32_ULP_PX / math.sqrt(12.0))
+            object.__setattr__(self, "measurement_noise_std_px", std)
+
+    @property
+    def frame_period_s(self) -> float:
+        return 1.0 / self.frame_rate_hz
+
+    @property
+    def max_latency_s(self) -> float:
+        """The latest a frame arrives after its capture, to five standard deviations of
+        the latency jitter."""
+        return self.latency_s + self.latency_spread_s + 5.0 * self.latency_jitter_s
+
+    def history_s(self, step_s: float) -> float:
+        """How far back an observer that fuses frames at their capture time must keep its
+        past: the latest delivery (:attr:`max_latency_s`) with five standard deviations
+        of the capture jitter, and two control steps ``step_s``."""
+        return self.max_latency_s + 5.0 * self.jitter_s + 2.0 * step_s
 
     @property
     def has_calibration_error(self) -> bool:

@@ -11,13 +11,11 @@ The grid is the cartesian product of the keys' values, the first key outermost. 
 module is light: it imports the env's module (for its configuration class) and builds no
 world, so the command checks a sweep before its heavy imports.
 
-Which options change the world's random draws (:func:`world_draw_notes`): the camera's
-timing draws (capture jitter, latency jitter, drops) come from the env's ``np_random``,
-the generator of the world's disturbances, interleaved with them (``envs/camera_rig.py``'s
-``FrameClock``); the noise and calibration errors come from generators spawned from it,
-which draw nothing from it. So varying pixel noise, image noise, latency, frame phase or
-calibration error leaves the pushes, occluders and target motion of episode i as they
-were; varying the options in :data:`TIMING_DRAWS` may not (docs/sweep.md).
+Which sensor options change the world (:func:`world_draw_notes`): the sensor draws from
+streams of its own (envs/sensor.py), so varying any sensor option leaves the pushes,
+throws, occluders and target motion of episode i as they were, except an option that is
+also part of the world's dynamics: BallTable's and TargetFollower's ``frame_rate_hz`` is
+their control rate (``world_shaping_sensor_options`` of the env class).
 """
 
 from __future__ import annotations
@@ -37,17 +35,6 @@ from observer_gym.envs import system_for_id
 # --vary, where a key may repeat, which is refused).
 VaryInput = Mapping[str, Sequence[Any]] | Sequence[tuple[str, Sequence[Any]]]
 
-# Options that decide how many numbers the camera's timing draws from the env's np_random
-# and between which of the world's draws: "any" change moves the world's later draws;
-# "zero" only a change between 0 and a positive value (a positive value draws one number
-# per frame whatever it is); frame drops are drawn for every frame anyway by an env whose
-# class sets always_draw_drops (TargetFollower-v0).
-TIMING_DRAWS = {
-    "frame_rate_hz": "any",
-    "jitter_s": "any",
-    "latency_jitter_s": "zero",
-    "frame_drop_prob": "zero",
-}
 _TRUE = ("true", "yes", "1")
 _FALSE = ("false", "no", "0")
 
@@ -223,29 +210,15 @@ def check_grid(
 
 
 def world_draw_notes(env_id: str, grid: Grid) -> list[str]:
-    """One sentence per key of ``grid`` whose values change how the camera's timing draws
-    from the env's ``np_random`` (:data:`TIMING_DRAWS`), so that episode i may meet other
-    disturbances (pushes, occluders, target motion) at different values of that key."""
+    """One sentence per varied key of ``grid`` that is a sensor option and also part of
+    the world's dynamics (the env class's ``world_shaping_sensor_options``, e.g. a frame
+    rate that is the control rate), so that episode i meets another world at each value."""
     env_class = system_for_id(env_id).env_class()
-    notes = []
-    for key, values in zip(grid.keys, grid.values, strict=True):
-        kind = TIMING_DRAWS.get(key)
-        if kind is None or len(values) < 2:
-            continue
-        if key == "frame_drop_prob" and getattr(env_class, "always_draw_drops", False):
-            continue  # this env draws every frame's drop anyway
-        if kind == "zero":
-            if not (any(v == 0 for v in values) and any(v != 0 for v in values)):
-                continue
-            advice = (
-                f"; a tiny positive value (1e-9) instead of 0 keeps them the same at every {key}"
-            )
-        else:
-            advice = ""
-        notes.append(
-            f"varying {key} changes the camera's timing draws from the env's np_random, "
-            f"which also draws the world's disturbances (pushes, occluders, target motion): "
-            f"episode i may meet other disturbances at different {key} values{advice} "
-            "(docs/sweep.md)"
-        )
-    return notes
+    shaping = getattr(env_class, "world_shaping_sensor_options", ())
+    return [
+        f"varying {key} changes the world's steps too ({key} is also {env_class.__name__}'s "
+        f"control rate): episode i meets other disturbances at different {key} values "
+        "(docs/sweep.md)"
+        for key, values in zip(grid.keys, grid.values, strict=True)
+        if key in shaping and len(values) > 1
+    ]

@@ -22,6 +22,7 @@ from observer_gym.envs.ball_catcher.throws import (
 from observer_gym.envs.camera import PinholeIntrinsics, look_at, project_points
 from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
+from observer_gym.envs.sensor import SensorSpec
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation
 from observer_gym.envs.transforms import norm
 
@@ -76,8 +77,11 @@ class BallCatcherEnv(CameraEnv):
     ``env.state_space`` is the state Box whatever the obs_mode. ``info`` holds ``state``
     (ground truth), ``time_s``, ``T_world_box``, ``box_pos_world_m`` and
     ``box_vel_world_mps`` (the robot's own forward kinematics, known to any controller),
-    ``outcome`` ("flying", "caught", "missed"), ``caught``, ``throw`` (launch position
-    and velocity, drag-free crossing time and point) and ``frames``: every frame
+    ``outcome`` ("flying", "caught", "missed"), ``caught``, ``ball_in_flight`` (the ball
+    has not touched the box yet: free flight, where a ballistic model holds; NEES and NIS
+    are taken over these steps), ``throw`` (launch position and velocity, drag-free
+    crossing time and point), ``sensor`` (after a reset: the declared sensor,
+    :class:`~observer_gym.envs.sensor.SensorSpec`) and ``frames``: every frame
     delivered this step, in capture-time order, each with ``camera_id``,
     ``capture_time_s``, ``delivery_time_s``, ``K``, ``T_world_cam``, ``image_size_px``
     and, by obs_mode, ``image`` (rgb) or ``uv_px`` ((2,) or None when the ball was not
@@ -106,15 +110,15 @@ class BallCatcherEnv(CameraEnv):
     ``reset(options={"throw": (launch_pos_world, launch_vel_world)})`` sets the throw
     (launch within 10 m of the origin, speed at most ``throws.MAX_THROW_SPEED_MPS``, 100 m/s).
 
-    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
-    sensor noise from its own stream. The throw and the rig's timing (the preset's
-    phases and latencies, the capture jitter, the frame losses) come from ``np_random``
-    in the same order whatever the obs_mode, so episodes with the same seed and actions
-    see the same world and the same frame times in "state", "measurements" and "rgb"
-    (``observer-gym compare`` pairs on this). The measurement noise
-    (``measurement_noise_px``) comes from a generator spawned from ``np_random`` at each
-    reset (``Generator.spawn``, which draws nothing from it): ``reset(seed=s)`` repeats
-    the noise, a reset without a seed continues with new noise.
+    Randomness: the throw and the preset's camera phases and latencies come from
+    ``np_random`` in the same order whatever the obs_mode and the sensor options, so
+    episodes with the same seed and actions see the same throw and the same frame times
+    in "state", "measurements" and "rgb" and at every jitter, drop rate or noise level
+    (``observer-gym compare`` and ``sweep`` pair on this). The sensor (capture and
+    latency jitter, frame losses, measurement and image noise, calibration errors)
+    draws from streams spawned from ``np_random`` at each reset (``Generator.spawn``,
+    which draws nothing from it): ``reset(seed=s)`` repeats them, a reset without a seed
+    continues with new ones.
 
     ## Episode End
     The catch is judged geometrically, on the ball's centre between consecutive physics
@@ -136,10 +140,15 @@ class BallCatcherEnv(CameraEnv):
 
     ## Version History
     - v0: initial version; the shaping stops at the ball's first touch of the box since
-      2026-11-23 (Rewards).
+      2026-11-23 (Rewards); since 2026-11-24 the sensor draws its timing
+      (jitters, drops) from a stream of its own, so a seed's world no longer depends on
+      them (episodes at the default options are unchanged; with jitter or drops they
+      differ from before), and ``reset``'s info gives the declared sensor
+      (``info["sensor"]``).
     """
 
     config_class = BallCatcherConfig
+    model_holds_key = "ball_in_flight"
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 100}  # noqa: RUF012
     clipping_planes_m = (NEAR_M, FAR_M)
 
@@ -166,6 +175,12 @@ class BallCatcherEnv(CameraEnv):
         super().__init__(render_mode, **options)
 
     # --- the system's hooks -------------------------------------------------------------
+    def _sensor_spec(self) -> SensorSpec:
+        # random_offsets: each camera's latency is up to one frame period above latency_s.
+        cfg = self.config
+        spread_s = 1.0 / cfg.frame_rate_hz if cfg.camera_preset == "random_offsets" else 0.0
+        return cfg.sensor_spec(latency_spread_s=spread_s)
+
     def camera_intrinsics(self) -> list[PinholeIntrinsics]:
         cfg = self.config
         intrinsics = PinholeIntrinsics.from_fov(
@@ -310,6 +325,9 @@ class BallCatcherEnv(CameraEnv):
             "box_vel_world_mps": truth.state[BOX_VEL].copy(),
             "outcome": self._outcome,
             "caught": self._outcome == CAUGHT,
+            # No touch of the box yet: the ball is in free flight, where the observers'
+            # ballistic model holds (model_holds_key).
+            "ball_in_flight": self._approach_clean is None,
             "throw": {
                 "launch_pos_world": throw.launch_pos_world.copy(),
                 "launch_vel_world": throw.launch_vel_world.copy(),

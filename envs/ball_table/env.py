@@ -89,13 +89,15 @@ class BallTableEnv(CameraEnv):
     in a uniform direction. ``reset(options={"ball_pos_table_m": (x, y),
     "ball_vel_table_mps": (vx, vy)})`` sets them instead.
 
-    Randomness: the start, the head motion's phases, the pushes, the occluder's passes
-    and the camera's timing (jitters, drops) come from ``np_random`` in the same order
-    whatever the obs_mode, so episodes with the same seed and actions see the same world
-    in "state", "measurements" and "rgb" (``observer-gym compare`` pairs on this). The
-    measurement and image noise and the calibration errors come from generators spawned
-    from ``np_random`` at each reset (``Generator.spawn``, which draws nothing from it):
-    ``reset(seed=s)`` repeats them, a reset without a seed continues with new ones.
+    Randomness: the start, the head motion's phases, the pushes and the occluder's passes
+    come from ``np_random`` in the same order whatever the obs_mode and the sensor
+    options, so episodes with the same seed and actions see the same world in "state",
+    "measurements" and "rgb" and at every latency, drop rate, frame rate or noise level
+    (``observer-gym compare`` and ``sweep`` pair on this). The sensor (the camera's
+    timing: jitters, drops; measurement and image noise; the calibration errors) draws
+    from streams spawned from ``np_random`` at each reset (``Generator.spawn``, which
+    draws nothing from it): ``reset(seed=s)`` repeats them, a reset without a seed
+    continues with new ones.
 
     ## Episode End
     Terminated when the ball's centre leaves the red square (|x| or |y| > L/2: over a
@@ -107,9 +109,14 @@ class BallTableEnv(CameraEnv):
     A bad value or an unknown option raises ``ValueError``.
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version; since 2026-11-24 the sensor draws its timing
+      (jitters, drops) from a stream of its own, so a seed's world no longer depends on
+      them (episodes at the default options are unchanged; with jitter or drops they
+      differ from before), and ``reset``'s info gives the declared sensor
+      (``info["sensor"]``).
     """
 
+    world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame
     config_class = BallTableConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012
     clipping_planes_m = (0.05, 3.0)

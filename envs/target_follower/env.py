@@ -11,6 +11,7 @@ from gymnasium import spaces
 from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.config import real_array, real_number
 from observer_gym.envs.core import CameraEnv
+from observer_gym.envs.sensor import SensorSpec
 from observer_gym.envs.sim import Simulation
 from observer_gym.envs.target_follower import geometry as geo
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
@@ -98,14 +99,17 @@ class TargetFollowerEnv(CameraEnv):
     "occlusions_s": (t0, ...)})`` sets the target's start, the tilt, and times at which the
     occluder starts walking in (it hides the target 1 s later, for ``occluder_hold_s``).
 
-    Randomness: disturbances are drawn from the reset seed identically in every obs_mode;
-    sensor noise from its own stream. The start, the target's motion and pushes, the
-    occluder's events and the frame drops come from ``np_random`` in the same order
-    whatever the obs_mode, so episodes with the same seed and actions see the same world
-    in "state", "measurements" and "rgb" (``observer-gym compare`` pairs on this). The
-    measurement and image noise come from a generator spawned from ``np_random`` at each
-    reset (``Generator.spawn``, which draws nothing from it): ``reset(seed=s)`` repeats
-    the noise, a reset without a seed continues with new noise.
+    Randomness: the start, the target's motion and pushes and the occluder's events come
+    from ``np_random`` in the same order whatever the obs_mode and the sensor options, so
+    episodes with the same seed and actions see the same world in "state",
+    "measurements" and "rgb" and at every latency, drop rate or noise level
+    (``observer-gym compare`` and ``sweep`` pair on this). The sensor (frame drops,
+    jitters, measurement and image noise) draws from streams spawned from ``np_random``
+    at each reset (``Generator.spawn``, which draws nothing from it): ``reset(seed=s)``
+    repeats them, a reset without a seed continues with new ones. v0 drew its frame drops
+    from ``np_random``, one uniform per step; the env still draws that uniform (and
+    discards it), so every seed keeps its v0 episode. ``frame_rate_hz`` is also the
+    control rate (one step per frame), so it changes the world's steps.
 
     ## Episode End
     Terminated when the target has been outside the image for ``lost_timeout_s`` or comes
@@ -118,15 +122,20 @@ class TargetFollowerEnv(CameraEnv):
     A bad value or an unknown option raises ``ValueError``.
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version; since 2026-11-24 the sensor draws its timing
+      (jitters, drops) from a stream of its own, so a seed's world no longer depends on
+      them (episodes at the default options are unchanged; with jitter or drops they
+      differ from before), and ``reset``'s info gives the declared sensor
+      (``info["sensor"]``).
     """
 
+    world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame
     config_class = TargetFollowerConfig
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
     clipping_planes_m = (0.05, FAR_PLANE_M)
-    # One uniform per frame for its drop, whatever frame_drop_prob: this env has always
-    # drawn it, and keeping it keeps every seed's episode.
-    always_draw_drops = True
+    # v0 drew one uniform per frame (one frame per step) from np_random for its drop,
+    # whatever frame_drop_prob; drawing it still keeps every seed's v0 episode.
+    keeps_v0_drop_draw = True
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         cfg = TargetFollowerConfig.from_kwargs(**options)
@@ -172,6 +181,14 @@ class TargetFollowerEnv(CameraEnv):
         }
 
     # --- the system's hooks -------------------------------------------------------------
+    def _sensor_spec(self) -> SensorSpec:
+        # The spec's noise model, Table 2: sigma_n (2 w - 1) with w ~ U[0, 1] has variance
+        # sigma_n^2 / 3; rounding to whole pixels adds 1/12 px^2.
+        cfg = self.config
+        rounding_px2 = 1.0 / 12.0 if cfg.measurement_rounding else 0.0
+        variance = cfg.measurement_noise_px**2 / 3.0 + rounding_px2
+        return cfg.sensor_spec(measurement_noise_std_px=math.sqrt(variance))
+
     def camera_intrinsics(self) -> list[PinholeIntrinsics]:
         cfg = self.config
         w, h = cfg.image_width_px, cfg.image_height_px

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shlex
@@ -19,10 +20,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from observer_gym.envs import system_for_id
 from observer_gym.train import sweep
 from observer_gym.train.cli import build_parser, main
 from observer_gym.train.sweep import SweepWarning, run_sweep
-from observer_gym.train.sweep_grid import TIMING_DRAWS, check_grid, world_draw_notes
+from observer_gym.train.sweep_grid import check_grid, world_draw_notes
 from observer_gym.train.sweep_plan import check_sweep
 from observer_gym.train.tasks.ball_table import COMPARE_METRICS
 
@@ -141,55 +143,92 @@ def test_cells_are_paired_and_a_sensor_option_leaves_the_world_alone(swept):
 
 def _world(env_id: str, steps: int, **options) -> np.ndarray:
     """What the world drew over ``steps`` steps of zero action from seed 11: BallTable's
-    state and pushes, TargetFollower's target position and occlusion."""
+    state and pushes, TargetFollower's target position and occlusions, BallCatcher's
+    state and throw."""
     env = gym.make(env_id, **options)
     try:
-        env.reset(seed=11)
+        _, info = env.reset(seed=11)
         drawn = []
         for _ in range(steps):
-            *_, info = env.step(np.zeros(env.action_space.shape))
-            if "target_pos_world" in info:
-                drawn.append(np.r_[info["target_pos_world"], info["occluded"]])
-            else:
-                push = info["push_impulse_ns"]
-                drawn.append(np.r_[info["state"], np.zeros(3) if push is None else push])
+            drawn.append(_drawn(info))
+            *_, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+            if terminated:
+                break
         return np.array(drawn)
     finally:
         env.close()
 
 
-BALL_TABLE = ("observer_gym/BallTable-v0", {"push_rate_hz": 5.0, "occluder_rate_hz": 1.0})
-FOLLOWER = ("observer_gym/TargetFollower-v0", {})
+def _drawn(info: dict) -> np.ndarray:
+    if "throw" in info:
+        return np.r_[info["state"], info["throw"]["launch_vel_world"]]
+    if "target_pos_world" in info:  # its state is the target's image: camera-made
+        return np.r_[info["target_pos_world"], info["occluded"]]
+    push = info.get("push_impulse_ns")
+    return np.r_[info["state"], np.zeros(3) if push is None else push]
 
 
-@pytest.mark.parametrize(
-    ("system", "key", "values"),
-    [
-        (BALL_TABLE, "measurement_noise_px", (0.0, 2.0)),
-        (BALL_TABLE, "latency_s", (0.0, 0.1)),
-        (BALL_TABLE, "calib_rotation_error_deg", (0.0, 2.0)),
-        (BALL_TABLE, "frame_drop_prob", (1e-9, 0.3)),  # both draw one number per frame
-        (FOLLOWER, "measurement_noise_px", (0.0, 2.0)),
-        (FOLLOWER, "latency_s", (0.0, 0.2)),
-        (FOLLOWER, "calib_focal_error", (0.0, 0.05)),
-        (FOLLOWER, "frame_drop_prob", (0.0, 0.3)),  # always draws every frame's drop
-    ],
-)
-def test_a_sensor_option_does_not_change_the_worlds_draws(system, key, values):
-    env_id, options = system
-    worlds = [_world(env_id, 80, obs_mode="measurements", **options, **{key: v}) for v in values]
-    assert np.array_equal(worlds[0], worlds[1])
-    assert not world_draw_notes(env_id, check_grid(env_id, {key: list(values)}, options))
+# The worlds with their disturbances on: BallTable's pushes and occluder, TargetFollower's
+# pushes and occluder walks (BallCatcher's throw is its only draw).
+WORLDS = {
+    "observer_gym/BallTable-v0": {"push_rate_hz": 5.0, "occluder_rate_hz": 1.0},
+    "observer_gym/BallCatcher-v0": {"camera_preset": "random_offsets"},
+    "observer_gym/TargetFollower-v0": {"push_rate_hz": 1.0, "occluder_rate_hz": 0.5},
+}
+# A value other than the default for every sensor option (envs/sensor.py).
+SENSOR_VALUES = {
+    "frame_rate_hz": 25.0,
+    "frame_phase_s": 0.012,
+    "latency_s": 0.1,
+    "latency_jitter_s": 0.02,
+    "jitter_s": 0.003,
+    "frame_drop_prob": 0.3,
+    "measurement_noise_px": 2.0,
+    "image_noise_std": 8.0,
+    "calib_focal_error": 0.05,
+    "calib_principal_point_error_px": 5.0,
+    "calib_rotation_error_deg": 2.0,
+    "calib_translation_error_m": 0.02,
+    "calib_error_draw": "fixed",
+    "image_width_px": 160,
+    "image_height_px": 120,
+}
 
 
-def test_a_timing_option_does_change_them_and_the_sweep_says_so():
-    env_id, options = BALL_TABLE
-    worlds = [_world(env_id, 80, obs_mode="state", **options, frame_drop_prob=p) for p in (0, 0.3)]
-    assert not np.array_equal(worlds[0], worlds[1])  # docs/sweep.md says so
-    assert set(TIMING_DRAWS) >= {"frame_drop_prob", "jitter_s", "latency_jitter_s"}
-    grid = check_grid(env_id, {"frame_drop_prob": ["0", "0.3"]}, options)
-    (note,) = world_draw_notes(env_id, grid)
-    assert "frame_drop_prob" in note and "1e-9" in note
+def test_every_sensor_option_is_covered():
+    from observer_gym.envs.sensor import SensorConfig
+
+    fields = {f.name for f in dataclasses.fields(SensorConfig)} - {"obs_mode"}
+    assert fields == set(SENSOR_VALUES)
+
+
+@pytest.mark.parametrize("env_id", sorted(WORLDS))
+@pytest.mark.parametrize("key", sorted(SENSOR_VALUES))
+def test_a_sensor_option_does_not_change_the_worlds_draws(env_id, key):
+    """Every sensor option draws from the sensor's own streams: the pushes, occluders,
+    throws and target motion of a seed are the same at any value (but for a frame rate
+    that is also the env's control rate, which the sweep warns of)."""
+    options = WORLDS[env_id]
+    value = SENSOR_VALUES[key]
+    if key == "frame_phase_s" and env_id.endswith("TargetFollower-v0"):
+        value = 0.05  # below its 0.1 s frame period, on a physics tick
+    grid = check_grid(env_id, {key: [str(value)]}, options)
+    worlds = [
+        _world(env_id, 60, obs_mode="measurements", **options, **extra)
+        for extra in ({}, {key: value})
+    ]
+    shaping = system_for_id(env_id).env_class().world_shaping_sensor_options
+    if key in shaping:
+        assert worlds[0].shape != worlds[1].shape or not np.array_equal(*worlds)
+        (note,) = world_draw_notes(env_id, check_grid(env_id, {key: ["50", "25"]}, options))
+        assert key in note and "control rate" in note
+    else:
+        # Over the steps both ran (a smaller image loses an unfollowed target sooner, which
+        # ends TargetFollower's episode: the image decides that, not the world's draws).
+        steps = min(len(w) for w in worlds)
+        assert steps >= 20
+        assert np.array_equal(worlds[0][:steps], worlds[1][:steps])
+        assert not world_draw_notes(env_id, grid)
 
 
 # --- resuming --------------------------------------------------------------------------------
@@ -389,7 +428,7 @@ def test_the_library_refuses_bad_counts_and_warns_of_world_draws(tmp_path):
         with pytest.raises(ValueError, match=message):
             run_sweep(**{**ARGS, **changes}, out_dir=tmp_path / "out")
         assert not (tmp_path / "out").exists()
-    args = {**ARGS, "vary": {"jitter_s": [0.0, 0.001]}, "observers": ["oracle"], "episodes": 1}
-    with pytest.warns(SweepWarning, match="varying jitter_s changes the camera's timing draws"):
+    args = {**ARGS, "vary": {"frame_rate_hz": [50, 25]}, "observers": ["oracle"], "episodes": 1}
+    with pytest.warns(SweepWarning, match="varying frame_rate_hz changes the world's steps"):
         run_sweep(**{**args, "controllers": ["lqr"], "steps": 5}, out_dir=tmp_path / "out")
     assert (tmp_path / "out" / "results.json").exists()
