@@ -4,7 +4,14 @@
     NIS(k)  = sum over the step's updates of d^T S^-1 d                    (over m_k dof)
 
 A consistent filter has E[NEES] = n_k and E[NIS] = m_k (Bar-Shalom, Li & Kirubarajan,
-"Estimation with Applications to Tracking and Navigation", 2001, sec. 5.4). NEES is taken
+"Estimation with Applications to Tracking and Navigation", 2001, sec. 5.4).
+
+The band (:func:`chi_square_band`, :func:`nees_flag`): over a cell's episodes, the sum of
+the episodes' mean NEES against a chi-square with the sum of their mean dof, as
+Bar-Shalom's Monte Carlo NEES test takes N runs: one sample per episode. An episode's mean
+NEES is an average over correlated steps, so its spread is narrower than chi-square(n)/n
+and this band is the wider, conservative one: a filter outside it claims much less (or
+much more) error than it has. NEES is taken
 over the state entries the observer is uncertain about: those with a finite, positive
 variance (entries it knows exactly, e.g. the robot's own joints, have zero variance and
 no error to normalise), in the directions the covariance does not claim to know exactly
@@ -16,11 +23,19 @@ covariance report none.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from scipy import stats
 
-__all__ = ["episode_consistency", "nees_per_step"]
+__all__ = [
+    "CellConsistency",
+    "chi_square_band",
+    "episode_consistency",
+    "measure_consistency",
+    "nees_flag",
+    "nees_per_step",
+]
 
 # Correlation eigenvalues below this are directions the covariance holds exactly known.
 RANK_TOL = 1e-9
@@ -77,3 +92,92 @@ def episode_consistency(record: Mapping[str, Any]) -> dict[str, float | None]:
         ratio = mean / mean_dof
         out.update({f"{name}_mean": mean, f"{name}_dof": mean_dof, f"{name}_ratio": ratio})
     return out
+
+
+def chi_square_band(dof: float, confidence: float = 0.95) -> tuple[float, float]:
+    """The two-sided ``confidence`` band of chi-square(``dof``) / ``dof``: where a
+    consistent filter's NEES (or NIS) per degree of freedom lies."""
+    tail = 0.5 * (1.0 - confidence)
+    return (
+        float(stats.chi2.ppf(tail, dof) / dof),
+        float(stats.chi2.ppf(1.0 - tail, dof) / dof),
+    )
+
+
+class CellConsistency(NamedTuple):
+    """A cell's NEES over its episodes: the summed episode means over the summed dof,
+    the 95 % chi-square band of that dof (None, None without NEES), and whether the ratio
+    lies inside it."""
+
+    nees_ratio: float | None
+    band: tuple[float, float] | None
+    consistent: bool | None
+
+
+def nees_flag(episodes: Sequence[Mapping[str, Any]]) -> CellConsistency:
+    """The :class:`CellConsistency` of a cell from its episodes'
+    :func:`episode_consistency` entries (``nees_mean``, ``nees_dof``)."""
+    pairs = [
+        (e["nees_mean"], e["nees_dof"])
+        for e in episodes
+        if e.get("nees_mean") is not None and e.get("nees_dof")
+    ]
+    if not pairs:
+        return CellConsistency(None, None, None)
+    nees, dof = (float(sum(column)) for column in zip(*pairs, strict=True))
+    band = chi_square_band(dof)
+    ratio = nees / dof
+    return CellConsistency(ratio, band, band[0] <= ratio <= band[1])
+
+
+class ConsistencyRun(NamedTuple):
+    """NEES/dof and NIS/dof of each episode of :func:`measure_consistency` (None where an
+    episode had none) and their medians."""
+
+    nees_ratios: tuple[float | None, ...]
+    nis_ratios: tuple[float | None, ...]
+
+    @staticmethod
+    def _median(values: Sequence[float | None]) -> float | None:
+        kept = [v for v in values if v is not None]
+        return float(np.median(kept)) if kept else None
+
+    @property
+    def median_nees_ratio(self) -> float | None:
+        return self._median(self.nees_ratios)
+
+    @property
+    def median_nis_ratio(self) -> float | None:
+        return self._median(self.nis_ratios)
+
+
+def measure_consistency(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    steps: int | None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> ConsistencyRun:
+    """Run ``episodes`` closed-loop episodes (seeds ``seed``, ``seed + 1``, ...) of
+    ``observer`` (a name of the env's task, e.g. "kf-measurements") with ``controller``
+    and the env options ``env_kwargs``; each episode's NEES/dof and NIS/dof."""
+    from observer_gym.train.run import EpisodeSpec, run_episode  # run imports this module
+
+    nees, nis = [], []
+    for i in range(episodes):
+        spec = EpisodeSpec(
+            env_id,
+            observer,
+            controller,
+            seed + i,
+            steps,
+            dict(env_kwargs or {}),
+            observer_options=dict(observer_options or {}),
+        )
+        consistency = episode_consistency(run_episode(spec))
+        nees.append(consistency.get("nees_ratio"))
+        nis.append(consistency.get("nis_ratio"))
+    return ConsistencyRun(tuple(nees), tuple(nis))

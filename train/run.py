@@ -76,6 +76,7 @@ class EpisodeSpec:
     max_steps: int | None = None
     env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     reset_options: Mapping[str, Any] | None = None
+    observer_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 def check_controller(controller: str, env_id: str, observer: str) -> None:
@@ -137,13 +138,14 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     Returns ``time_s`` (T + 1,), ``state`` (T + 1, n) ground truth, ``estimate`` and
     ``estimate_std`` (T + 1, n; None for the oracle), for an observer also ``nees``,
     ``nees_dof``, ``nis``, ``nis_dof`` (T + 1,; :mod:`observer_gym.train.consistency`;
-    NaN where a step has none), ``actions`` (T, m), ``rewards``
+    NaN where a step has none, and on the steps where the env says its observers' model
+    does not hold: ``model_holds_key``), ``actions`` (T, m), ``rewards``
     (T,), ``terminated``, ``truncated``, ``final_info`` (the scalar entries of the last
     step's info, e.g. an episode's outcome), ``solver_failures``, ``controller``
     (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
     Stops at termination, truncation (the env's time limit) or ``spec.max_steps``.
     """
-    env = make_env(spec.env_id, spec.observer, spec.env_kwargs)
+    env = make_env(spec.env_id, spec.observer, spec.env_kwargs, spec.observer_options)
     try:
         controller = build_controller(spec.controller, env)
         # An agent sees the env through the wrappers it was trained with (image resizing
@@ -198,9 +200,23 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
                 [np.nan if e.get("nis") is None else e["nis"] for e in estimates], dtype=float
             )
             record["nis_dof"] = np.array([e.get("nis_dof", 0) for e in estimates], dtype=int)
+            _keep_where_model_holds(record, env.unwrapped, samples)
         return record
     finally:
         env.close()
+
+
+def _keep_where_model_holds(record: dict[str, Any], env: gym.Env, samples: list) -> None:
+    """NEES and NIS only over the steps where the observers' process model holds (the
+    env's ``model_holds_key`` info entry, e.g. BallCatcher's ball in free flight): NaN and
+    0 dof elsewhere."""
+    key = getattr(env, "model_holds_key", None)
+    if key is None:
+        return
+    outside = ~np.array([bool(s.get(key, True)) for s in samples])
+    for name in ("nees", "nis"):
+        record[name][outside] = np.nan
+        record[f"{name}_dof"][outside] = 0
 
 
 def run_experiment(

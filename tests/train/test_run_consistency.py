@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer_gym.train.consistency import episode_consistency, nees_per_step
+from observer_gym.train.consistency import (
+    chi_square_band,
+    episode_consistency,
+    nees_flag,
+    nees_per_step,
+)
 
 
 def test_errors_drawn_from_the_covariance_give_a_mean_nees_of_its_dimension():
@@ -54,3 +59,51 @@ def test_episode_means_skip_steps_without_a_value():
     assert out["nees_mean"] == 3.0 and out["nees_ratio"] == 1.5
     assert out["nis_mean"] is None
     assert episode_consistency({"nees": None}) == {}
+
+
+def test_the_band_is_chi_square_with_two_dof_in_closed_form():
+    # chi-square(2) is exponential with mean 2: F^-1(p) = -2 ln(1 - p), so the band of
+    # chi-square(2) / 2 is (-ln 0.975, -ln 0.025).
+    low, high = chi_square_band(2.0)
+    assert low == pytest.approx(-np.log(0.975), rel=1e-9)
+    assert high == pytest.approx(-np.log(0.025), rel=1e-9)
+
+
+def test_a_cell_is_flagged_by_its_summed_nees_against_its_summed_dof():
+    episodes = [{"nees_mean": 3.9, "nees_dof": 4.0}, {"nees_mean": 4.3, "nees_dof": 4.0}]
+    cell = nees_flag(episodes)
+    assert cell.nees_ratio == pytest.approx(8.2 / 8.0)
+    assert cell.band == chi_square_band(8.0) and cell.consistent
+    cautious = nees_flag([{"nees_mean": 0.04, "nees_dof": 4.0}] * 10)  # NEES/dof 0.01
+    assert cautious.consistent is False and cautious.band[0] > 0.01
+    confident = nees_flag([{"nees_mean": 360.0, "nees_dof": 4.0}] * 10)  # NEES/dof 90
+    assert confident.consistent is False and confident.band[1] < 90.0
+    assert nees_flag([{}, {"nees_mean": None, "nees_dof": None}]) == (None, None, None)
+
+
+def test_ball_catcher_nees_counts_the_free_flight_only():
+    # At 2 px of pixel noise seed 0's ball hits the box off the hole: after its first touch
+    # it bounces, which no ballistic model predicts, and those steps carry no NEES or NIS.
+    import gymnasium as gym
+
+    from observer_gym.train.run import EpisodeSpec, run_episode
+
+    options = {"measurement_noise_px": 2.0}
+    spec = EpisodeSpec(
+        "observer_gym/BallCatcher-v0", "kf-measurements", "intercept", 0, 150, options
+    )
+    record = run_episode(spec)
+    env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state", **options)
+    env.reset(seed=0)
+    in_flight = [True]
+    for action in record["actions"]:
+        *_, info = env.step(action)
+        in_flight.append(info["ball_in_flight"])
+    env.close()
+    in_flight = np.array(in_flight)
+    assert in_flight.any() and not in_flight.all()  # it touched the box
+    assert np.all(np.isnan(record["nees"][~in_flight])) and np.all(
+        record["nees_dof"][~in_flight] == 0
+    )
+    assert np.all(np.isnan(record["nis"][~in_flight]))
+    assert np.isfinite(record["nees"][in_flight][1:]).all()
