@@ -15,6 +15,7 @@ import numpy as np
 
 from observer_gym.train.aggregate import METHOD
 from observer_gym.train.compare_stats import ORACLE, PERCENT, MetricSpec, compare_metrics
+from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
 from observer_gym.train.outputs import format_table, to_jsonable, write_json_atomic
 from observer_gym.train.plots import DPI, new_figure
 
@@ -105,15 +106,19 @@ def comparison_table(
     metrics: Mapping[str, MetricSpec],
     episodes: int,
 ) -> str:
-    """The Markdown table: one row per pair, a column per metric and, when some pair has a
-    ``vs_oracle``, the column of the primary metric's paired difference from the oracle."""
+    """The Markdown table: one row per pair, a column per metric, when some pair has a
+    ``vs_oracle`` the column of the primary metric's paired difference from the oracle, and
+    when some pair has an estimate the NEES/dof column with its band (⚠ outside)."""
     primary = next(iter(metrics))
     label, unit, scale, digits, _ = metrics[primary]
     with_oracle = any(p["vs_oracle"] is not None for p in pairs)
+    with_nees = any((p.get("consistency") or {}).get("nees_ratio") is not None for p in pairs)
     headers = ["observer", "controller"]
     headers += [_header(lab, u, better) for lab, u, _, _, better in metrics.values()]
     if with_oracle:
         headers.append(_header(f"Δ {label} vs oracle", difference_unit(unit)))
+    if with_nees:
+        headers.append(NEES_COLUMN)
     rows = []
     for pair in pairs:
         row = [pair["observer"], pair["controller"]]
@@ -128,6 +133,8 @@ def comparison_table(
                 if diff is None
                 else format_difference(diff, scale, digits, episodes)
             )
+        if with_nees:
+            row.append(consistency_text(pair.get("consistency")))
         rows.append(row)
     return format_table(headers, rows)
 
@@ -189,7 +196,7 @@ def write_markdown(
         "↓ lower is better, ↑ higher is better. "
         f"Δ vs oracle: observer − oracle of {primary_label}, episode by episode on the same "
         f"seeds, mean ± {PERCENT} half-width (Student t), and (×) the ratio of the "
-        "means.",
+        f"means. {NEES_KEY_TEXT}",
         "",
     ]
     if seeds_table is not None:

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
-from observer_gym.train.consistency import episode_consistency
+from observer_gym.train.consistency import episode_consistency, nees_flag
 
 CONFIDENCE = 0.95  # of every interval
 PERCENT = f"{CONFIDENCE * 100:g} %"  # as the tables write it
@@ -197,6 +197,7 @@ def analyse_pairs(
                 "episodes": episodes,
                 "summary": task.summarize(episodes),
                 "statistics": metrics_statistics(episodes, metrics),
+                "consistency": nees_flag(episodes)._asdict(),
                 "vs_oracle": None,
             }
         )

@@ -29,8 +29,10 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
+    "NEES_COLUMN",
     "CellConsistency",
     "chi_square_band",
+    "consistency_text",
     "episode_consistency",
     "measure_consistency",
     "nees_flag",
@@ -128,6 +130,29 @@ def nees_flag(episodes: Sequence[Mapping[str, Any]]) -> CellConsistency:
     band = chi_square_band(dof)
     ratio = nees / dof
     return CellConsistency(ratio, band, band[0] <= ratio <= band[1])
+
+
+NEES_COLUMN = "NEES/dof [95 % band]"
+
+
+def consistency_text(cell: Mapping[str, Any] | None) -> str:
+    """A table cell for a cell's :class:`CellConsistency` (as a dict): "0.93 [0.61, 1.48]",
+    "91.30 ⚠ [0.61, 1.48]" when the ratio leaves the band, "n/a" without NEES."""
+    if not cell or cell.get("nees_ratio") is None:
+        return "n/a"
+    low, high = cell["band"]
+    mark = "" if cell["consistent"] else " ⚠"
+    return f"{cell['nees_ratio']:.2f}{mark} [{low:.2f}, {high:.2f}]"
+
+
+NEES_KEY_TEXT = (
+    f"{NEES_COLUMN}: the episodes' summed mean NEES over their summed degrees of freedom "
+    "(1 for a filter whose covariance tells the truth), taken over the steps where the "
+    "observer's model holds (BallCatcher-v0: the ball's free flight, up to its first touch "
+    "of the box), and the band a chi-square with that "
+    "many dof gives with 95 % probability; ⚠ marks a ratio outside it: the observer claims "
+    "much less (above) or much more (below) error than it has (docs/observers.md)."
+)
 
 
 class ConsistencyRun(NamedTuple):

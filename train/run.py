@@ -27,7 +27,13 @@ from observer_gym.controllers import check_controller_fits, make_controller
 from observer_gym.envs import system_for_id
 from observer_gym.train.agent import Agent
 from observer_gym.train.checks import AGENT_FORMS, check_agent, frames_message
-from observer_gym.train.consistency import episode_consistency, nees_per_step
+from observer_gym.train.consistency import (
+    NEES_COLUMN,
+    consistency_text,
+    episode_consistency,
+    nees_flag,
+    nees_per_step,
+)
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
@@ -321,6 +327,7 @@ def _run_into(
         for i, (spec, record) in enumerate(zip(specs, records, strict=True))
     ]
     summary = task.summarize(per_episode)
+    consistency = nees_flag(per_episode)._asdict()
 
     files = task.plot(records, observer, out_dir)
     files.append("results.json")
@@ -348,6 +355,7 @@ def _run_into(
             "wall_time_s": wall_time_s,
             "episodes": per_episode,
             "summary": summary,
+            "consistency": consistency,
             "files": files,
         }
     )
@@ -361,15 +369,16 @@ def results_text(results: Mapping[str, Any]) -> str:
     config = results["config"]
     first, episodes = config["seed"], config["episodes"]
     last = first + episodes - 1
-    return "\n".join(
-        [
-            f"observer-gym run: {config['env_id']}, observer {config['observer']}, controller "
-            f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
-            f"{results['wall_time_s']:.1f} s",
-            summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
-            f"output: {config['out_dir']}",
-        ]
-    )
+    lines = [
+        f"observer-gym run: {config['env_id']}, observer {config['observer']}, controller "
+        f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
+        f"{results['wall_time_s']:.1f} s",
+        summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
+    ]
+    consistency = results.get("consistency")
+    if consistency and consistency.get("nees_ratio") is not None:
+        lines.append(f"{NEES_COLUMN}: {consistency_text(consistency)}")
+    return "\n".join([*lines, f"output: {config['out_dir']}"])
 
 
 def iter_episodes(

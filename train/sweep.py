@@ -40,6 +40,7 @@ from observer_gym.train.compare_stats import (
     metrics_statistics,
     paired_difference,
 )
+from observer_gym.train.consistency import nees_flag
 from observer_gym.train.outputs import (
     VERSIONED_PACKAGES,
     OneLineWarning,
@@ -225,6 +226,7 @@ def assemble_results(
                 "pipeline_options": task.OBSERVERS[cell.observer][1],
                 "controller_config": data["controller_config"],
                 "statistics": metrics_statistics(episodes, metrics),
+                "consistency": nees_flag(episodes)._asdict(),
                 "vs_reference": None
                 if base is data
                 else paired_difference(

@@ -24,6 +24,7 @@ from observer_gym.train.compare_report import (
     format_statistic,
 )
 from observer_gym.train.compare_stats import PERCENT, MetricSpec
+from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
 from observer_gym.train.outputs import format_table, write_json_atomic
 from observer_gym.train.plots import DPI, new_figure
 from observer_gym.train.sweep_grid import point_text, value_text
@@ -62,8 +63,12 @@ def sweep_table(results: Mapping[str, Any]) -> str:
     headers = [*config["keys"], "observer", "controller"]
     headers += [_header(metrics[key]) for key in shown]
     headers.append(f"Δ {label} vs reference" + (f" ({difference_unit(unit)})" if unit else ""))
+    cells = results["cells"]
+    with_nees = any((c.get("consistency") or {}).get("nees_ratio") is not None for c in cells)
+    if with_nees:
+        headers.append(NEES_COLUMN)
     rows = []
-    for cell in results["cells"]:
+    for cell in cells:
         row = [value_text(cell["point"][key]) for key in config["keys"]]
         row += [cell["observer"], cell["controller"]]
         for key in shown:
@@ -71,6 +76,8 @@ def sweep_table(results: Mapping[str, Any]) -> str:
             row.append(format_statistic(cell["statistics"][key], sc, dg, n))
         diff = cell["vs_reference"]
         row.append("reference" if diff is None else format_difference(diff, scale, digits, n))
+        if with_nees:
+            row.append(consistency_text(cell.get("consistency")))
         rows.append(row)
     return format_table(headers, rows)
 
@@ -99,7 +106,7 @@ def write_markdown(path: Path, results: Mapping[str, Any]) -> None:
         "that of the cell with the same observer and controller at the first grid point "
         f"({point_text(config['reference'])}), episode by episode on the same seeds, mean ± "
         f"{PERCENT} half-width (Student t), and (×) the ratio of the means. Per-episode "
-        "values: episodes.csv; every metric's interval: results.json.",
+        f"values: episodes.csv; every metric's interval: results.json. {NEES_KEY_TEXT}",
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")

@@ -82,11 +82,22 @@ def test_compare_writes_the_table_csv_plots_and_results(compared):
     assert text.splitlines()[0] == f"`{results['config']['command']}`"
     header, *rows = table_rows(text)
     assert len(rows) == 4
-    assert header[-1] == "Δ distance from centre vs oracle (mm)"
+    assert header[-2:] == ["Δ distance from centre vs oracle (mm)", "NEES/dof [95 % band]"]
     assert [(r[0], r[1]) for r in rows] == [(o, c) for c in CONTROLLERS for o in OBSERVERS]
     for row in rows:
-        assert len(row) == len(header) == 2 + len(COMPARE_METRICS) + 1
-        assert (row[-1] == "reference") == (row[0] == "oracle")
+        assert len(row) == len(header) == 2 + len(COMPARE_METRICS) + 2
+        assert (row[-2] == "reference") == (row[0] == "oracle")
+        episodes = pair(results, row[0], row[1])["episodes"]
+        if row[0] == "oracle":
+            assert row[-1] == "n/a"
+            continue
+        # The episodes' summed NEES over their summed dof, inside or outside the chi-square
+        # band of that many dof.
+        nees = sum(e["nees_mean"] for e in episodes)
+        dof = sum(e["nees_dof"] for e in episodes)
+        low, high = (stats.chi2.ppf(q, dof) / dof for q in (0.025, 0.975))
+        mark = "" if low <= nees / dof <= high else " ⚠"
+        assert row[-1] == f"{nees / dof:.2f}{mark} [{low:.2f}, {high:.2f}]"
 
     with (out_dir / "table.csv").open() as f:
         csv_rows = list(csv.DictReader(f))
@@ -156,7 +167,7 @@ def test_the_oracle_column_is_the_paired_difference(compared):
         )
         assert (diff["low"], diff["high"]) == pytest.approx((low, high), rel=1e-9)
         assert diff["ratio"] == pytest.approx(np.mean(observer) / np.mean(oracle), rel=1e-12)
-        cell = rows["kf-measurements", controller][-1]
+        cell = rows["kf-measurements", controller][-2]
         assert cell.startswith(
             f"{diff['mean'] * scale:+.{digits}f} ± {diff['half_width'] * scale:.{digits}f} "
         )

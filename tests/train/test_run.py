@@ -94,8 +94,10 @@ def test_results_json_and_plots(lqr_from_10_cm):
         "wall_time_s",
         "episodes",
         "summary",
+        "consistency",
         "files",
     }
+    assert results["consistency"] == {"nees_ratio": None, "band": None, "consistent": None}
     config = results["config"]
     assert config["env_id"] == ENV_ID
     assert config["env_kwargs"] == {"obs_mode": "state"}
