@@ -107,3 +107,31 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
     )
     assert np.all(np.isnan(record["nis"][~in_flight]))
     assert np.isfinite(record["nees"][in_flight][1:]).all()
+
+
+def test_the_study_pools_each_cell_and_brackets_its_ratio():
+    from observer_gym.train.consistency_study import option_table, summarise
+
+    rng = np.random.default_rng(3)
+    rows = [
+        {
+            "observer": "kf-measurements",
+            "latency_s": v,
+            "nees_mean": n,
+            "nees_dof": 4.0,
+            "nis_ratio": 1.0,
+        }
+        for v, scale in ((0.0, 1.0), (0.1, 50.0))
+        for n in scale * rng.chisquare(4, size=12)
+    ]
+    summary = summarise(rows, "latency_s")
+    for value, scale in ((0.0, 1.0), (0.1, 50.0)):
+        cell = summary["kf-measurements", value]
+        pooled = [r["nees_mean"] for r in rows if r["latency_s"] == value]
+        ratio = sum(pooled) / (4.0 * len(pooled))
+        assert cell["consistency"]["nees_ratio"] == pytest.approx(ratio)
+        low, high = cell["interval"]
+        assert low < ratio < high
+        assert cell["consistency"]["consistent"] == (scale == 1.0)
+    table = option_table("latency_s", summary)
+    assert "⚠" in table.splitlines()[-1].split("|")[3] and "NIS 1.00" in table
