@@ -34,7 +34,6 @@ __all__ = [
     "chi_square_band",
     "consistency_text",
     "episode_consistency",
-    "measure_consistency",
     "nees_flag",
     "nees_per_step",
 ]
@@ -153,56 +152,3 @@ NEES_KEY_TEXT = (
     "many dof gives with 95 % probability; ⚠ marks a ratio outside it: the observer claims "
     "much less (above) or much more (below) error than it has (docs/observers.md)."
 )
-
-
-class ConsistencyRun(NamedTuple):
-    """NEES/dof and NIS/dof of each episode of :func:`measure_consistency` (None where an
-    episode had none) and their medians."""
-
-    nees_ratios: tuple[float | None, ...]
-    nis_ratios: tuple[float | None, ...]
-
-    @staticmethod
-    def _median(values: Sequence[float | None]) -> float | None:
-        kept = [v for v in values if v is not None]
-        return float(np.median(kept)) if kept else None
-
-    @property
-    def median_nees_ratio(self) -> float | None:
-        return self._median(self.nees_ratios)
-
-    @property
-    def median_nis_ratio(self) -> float | None:
-        return self._median(self.nis_ratios)
-
-
-def measure_consistency(
-    env_id: str,
-    observer: str,
-    controller: str,
-    episodes: int,
-    steps: int | None,
-    env_kwargs: Mapping[str, Any] | None = None,
-    observer_options: Mapping[str, Any] | None = None,
-    seed: int = 0,
-) -> ConsistencyRun:
-    """Run ``episodes`` closed-loop episodes (seeds ``seed``, ``seed + 1``, ...) of
-    ``observer`` (a name of the env's task, e.g. "kf-measurements") with ``controller``
-    and the env options ``env_kwargs``; each episode's NEES/dof and NIS/dof."""
-    from observer_gym.train.run import EpisodeSpec, run_episode  # run imports this module
-
-    nees, nis = [], []
-    for i in range(episodes):
-        spec = EpisodeSpec(
-            env_id,
-            observer,
-            controller,
-            seed + i,
-            steps,
-            dict(env_kwargs or {}),
-            observer_options=dict(observer_options or {}),
-        )
-        consistency = episode_consistency(run_episode(spec))
-        nees.append(consistency.get("nees_ratio"))
-        nis.append(consistency.get("nis_ratio"))
-    return ConsistencyRun(tuple(nees), tuple(nis))

@@ -27,9 +27,10 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
-from observer_gym.train.consistency import consistency_text, nees_flag
+from observer_gym.train.consistency import consistency_text, episode_consistency, nees_flag
 from observer_gym.train.outputs import format_table, replace_atomically
 from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.run import EpisodeSpec, run_episode
 
 ACCEPTED = (1.0 / 3.0, 3.0)  # the range the tests hold every observer's median NEES/dof to
 
@@ -79,6 +80,57 @@ OPTIONS: dict[str, tuple[float, ...]] = {
     "calib_rotation_error_deg": (0.0, 0.5, 1.0, 2.0),
     "calib_focal_error": (0.0, 0.02, 0.05),
 }
+
+
+class ConsistencyRun(NamedTuple):
+    """NEES/dof and NIS/dof of each episode of :func:`measure_consistency` (None where an
+    episode had none) and their medians."""
+
+    nees_ratios: tuple[float | None, ...]
+    nis_ratios: tuple[float | None, ...]
+
+    @staticmethod
+    def _median(values: Sequence[float | None]) -> float | None:
+        kept = [v for v in values if v is not None]
+        return float(np.median(kept)) if kept else None
+
+    @property
+    def median_nees_ratio(self) -> float | None:
+        return self._median(self.nees_ratios)
+
+    @property
+    def median_nis_ratio(self) -> float | None:
+        return self._median(self.nis_ratios)
+
+
+def measure_consistency(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    steps: int | None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> ConsistencyRun:
+    """Run ``episodes`` closed-loop episodes (seeds ``seed``, ``seed + 1``, ...) of
+    ``observer`` (a name of the env's task, e.g. "kf-measurements") with ``controller``
+    and the env options ``env_kwargs``; each episode's NEES/dof and NIS/dof."""
+    nees, nis = [], []
+    for i in range(episodes):
+        spec = EpisodeSpec(
+            env_id,
+            observer,
+            controller,
+            seed + i,
+            steps,
+            dict(env_kwargs or {}),
+            observer_options=dict(observer_options or {}),
+        )
+        consistency = episode_consistency(run_episode(spec))
+        nees.append(consistency.get("nees_ratio"))
+        nis.append(consistency.get("nis_ratio"))
+    return ConsistencyRun(tuple(nees), tuple(nis))
 
 
 def _short(env_id: str) -> str:
