@@ -16,7 +16,8 @@ only the newest one's pixels (or perfect-detector report) reach the observer. So
   (envs/target_follower/geometry.robot_pose_from_camera). Older frames delivered in the
   same step are lost to the observer (their content is not in the observation).
 
-:func:`history_s` is how far back a capture-time-fused observer keeps its past.
+How far back a capture-time-fused observer keeps its past is the declared sensor's
+``env.sensor_spec.history_s(step_s)``.
 """
 
 from __future__ import annotations
@@ -31,12 +32,10 @@ from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
 from observer_gym.estimation.observer import checked_measurement, checked_rgb_frame
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 
-__all__ = ["FrameDetection", "FrameReader", "history_s"]
+__all__ = ["FrameDetection", "FrameReader"]
 
 # Capture times closer than this are the same instant (tick multiples).
 SAME_TIME_S = 1e-9
-# The longest latency jitter kept, in standard deviations of the env's Gaussian jitter.
-JITTER_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -48,14 +47,6 @@ class FrameDetection:
     K: np.ndarray  # the nominal camera matrix
     T_world_cam: np.ndarray  # the nominal camera pose at capture
     tilt_rad: float  # the camera's tilt at capture
-
-
-def history_s(env: TargetFollowerEnv) -> float:
-    """How long a capture-time-fused observer keeps its past: the env's largest latency
-    (``latency_s`` plus ``JITTER_SIGMAS`` standard deviations of ``latency_jitter_s``)
-    and two frame periods, so the latest frame always finds the step it was captured in."""
-    cfg = env.config
-    return cfg.latency_s + JITTER_SIGMAS * cfg.latency_jitter_s + 2.0 / cfg.frame_rate_hz
 
 
 class FrameReader:

@@ -13,7 +13,8 @@ frames). The spec's step, split at capture times:
   step, phi(t) = phi(t_{k-1}) + omega_t (t - t_{k-1}), exactly as the drive moves it);
 - update (34) at the capture time (and the self-tuning register (41) on the samples in
   capture order; a dropped or undelivered frame, a gap of more than 1.5 frame periods
-  between samples, empties it as a missed detection does);
+  between samples, is a missed sample: it empties the register and ends a candidate track,
+  as a missed detection does);
 - the reliability check (6) on the estimate at each step time, after the frames captured
   up to it are fused: it is made when the filter first moves on from a step time.
 
@@ -31,17 +32,16 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.target_follower import TargetFollowerEnv
-from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.latency import SAME_TIME_S, CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
-from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader, history_s
+from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
 from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
-from observer_gym.estimation.target_follower.observer import filter_params
+from observer_gym.estimation.target_follower.observer import estimator_setup
 from observer_gym.estimation.target_follower.state_layout import (
     RobotStep,
     lost_estimate,
@@ -71,11 +71,8 @@ class HeldInput:
 
 @dataclass(frozen=True)
 class _Snapshot:
-    kf: tuple[np.ndarray, np.ndarray] | None
-    R: np.ndarray
-    register: tuple[np.ndarray, ...]
+    vse: tuple  # VisualStateEstimator.snapshot()
     last_sample_s: float
-    reinitialisations: int
     time_s: float
     check_due: bool
 
@@ -111,64 +108,45 @@ class VSECore:
             vse.check_reliability()
         self.check_due = False
         if action is not None:
-            if vse.initialised:
-                # (30) over dt with B_i at the estimate and the tilt now (the filter's time
-                # lies in the step interval of ``action``)
-                tilt_rad = action.tilt_at(self.time_s)
-                B_i = robot_jacobian(vse.x[:3], tilt_rad, self.camera_params)
-                vse.predict(B_i, action.applied, dt_s)
+            if vse.tracks.filters():
+                # (30) over dt with B_i at each track's estimate and the tilt now (the
+                # filter's time lies in the step interval of ``action``)
+                tilt_rad, params = action.tilt_at(self.time_s), self.camera_params
+
+                def B_i(X_i: np.ndarray) -> np.ndarray:
+                    return robot_jacobian(X_i, tilt_rad, params)
+
+                vse.predict(B_i, action.applied, dt_s, tilt_rad)
             self.check_due = abs(time_s - action.end_time_s) < SAME_TIME_S
         self.time_s = float(time_s)
 
     def update(self, measurement: FrameDetection) -> bool:
         vse = self.vse
         z = measurement.z_px
-        if not vse.initialised:  # (2)
-            started = vse.start(z)
-            if started:
-                self.last_sample_s = measurement.capture_time_s
-            return started
-        if z is not None and measurement.capture_time_s - self.last_sample_s > self.max_gap_s:
-            vse.register(None)  # samples missed in between: the register restarts
-        vse.register(z)  # (3)
-        vse.last_update = None
-        used = vse.update(z)  # (5)
-        if z is not None:
-            self.last_sample_s = measurement.capture_time_s
+        if z is None:
+            vse.measure(None)  # a missed sample
+            return False
+        if measurement.capture_time_s - self.last_sample_s > self.max_gap_s:
+            vse.miss()  # samples missed in between: the register and a candidate end
+        used = vse.measure(z)  # (2), (3), (5)
+        self.last_sample_s = measurement.capture_time_s
+        if vse.last_update is not None:
             self.nis_of[id(measurement)] = vse.last_update.nis
         return used
 
     def snapshot(self) -> _Snapshot:
-        vse = self.vse
-        return _Snapshot(
-            None if vse.kf is None else (vse.kf.x, vse.kf.P),
-            vse.R,
-            vse.tuner.samples,
-            self.last_sample_s,
-            vse.reinitialisations,
-            self.time_s,
-            self.check_due,
-        )
+        return _Snapshot(self.vse.snapshot(), self.last_sample_s, self.time_s, self.check_due)
 
     def restore(self, snapshot: _Snapshot) -> None:
-        vse = self.vse
-        if snapshot.kf is None:
-            vse.kf = None
-        elif vse.kf is None:
-            vse.kf = KalmanFilter(*snapshot.kf)
-        else:  # the filter assigns fresh arrays each step: the snapshot's stay unchanged
-            vse.kf.x, vse.kf.P = snapshot.kf
-        vse.R = snapshot.R
-        vse.tuner.refill(snapshot.register)
+        self.vse.restore(snapshot.vse)
         self.last_sample_s = snapshot.last_sample_s
-        vse.reinitialisations = snapshot.reinitialisations
         self.time_s = snapshot.time_s
         self.check_due = snapshot.check_due
 
     @property
     def reliable(self) -> bool:
-        """Initialised and every diagonal element of P within the threshold (6)."""
-        return self.vse.initialised and not self.vse.unreliable()
+        """A track with every diagonal element of P within the threshold (6)."""
+        return self.vse.valid
 
 
 class LatencyAwareObserver:
@@ -176,11 +154,16 @@ class LatencyAwareObserver:
 
     Args:
         env: the TargetFollower env (calibration, obs_mode, latency options).
-        filter: "stkf" (self-tuning R) or "kf" (R = R_0).
-        params: the estimator's tuning (default: spec Table 1); ``self_tuning`` is set
-            from ``filter``.
+        filter: "stkf" (self-tuning R) or "kf" (the rule's R).
+        params: the spec's procedure with Table 1's noise (default: the noise rule,
+            :data:`~observer_gym.estimation.target_follower.observer.RULE_PARAMS`);
+            ``self_tuning`` is set from ``filter``.
         camera_params: the f_x, f_y, W, delta_y that B_i uses (default: the calibration).
         detector: the rgb detector.
+        r_scale: the measurement noise covariance the rule gives, times this (> 0).
+
+    The history of step times kept for late frames is the declared sensor's
+    (``env.sensor_spec.history_s``).
 
     The output is :class:`~observer_gym.estimation.target_follower.observer.
     TargetFollowerObserver`'s: the estimate at the step time, ``tracking_valid`` while it
@@ -196,15 +179,16 @@ class LatencyAwareObserver:
         params: VSEParams | None = None,
         camera_params: TargetFollowerCameraParams | None = None,
         detector: TargetFollowerDetector | None = None,
+        r_scale: float = 1.0,
     ) -> None:
-        self.params = filter_params(filter, params)
+        self.params, self.noise = estimator_setup(env, filter, params, r_scale, False)
         self.filter = filter
         self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
             env.calibration
         )
         self.delta_y_m = env.calibration["delta_y_m"]
-        self.frame_period_s = 1.0 / env.config.frame_rate_hz
-        self.history_s = history_s(env)
+        self.frame_period_s = env.sensor_spec.frame_period_s
+        self.history_s = env.sensor_spec.history_s(env.config.dt_s)
         self.frames = FrameReader(env, detector, owner="LatencyAwareObserver")
         self.reset()
 
@@ -218,7 +202,7 @@ class LatencyAwareObserver:
         robot = RobotStep.from_info(info, action, self.delta_y_m)
         if action is None or self.fusion is None:  # after a reset
             core = VSECore(
-                VisualStateEstimator(self.params),
+                VisualStateEstimator(self.params, self.noise),
                 self.camera_params,
                 robot.time_s,
                 self.frame_period_s,
@@ -238,7 +222,8 @@ class LatencyAwareObserver:
         visible = frame is not None and frame.z_px is not None
         if core.reliable:
             self._last_image = vse.x[:3].copy()
-            mean, cov = state_estimate(vse.x[:3], vse.x[3:], vse.P, robot, True, visible)
+            P = vse.noise.reported(vse.P)
+            mean, cov = state_estimate(vse.x[:3], vse.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(
                 self._last_image, self.params.reliability_threshold, robot, visible

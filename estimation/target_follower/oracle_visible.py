@@ -21,7 +21,9 @@ Per step:
   a detection.
 
 Covariance: 0 on detected steps (the truth); while predicting, the VSE's model
-uncertainty from 0 at the last detected step, P <- F P F^T + Q_0 (spec Table 1's Q_0).
+uncertainty from 0 at the last detected step, P <- F P F^T + Q with the noise rule's Q
+(:mod:`~observer_gym.estimation.target_follower.noise`: the target's motion model; given
+``params``, spec Table 1's Q_0).
 Before the first detection the estimate is all zeros with covariance
 ``reliability_threshold`` x I. No innovation, so no NIS.
 """
@@ -35,13 +37,14 @@ import numpy as np
 from observer_gym.envs.target_follower import IMAGE, IMAGE_RATE, StateIndex, TargetFollowerEnv
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
-from observer_gym.estimation.target_follower.filters import VSEParams
+from observer_gym.estimation.target_follower.filters import Table1Noise, VSEParams
 from observer_gym.estimation.target_follower.frames import FrameReader
 from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     image_state_transition,
     robot_jacobian,
 )
+from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.state_layout import RobotStep, state_estimate
 
 __all__ = ["OracleVisibleObserver"]
@@ -53,7 +56,8 @@ class OracleVisibleObserver:
 
     Args:
         env: the TargetFollower env (calibration and obs_mode).
-        params: the VSE tuning whose Q_0 and reliability threshold the covariance uses.
+        params: the VSE tuning whose reliability threshold (and, given, Q_0) the
+            covariance uses (default: the noise rule's Q, Table 1's threshold).
         camera_params: the f_x, f_y, W, delta_y that B_i uses (default: the calibration).
         detector: the rgb detector.
     """
@@ -65,8 +69,8 @@ class OracleVisibleObserver:
         camera_params: TargetFollowerCameraParams | None = None,
         detector: TargetFollowerDetector | None = None,
     ) -> None:
+        self.noise = NoiseRule.for_env(env) if params is None else Table1Noise(params)
         self.params = params or VSEParams()
-        self.Q = np.diag(np.asarray(self.params.q0, dtype=float))
         self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
             env.calibration
         )
@@ -86,11 +90,13 @@ class OracleVisibleObserver:
             self.reset()
         elif self._x is not None:  # predict over the step by (30)
             dt_s = round(robot.time_s - self._robot.time_s, 9)
-            B_i = robot_jacobian(self._x[:3], self._robot.tilt_rad, self.camera_params)
+            tilt_rad, u = self._robot.tilt_rad, robot.applied
+            B_i = robot_jacobian(self._x[:3], tilt_rad, self.camera_params)
             F, G = image_state_transition(dt_s, B_i)
-            # X <- F X + G u,  P <- F P F^T + Q_0
-            self._x = F.dot(self._x) + G.dot(robot.applied)
-            self._P = F.dot(self._P).dot(F.T) + self.Q
+            Q = self.noise.image_Q(self._x[:3], tilt_rad, dt_s, u, B_i.dot(u))
+            # X <- F X + G u,  P <- F P F^T + Q
+            self._x = F.dot(self._x) + G.dot(u)
+            self._P = F.dot(self._P).dot(F.T) + Q
         self._robot = robot
         frame = self.frames.newest(obs, info)
         visible = frame is not None and frame.z_px is not None

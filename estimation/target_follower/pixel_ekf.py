@@ -20,16 +20,25 @@ prediction with the analytic Jacobian (:class:`~observer_gym.estimation.ekf.
 ExtendedKalmanFilter`). Each frame is fused at its capture time and the estimate predicted
 to the step's time by :class:`~observer_gym.estimation.latency.CaptureTimeFusion`.
 
-Start (and restart): at a detection, p_w by the pinhole model inverted (Z = f_x W / d_x)
-with covariance G R G^T (G its Jacobian) plus ``p0_extra_m2`` I, v_w = 0 with variance
-``v0_std_mps``^2. Like the VSE's reliability rule (spec (6)), the filter restarts at a
-detection when its image-state variance at the capture, diag(H P H^T), exceeds
-``reliability_threshold`` or the predicted target is not in front of the camera.
+Noise: the noise rule (:mod:`~observer_gym.estimation.target_follower.noise`): R from
+the declared sensor (times ``r_scale``), the white acceleration q of the target's motion
+model per world axis, Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]. A track starts at a
+detection: p_w by the pinhole model inverted (Z = f_x W / d_x) with covariance G R G^T (G
+its Jacobian), v_w = 0 with the motion model's stationary velocity covariance.
+
+Which detections it believes (:mod:`~observer_gym.estimation.target_follower.tracks`, as
+the VSE): a chi-square gate on d^T S^-1 d at ``gate_probability``; a detection after a
+gap (a missed, dropped or rejected frame) used once the next frame's confirms it; a run
+of rejected detections that agree with each other replaces the track. Like the
+VSE's reliability rule (spec (6)), the track is lost when its image-state variance at a
+capture, diag(H P H^T), exceeds ``reliability_threshold`` or the predicted target is not
+in front of the camera.
 
 Output at the step's time, through the camera pose then (``info["camera"]``): the image
 state and its target-induced rate (the layout's X_i and X_i^t'), their covariance J P J^T
-(J the Jacobian of that map); ``tracking_valid`` while initialised, in front of the
-camera, and the image state's variances within ``reliability_threshold``;
+(J the Jacobian of that map; plus the declared principal-point error of an rgb camera on
+(x_i, y_i)); ``tracking_valid`` while there is a track, in front of the camera, and
+the image state's variances within ``reliability_threshold``;
 ``target_visible`` when this step's new frame gave a detection; ``Estimate.nis`` the sum
 of d^T S^-1 d over this step's new detections (3 dof each).
 """
@@ -47,7 +56,14 @@ from observer_gym.estimation.ekf import ExtendedKalmanFilter
 from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
-from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader, history_s
+from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
+from observer_gym.estimation.target_follower.latency import GAP_PERIODS
+from observer_gym.estimation.target_follower.noise import NoiseRule
+from observer_gym.estimation.target_follower.observer import (
+    CONFIRM_UPDATES,
+    GATE_PROBABILITY,
+    RESTART_UPDATES,
+)
 from observer_gym.estimation.target_follower.state_layout import (
     RobotStep,
     lost_estimate,
@@ -58,116 +74,136 @@ from observer_gym.estimation.target_follower.target_projection import (
     image_state_and_rate,
     project,
 )
+from observer_gym.estimation.target_follower.tracks import TrackPair, TrackRule
 
 __all__ = ["PixelEKFCore", "PixelEKFObserver", "PixelEKFParams"]
 
 
 @dataclass(frozen=True)
 class PixelEKFParams:
-    """Tuning of the pixel EKF.
+    """The pixel EKF's procedure: its gate and confirmation (as the VSE's,
+    :data:`~observer_gym.estimation.target_follower.observer.RULE_PARAMS`) and the
+    reliability threshold (px^2, the VSE's, spec (6)). Its noise is the noise rule's."""
 
-    ``accel_psd`` q ((m/s^2)^2 s per axis) covers the target's walk (velocity std about
-    0.09 m/s changing over ~2 s: accelerations of ~0.1 m/s^2) and the spec's profile (44).
-    Measured with 3 px noise: the estimate RMSE alone prefers smaller q (centre RMSE 1.78,
-    1.82, 1.90, 2.02 px at q = 0.005, 0.01, 0.02, 0.05, truth-driven VTC), the closed-loop
-    image error with the VTC on this filter prefers 0.02 (5.1 px against 5.6 px at 0.01,
-    observer-gym run, 10 episodes). ``r_px2`` is the detection noise the VSE assumes
-    (R_0, spec Table 1).
-    """
-
-    accel_psd: float = 0.02
-    r_px2: tuple[float, float, float] = (5.0, 5.0, 5.0)
-    v0_std_mps: float = 0.2
-    p0_extra_m2: float = 1e-4
-    reliability_threshold: float = 4800.0  # px^2, the VSE's (spec (6))
+    reliability_threshold: float = 4800.0
+    gate_probability: float | None = GATE_PROBABILITY
+    confirm_updates: int = CONFIRM_UPDATES
+    restart_updates: int = RESTART_UPDATES
 
     def __post_init__(self) -> None:
-        if not self.accel_psd > 0.0:
-            raise ValueError(f"PixelEKFParams.accel_psd = {self.accel_psd!r}: must be > 0")
-        if len(self.r_px2) != 3 or not min(self.r_px2) > 0.0:
-            raise ValueError(f"PixelEKFParams.r_px2 = {self.r_px2!r}: 3 entries > 0")
-        for name in ("v0_std_mps", "p0_extra_m2", "reliability_threshold"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"PixelEKFParams.{name} = {getattr(self, name)!r}: must be > 0")
+        if not self.reliability_threshold > 0.0:
+            raise ValueError(
+                f"PixelEKFParams.reliability_threshold = {self.reliability_threshold!r}: "
+                "must be > 0"
+            )
+        self.track_rule  # noqa: B018  (validates the gate and the confirmation)
+
+    @property
+    def track_rule(self) -> TrackRule:
+        return TrackRule(self.gate_probability, self.confirm_updates, self.restart_updates)
 
 
 class PixelEKFCore:
     """The EKF as a :class:`~observer_gym.estimation.latency.FilterCore`; measurements are
     :class:`~observer_gym.estimation.target_follower.frames.FrameDetection` (a None
-    detection is a miss). ``nis_of`` maps ``id(measurement)`` to the NIS of its update."""
+    detection is a miss). ``nis_of`` maps ``id(measurement)`` to the NIS of its update;
+    ``starts`` counts the tracks started and switched to."""
 
     def __init__(
-        self, params: PixelEKFParams, fx_px: float, fy_px: float, width_m: float, time_s: float
+        self,
+        params: PixelEKFParams,
+        noise: NoiseRule,
+        fx_px: float,
+        fy_px: float,
+        width_m: float,
+        time_s: float,
     ) -> None:
         self.params = params
+        self.noise = noise
+        self.max_gap_s = GAP_PERIODS * noise.sensor.frame_period_s
+        self.last_capture_s = -np.inf
         self.fx_px, self.fy_px, self.width_m = fx_px, fy_px, width_m
-        self.R = np.diag(np.asarray(params.r_px2, dtype=float))
-        self.ekf: ExtendedKalmanFilter | None = None
+        self.tracks = TrackPair(params.track_rule)
         self.time_s = float(time_s)
         self.starts = 0
         self.nis_of: dict[int, float] = {}
+
+    @property
+    def ekf(self) -> ExtendedKalmanFilter | None:
+        """The main track's filter."""
+        return self.tracks.main
 
     def predict_to(self, time_s: float, action: Any) -> None:
         dt = round(time_s - self.time_s, 9)
         if dt <= 0.0:
             return
-        if self.ekf is not None:
+        tracks = self.tracks.filters()
+        if tracks:
             F = np.eye(6)
             F[:3, 3:] = dt * np.eye(3)
-            q = self.params.accel_psd
-            Q = np.zeros((6, 6))
-            Q[:3, :3] = q * dt**3 / 3.0 * np.eye(3)
-            Q[:3, 3:] = Q[3:, :3] = q * dt**2 / 2.0 * np.eye(3)
-            Q[3:, 3:] = q * dt * np.eye(3)
-            # x <- F x,  P <- F P F^T + Q
-            self.ekf.predict_nonlinear(F.dot(self.ekf.x), F, Q)
+            Q = self.noise.world_Q(dt)
+            for f in tracks:
+                # x <- F x,  P <- F P F^T + Q
+                f.predict_nonlinear(F.dot(f.x), F, Q)
         self.time_s = float(time_s)
 
-    def _start(self, m: FrameDetection) -> bool:
+    def _start(self, m: FrameDetection) -> ExtendedKalmanFilter | None:
         if m.z_px[2] <= 0.0:
-            return False
-        p = self.params
+            return None
         p_w, G = back_project(m.z_px, m.T_world_cam, self.fx_px, self.fy_px, self.width_m)
         P0 = np.zeros((6, 6))
-        # P_pos = G R G^T + p0_extra I, P_vel = v0_std^2 I
-        P0[:3, :3] = G.dot(self.R).dot(G.T) + p.p0_extra_m2 * np.eye(3)
-        P0[3:, 3:] = p.v0_std_mps**2 * np.eye(3)
-        P0 = 0.5 * (P0 + P0.T)
-        self.ekf = ExtendedKalmanFilter(np.concatenate([p_w, np.zeros(3)]), P0)
-        self.starts += 1
-        return True
+        # P_pos = G R G^T, P_vel = Sigma_v (the motion model's stationary velocity)
+        P0[:3, :3] = G.dot(self.noise.R(m.z_px)).dot(G.T)
+        P0[3:, 3:] = self.noise.world_velocity_prior
+        return ExtendedKalmanFilter(np.concatenate([p_w, np.zeros(3)]), 0.5 * (P0 + P0.T))
+
+    def _projected(self, f: ExtendedKalmanFilter, m: FrameDetection):
+        h, H_p, depth_m = project(f.x[:3], m.T_world_cam, self.fx_px, self.fy_px, self.width_m)
+        return h, np.hstack([H_p, np.zeros((3, 3))]), depth_m
+
+    def _innovation(self, f: ExtendedKalmanFilter, m: FrameDetection):
+        h, H, depth_m = self._projected(f, m)
+        if depth_m <= MIN_DEPTH_M:
+            return None
+        # d = z - h(x), S = H P H^T + R
+        return m.z_px - h, H.dot(f.P).dot(H.T) + self.noise.R(m.z_px)
+
+    def _update(self, f: ExtendedKalmanFilter, m: FrameDetection):
+        h, H, _ = self._projected(f, m)
+        # x <- x + K d (Joseph form)
+        return f.update_nonlinear(m.z_px, h, H, self.noise.R(m.z_px))
 
     def update(self, measurement: FrameDetection) -> bool:
         z = measurement.z_px
+        gap = measurement.capture_time_s - self.last_capture_s > self.max_gap_s
+        self.last_capture_s = measurement.capture_time_s
+        if z is None or gap:  # a missed or dropped frame: out of lock, no candidate
+            self.tracks.miss()
         if z is None:
             return False
-        if self.ekf is None:
-            return self._start(measurement)
-        h, H_p, depth_m = project(
-            self.ekf.x[:3], measurement.T_world_cam, self.fx_px, self.fy_px, self.width_m
+        main = self.tracks.main
+        if main is not None:
+            _, H, depth_m = self._projected(main, measurement)
+            image_var = np.diag(H.dot(main.P).dot(H.T))
+            if depth_m <= MIN_DEPTH_M or np.max(image_var) > self.params.reliability_threshold:
+                self.tracks.lose_main()  # lost: a candidate takes its place, or none
+        measured = self.tracks.measure(
+            z,
+            lambda _: self._start(measurement),
+            lambda f, _: self._innovation(f, measurement),
+            lambda f, _, is_main: self._update(f, measurement),
         )
-        H = np.hstack([H_p, np.zeros((3, 3))])
-        image_var = np.diag(H.dot(self.ekf.P).dot(H.T))
-        if depth_m <= MIN_DEPTH_M or np.max(image_var) > self.params.reliability_threshold:
-            return self._start(measurement)  # lost: restart at the detection
-        # d = z - h(x), S = H P H^T + R, x <- x + K d (Joseph form)
-        result = self.ekf.update_nonlinear(z, h, H, self.R)
-        if result.accepted:
-            self.nis_of[id(measurement)] = result.nis
-        return result.accepted
+        self.starts += measured.event in ("start", "switch")
+        if measured.update is not None:
+            self.nis_of[id(measurement)] = measured.update.nis
+        return measured.used
 
     def snapshot(self) -> tuple:
-        ekf = self.ekf
-        return (None if ekf is None else (ekf.x, ekf.P), self.time_s, self.starts)
+        return (self.tracks.snapshot(), self.time_s, self.starts, self.last_capture_s)
 
     def restore(self, snapshot: tuple) -> None:
-        state, self.time_s, self.starts = snapshot
-        if state is None:
-            self.ekf = None
-        elif self.ekf is None:
-            self.ekf = ExtendedKalmanFilter(*state)
-        else:  # the filter assigns fresh arrays each step: the snapshot's stay unchanged
-            self.ekf.x, self.ekf.P = state
+        tracks, self.time_s, self.starts, self.last_capture_s = snapshot
+        self.tracks.restore(tracks, ExtendedKalmanFilter)
 
 
 class PixelEKFObserver:
@@ -175,8 +211,9 @@ class PixelEKFObserver:
 
     Args:
         env: the TargetFollower env (calibration, obs_mode, latency options).
-        params: the filter's tuning.
+        params: the gate, confirmation and reliability threshold.
         detector: the rgb detector.
+        r_scale: the measurement noise covariance the rule gives, times this (> 0).
     """
 
     def __init__(
@@ -184,14 +221,16 @@ class PixelEKFObserver:
         env: TargetFollowerEnv,
         params: PixelEKFParams | None = None,
         detector: TargetFollowerDetector | None = None,
+        r_scale: float = 1.0,
     ) -> None:
         self.params = params or PixelEKFParams()
+        self.noise = NoiseRule.for_env(env, r_scale)
         calibration = env.calibration
         self.fx_px = float(calibration["fx_px"])
         self.fy_px = float(calibration["fy_px"])
         self.width_m = float(calibration["target_width_m"])
         self.delta_y_m = calibration["delta_y_m"]
-        self.history_s = history_s(env)
+        self.history_s = env.sensor_spec.history_s(env.config.dt_s)
         self.frames = FrameReader(env, detector, owner="PixelEKFObserver")
         self.reset()
 
@@ -203,7 +242,9 @@ class PixelEKFObserver:
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         robot = RobotStep.from_info(info, action, self.delta_y_m)
         if action is None or self.fusion is None:  # after a reset
-            core = PixelEKFCore(self.params, self.fx_px, self.fy_px, self.width_m, robot.time_s)
+            core = PixelEKFCore(
+                self.params, self.noise, self.fx_px, self.fy_px, self.width_m, robot.time_s
+            )
             self.fusion = CaptureTimeFusion(core, latency_aware=True, history_s=self.history_s)
         frame = self.frames.newest(obs, info)
         new = [] if frame is None else [TimedMeasurement(frame.capture_time_s, frame)]
@@ -223,7 +264,8 @@ class PixelEKFObserver:
             )
         if valid:
             self._last_image = s[:3].copy()
-            mean, cov = state_estimate(s[:3], s[3:], 0.5 * (cov + cov.T), robot, True, visible)
+            cov = self.noise.reported(0.5 * (cov + cov.T))
+            mean, cov = state_estimate(s[:3], s[3:], cov, robot, True, visible)
         else:
             mean, cov = lost_estimate(
                 self._last_image, self.params.reliability_threshold, robot, visible

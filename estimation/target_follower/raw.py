@@ -18,11 +18,12 @@ Per step, from the newest delivered frame
   not know where a target it does not see is), ``target_visible`` 1 when this step's new
   frame had one.
 
-Covariance: while valid, the detection noise the VSE assumes (R_0 = 5 px^2 per entry,
-spec Table 1) propagated through the difference: Cov(Z) = R_0, Cov(rate) = 2 R_0 / dt^2,
-Cov(Z, rate) = R_0 / dt (rates unknown before the second detection: variance
-``reliability_threshold``); while not valid, ``reliability_threshold`` x I, the VSE's
-"unknown". No innovation, so no NIS.
+Covariance: while valid, the detection noise R of the noise rule
+(:mod:`~observer_gym.estimation.target_follower.noise`: the declared sensor's; given
+``params``, their R_0) propagated through the difference: Cov(Z_1) = R_1,
+Cov(rate) = (R_1 + R_0) / dt^2, Cov(Z_1, rate) = R_1 / dt (rates unknown before the
+second detection: variance ``reliability_threshold``); while not valid,
+``reliability_threshold`` x I, the VSE's "unknown". No innovation, so no NIS.
 """
 
 from __future__ import annotations
@@ -34,12 +35,13 @@ import numpy as np
 from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
-from observer_gym.estimation.target_follower.filters import VSEParams
-from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader, history_s
+from observer_gym.estimation.target_follower.filters import Table1Noise, VSEParams
+from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
 from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
 )
+from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.state_layout import (
     RobotStep,
     lost_estimate,
@@ -54,7 +56,8 @@ class RawObserver:
 
     Args:
         env: the TargetFollower env (calibration and obs_mode).
-        params: the VSE tuning whose R_0 and reliability threshold the covariance reports.
+        params: the VSE tuning whose reliability threshold (and, given, R_0) the
+            covariance reports (default: the noise rule's R, Table 1's threshold).
         camera_params: the f_x, f_y, W, delta_y that B_i uses (default: the calibration).
         detector: the rgb detector.
     """
@@ -66,13 +69,13 @@ class RawObserver:
         camera_params: TargetFollowerCameraParams | None = None,
         detector: TargetFollowerDetector | None = None,
     ) -> None:
+        self.noise = NoiseRule.for_env(env) if params is None else Table1Noise(params)
         self.params = params or VSEParams()
-        self.R0 = np.diag(np.asarray(self.params.r0, dtype=float))
         self.camera_params = camera_params or TargetFollowerCameraParams.from_calibration(
             env.calibration
         )
         self.delta_y_m = env.calibration["delta_y_m"]
-        self.history_s = history_s(env)
+        self.history_s = env.sensor_spec.history_s(env.config.dt_s)
         self.frames = FrameReader(env, detector, owner="RawObserver")
         self.reset()
 
@@ -84,6 +87,8 @@ class RawObserver:
         self._last: FrameDetection | None = None  # the last detection
         self._rate_pxps = np.zeros(3)
         self._rate_dt_s: float | None = None  # the capture interval of the last difference
+        self._R = np.zeros((3, 3))  # R of the last detection
+        self._rate_cov = np.zeros((3, 3))  # Cov of the last difference's rate
         self._valid = False
 
     def _mean_input(self, start_s: float, end_s: float) -> np.ndarray:
@@ -114,6 +119,9 @@ class RawObserver:
                 # X_i^t' = (Z_1 - Z_0) / dt - B_i(Z_0, phi(t_0)) u_mean   (30) inverted
                 self._rate_pxps = (frame.z_px - last.z_px) / dt_s - B_i.dot(u_mean)
                 self._rate_dt_s = dt_s
+            R_last, self._R = self._R, self.noise.R(frame.z_px)
+            if last is not None:
+                self._rate_cov = (self._R + R_last) / self._rate_dt_s**2
             self._last = frame
         oldest_s = robot.time_s - self.history_s
         if self._last is not None:
@@ -122,11 +130,10 @@ class RawObserver:
         visible = frame is not None and frame.z_px is not None
         if self._valid:
             cov = self.params.reliability_threshold * np.eye(6)  # rates unknown until a difference
-            cov[:3, :3] = self.R0
+            cov[:3, :3] = self._R
             if self._rate_dt_s is not None:
-                dt_s = self._rate_dt_s
-                cov[3:, 3:] = 2.0 * self.R0 / dt_s**2  # Var(Z_1 - Z_0) / dt^2
-                cov[:3, 3:] = cov[3:, :3] = self.R0 / dt_s  # Cov(Z_1, (Z_1 - Z_0) / dt)
+                cov[3:, 3:] = self._rate_cov  # Var(Z_1 - Z_0) / dt^2
+                cov[:3, 3:] = cov[3:, :3] = self._R / self._rate_dt_s  # Cov(Z_1, (Z_1 - Z_0) / dt)
             mean, cov = state_estimate(self._last.z_px, self._rate_pxps, cov, robot, True, visible)
         else:
             image = np.zeros(3) if self._last is None else self._last.z_px

@@ -70,6 +70,7 @@ def _closed_loop(make_env, obs_mode, hold_s, steps, occlusions_s=(4.0,), **kwarg
                 "valid": obs[StateIndex.TRACKING_VALID] == 1.0,
                 "used": info["estimate"]["measurement_used"],
                 "estimate_error": info["estimate"]["mean"][IMAGE] - info["state"][IMAGE],
+                "estimate_std": np.sqrt(np.diag(info["estimate"]["covariance"])[IMAGE]),
                 "image_error": info["state"][IMAGE] - DESIRED,
                 "applied": info["applied_action"],
                 "estimate_applied": info["estimate"]["mean"][APPLIED],
@@ -89,6 +90,7 @@ def test_predicts_through_3_s_of_full_occlusion_and_tracking_resumes(make_env, o
         assert s["valid"] and not s["used"]  # predicting, no measurement
         assert s["in_image"]  # the robot kept the (hidden) target in view
     at_end = np.abs(trace[last]["estimate_error"])
+    std_at_end = trace[last]["estimate_std"]
     after = trace[last + 1 :]
     # The occluder takes 1 s to walk out of the way (partly hiding the target in rgb).
     recovered_estimate = max(np.abs(s["estimate_error"]).max() for s in after[12:30])
@@ -97,19 +99,25 @@ def test_predicts_through_3_s_of_full_occlusion_and_tracking_resumes(make_env, o
     final_error = np.abs(after[-1]["image_error"])
     final_gap = np.abs(after[-1]["image_error"] - unoccluded[-1]["image_error"])
     print(
-        f"\n{obs_mode}: {len(hidden) * 0.1:.1f} s hidden; estimate error at its end {at_end} px, "
-        f"1.2-3 s after it <= {recovered_estimate:.2f} px; image error 8 s after {final_error} px, "
-        f"{final_gap} px from the run without occlusion"
+        f"\n{obs_mode}: {len(hidden) * 0.1:.1f} s hidden; estimate error at its end {at_end} px "
+        f"(std {std_at_end} px), 1.2-3 s after it <= {recovered_estimate:.2f} px; image error "
+        f"8 s after {final_error} px, {final_gap} px from the run without occlusion"
     )
-    assert np.all(at_end < 20.0)
-    assert after[0]["used"]  # the first frame after the occlusion updates the filter
+    # the prediction's error stays within what its covariance says (3 std), and the
+    # target stays near the centre of the image
+    assert np.all(at_end < 3.0 * std_at_end) and np.all(at_end < 40.0)
+    # the first frame after the occlusion is held as a candidate (a detection after a gap),
+    # which the second confirms: both update the filter then
+    assert not after[0]["used"] and after[1]["used"]
     assert recovered_estimate < 2.0
     assert np.all(final_gap < 1.0)
     assert all(s["in_image"] for s in trace)
 
 
 def test_long_occlusion_stops_the_robot_and_the_estimator_restarts(make_env):
-    trace = _closed_loop(make_env, "measurements", hold_s=6.0, steps=150)
+    # 16 s: the image error left by the stop (~36 px) decays at the VTC's alpha_1 = 1/2
+    # from the restart on, to ~2 px 4.5 s after it
+    trace = _closed_loop(make_env, "measurements", hold_s=6.0, steps=160)
     hidden = [k for k, s in enumerate(trace) if s["occluded"]]
     invalid = [k for k, s in enumerate(trace) if not s["valid"]]
     assert invalid and hidden[0] < invalid[0] <= hidden[-1]
@@ -117,7 +125,11 @@ def test_long_occlusion_stops_the_robot_and_the_estimator_restarts(make_env):
     assert 3.0 <= 0.1 * (invalid[0] - hidden[0]) <= 4.5
     for k in invalid[1:]:  # stopped (the action after the first invalid estimate)
         np.testing.assert_array_equal(trace[k]["applied"], np.zeros(3))
-    assert trace[hidden[-1] + 1]["valid"] and trace[hidden[-1] + 1]["used"]  # reinitialised
+    # restarted by the first two detections after it: a new track at the first, which the
+    # second confirms
+    first_seen = trace[hidden[-1] + 1]
+    assert not first_seen["used"] and not first_seen["valid"]
+    assert trace[hidden[-1] + 2]["valid"] and trace[hidden[-1] + 2]["used"]
     assert np.all(np.abs(trace[-1]["image_error"]) < 5.0)
 
 
