@@ -142,6 +142,15 @@ def target_motion_noise(config) -> TargetMotionNoise:
     return TargetMotionNoise(max(q_h, q_v), max(var_h, var_v))
 
 
+def _blocks(a: float, b: float, c: float, M: np.ndarray) -> np.ndarray:
+    """[[a, b], [b, c]] (x) M for a 3 x 3 M (np.kron's result, without its overhead)."""
+    out = np.empty((6, 6))
+    out[:3, :3] = a * M
+    out[:3, 3:] = out[3:, :3] = b * M
+    out[3:, 3:] = c * M
+    return out
+
+
 def _cross(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
@@ -270,7 +279,7 @@ class NoiseRule:
         dt = float(dt_s)
         # [[dt^3/3, dt^2/2], [dt^2/2, dt]] (x) q J J^T
         M = self.motion.accel_psd * J.dot(J.T)
-        Q = np.kron(np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]]), M)
+        Q = _blocks(dt**3 / 3.0, dt**2 / 2.0, dt, M)
         # the camera's rotation turning V_c, omega_c = omega_t e_x + omega (world up in
         # camera axes: (0, -cos(phi), sin(phi)) for OpenCV's y down, z forward)
         omega, omega_t = float(applied[1]), float(applied[2])
@@ -278,7 +287,7 @@ class NoiseRule:
             c, s = math.cos(tilt_rad), math.sin(tilt_rad)
             A = J.dot(_cross(np.array([omega_t, -omega * c, omega * s])))  # J [w_c]x
             M_rot = self.motion.velocity_var * A.dot(A.T)
-            Q += np.kron(np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]]), M_rot)
+            Q += _blocks(dt**4 / 4.0, dt**3 / 2.0, dt**2, M_rot)
         # calibration: (e_f^2 + s^2) (T B_i u)(T B_i u)^T on the image state
         if self.robot_motion_rel_var > 0.0:
             b = dt * np.asarray(robot_image_rate_pxps, dtype=float)
@@ -296,8 +305,7 @@ class NoiseRule:
     def world_Q(self, dt_s: float) -> np.ndarray:
         """Q (6, 6) of the constant-velocity world model over ``dt_s``."""
         dt = float(dt_s)
-        q = self.motion.accel_psd * np.eye(3)
-        return np.kron(np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]]), q)
+        return _blocks(dt**3 / 3.0, dt**2 / 2.0, dt, self.motion.accel_psd * np.eye(3))
 
     @property
     def world_velocity_prior(self) -> np.ndarray:
