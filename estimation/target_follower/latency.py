@@ -222,7 +222,7 @@ class LatencyAwareObserver:
         visible = frame is not None and frame.z_px is not None
         if core.reliable:
             self._last_image = vse.x[:3].copy()
-            P = vse.noise.reported(vse.P)
+            P = vse.noise.reported(vse.P, vse.x)
             mean, cov = state_estimate(vse.x[:3], vse.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(

@@ -10,7 +10,10 @@ tuned per condition.
   sigma_n (2 w - 1)): sigma_n^2 / 3 + 1/12 px^2);
 - ``obs_mode="rgb"``: the detector's error model at the declared ``image_noise_std``
   (:mod:`~observer_gym.estimation.target_follower.detector_error`, measured on rendered
-  frames): sigma_j = rms_j d_x;
+  frames): its scatter about its mean, s_j^2 = (rms_j^2 - mean_j^2) d_x^2. Its mean
+  b_j = mean_j d_x (the blob's rim lost to image noise: d_x -9 % at 32) stays while the
+  target is held and no innovation sees it: b_j^2 is added to the reported variance of
+  the estimate, as the principal-point offset is (below);
 - timing, for the filter that fuses a frame when it is delivered (``kf``/``stkf``): the
   frame is older than the step time it is fused at by its latency a (declared mean
   ``latency_s``, spreads ``latency_jitter_s`` and ``jitter_s``), and meanwhile the image
@@ -188,7 +191,8 @@ class NoiseRule:
         self.motion = target_motion_noise(config)
         if self.from_pixels:
             detector_error = detector_error or load_detector_error()
-            self._relative_std = detector_error.relative_std(sensor.image_noise_std)
+            self._relative_scatter = detector_error.relative_scatter(sensor.image_noise_std)
+            self._relative_bias = detector_error.relative_bias(sensor.image_noise_std)
         self._pixel_var_px2 = sensor.measurement_noise_std_px**2
         # E[a^2] of a frame's age at the step it is fused at (0 for capture-time fusion)
         self.age_sq_s2 = (
@@ -218,8 +222,8 @@ class NoiseRule:
     def detection_var_px2(self, width_px: float) -> np.ndarray:
         """The detection's variance per entry (3,), before ``r_scale`` and timing."""
         if self.from_pixels:
-            # sigma_j = rms_j d_x (the detector's error model at the declared image noise)
-            return (self._relative_std * max(float(width_px), 0.0)) ** 2
+            # s_j^2 = (rms_j^2 - mean_j^2) d_x^2 (the detector's scatter about its mean)
+            return (self._relative_scatter * max(float(width_px), 0.0)) ** 2
         # the declared pixel noise on every entry
         return np.full(3, self._pixel_var_px2)
 
@@ -238,12 +242,16 @@ class NoiseRule:
             R = R + self.age_sq_s2 * (np.outer(v, v) + rate_cov)  # E[a^2] (v v^T + P_rate)
         return self.r_scale * R
 
-    def reported(self, P: np.ndarray) -> np.ndarray:
+    def reported(self, P: np.ndarray, X_i: np.ndarray) -> np.ndarray:
         """The covariance an observer reports for its (X_i, X_i^t') estimate with filter
-        covariance ``P`` (6, 6): plus the principal-point offset on (x_i, y_i), and each
-        of (x_i, y_i, d_x) at least the rounding's variance (a new array)."""
+        covariance ``P`` (6, 6): plus the principal-point offset on (x_i, y_i) and (rgb)
+        the detector's bias b_j^2 at the estimated width, and each of (x_i, y_i, d_x) at
+        least the rounding's variance (a new array)."""
         P = np.array(P, dtype=float)
         P[:3, :3] += self.image_bias_cov
+        if self.from_pixels:
+            # b_j^2 = (mean_j d_x)^2
+            P[:3, :3] += np.diag((self._relative_bias * max(float(X_i[2]), 0.0)) ** 2)
         for j in range(3):
             P[j, j] = max(P[j, j], self.rounding_var_px2)
         return P

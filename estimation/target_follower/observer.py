@@ -172,7 +172,7 @@ class TargetFollowerObserver:
         visible = z is not None
         if vse.valid:
             self._last_image = vse.x[:3].copy()
-            P = vse.noise.reported(vse.P)
+            P = vse.noise.reported(vse.P, vse.x)
             mean, cov = state_estimate(vse.x[:3], vse.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(

@@ -264,7 +264,7 @@ class PixelEKFObserver:
             )
         if valid:
             self._last_image = s[:3].copy()
-            cov = self.noise.reported(0.5 * (cov + cov.T))
+            cov = self.noise.reported(0.5 * (cov + cov.T), s)
             mean, cov = state_estimate(s[:3], s[3:], cov, robot, True, visible)
         else:
             mean, cov = lost_estimate(

@@ -70,9 +70,18 @@ def test_a_hundredfold_R_fails_the_band(observer, condition):
 @pytest.mark.slow
 @pytest.mark.parametrize("observer", OBSERVERS)
 def test_from_rendered_frames_at_the_defaults(observer):
-    """The detector's error model (detector_error.json) as R: measured 0.34-0.67 per
-    episode, median 0.48, for every observer."""
+    """The detector's error model (detector_error.json) in R: measured 0.32-0.63 per
+    episode, median 0.45-0.46, for every observer."""
     ratio = _median_nees(observer, {})
+    assert LOW <= ratio <= HIGH, ratio
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("observer", ["stkf", "ekf"])
+def test_from_rendered_frames_with_image_noise(observer):
+    """image_noise_std 32: the detector's error is mostly its bias (d_x -9 %), reported
+    in the covariance and left out of R; measured medians 0.57 (stkf), 0.63 (ekf)."""
+    ratio = _median_nees(observer, {"image_noise_std": 32.0})
     assert LOW <= ratio <= HIGH, ratio
 
 
