@@ -64,7 +64,7 @@ The filters take q and sigma_v^2 isotropic, the largest axis's on every axis: th
 world directions into image rates through the estimated state, so an axis without noise
 (the profile's vertical) would become an image direction the filter claims to know
 exactly, which it does not (measured: median episode NEES/dof 1.35 (kf) and 3.1 (ekf)
-with the profile's zero vertical noise, 0.50 and 0.49 isotropic).
+with the profile's zero vertical noise, 0.51 and 0.49 isotropic).
 
 The pixel EKF integrates q over each interval in world axes, Q = q [[dt^3/3, dt^2/2],
 [dt^2/2, dt]] per axis. The VSE's state is the image state and its target-induced rate:
