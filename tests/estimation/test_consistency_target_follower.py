@@ -27,7 +27,8 @@ from observer_gym.estimation.observer import default_pipeline
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
 from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.observer import RESTART_UPDATES
-from observer_gym.train.consistency import measure_consistency, nees_per_step
+from observer_gym.train.consistency import nees_per_step
+from observer_gym.train.consistency_study import measure_consistency
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 OBSERVERS = ("kf", "stkf", "kf-latency", "stkf-latency", "ekf")
