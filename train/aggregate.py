@@ -226,7 +226,7 @@ def plot_learning_curves(
 ) -> None:
     """Each seed's evaluation curve (thin) and the mean across seeds with its 95 %
     bootstrap band, against env steps."""
-    from observer_gym.train.plots import DPI, new_figure  # deferred: matplotlib
+    from observer_gym.train.plots import new_figure, save_figure  # deferred: matplotlib
 
     fig = new_figure((7.5, 4.5))
     ax = fig.subplots()
@@ -253,7 +253,7 @@ def plot_learning_curves(
     ax.set(xlabel="env steps", ylabel="evaluation return (deterministic policy)", title=title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 # --- the aggregate of a multi-seed training folder -------------------------------------------

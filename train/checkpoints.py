@@ -21,6 +21,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import replace_atomically, write_json_atomic
 from observer_gym.train.run_dir import LATEST, latest_checkpoint  # noqa: F401  (read here too)
+from observer_gym.train.signals import signals_deferred
 
 
 def save_checkpoint(
@@ -31,16 +32,17 @@ def save_checkpoint(
     directory.mkdir(parents=True, exist_ok=True)
     steps = int(model.num_timesteps)
     entry: dict[str, Any] = {"timesteps": steps, "model": f"model_{steps}.zip"}
-    replace_atomically(directory / entry["model"], model.save)
-    vec_normalize = model.get_vec_normalize_env()
-    if vec_normalize is not None:
-        entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
-        replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
-    if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
-        entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
-        replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
-    write_json_atomic(directory / LATEST, entry)
-    _prune(directory, keep)
+    with signals_deferred():  # a signal waits for the whole set and latest.json
+        replace_atomically(directory / entry["model"], model.save)
+        vec_normalize = model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
+            replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
+        if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
+            entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
+            replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
+        write_json_atomic(directory / LATEST, entry)
+        _prune(directory, keep)
     return entry
 
 

@@ -31,7 +31,9 @@ from observer_gym.train.consistency import episode_consistency, nees_per_step
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
+    json_text,
     output_folder,
+    output_set,
     package_versions,
     to_jsonable,
     write_json_atomic,
@@ -227,9 +229,10 @@ def run_experiment(
     Writes into ``out_dir`` (created; see :func:`~observer_gym.train.outputs.output_folder`
     for what is removed and reported there before, and the folder removed again if the
     run fails before writing anything) the task's plots (BallTable: ``path.png``,
-    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``
-    (atomically): ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of
-    the task's ``episode_metrics``), ``summary``, ``files``.
+    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``:
+    ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of the task's
+    ``episode_metrics``), ``summary``, ``files``; as a set
+    (:func:`~observer_gym.train.outputs.output_set`): all of them or, if one fails, none.
 
     Args:
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
@@ -306,8 +309,6 @@ def _run_into(
     ]
     summary = task.summarize(per_episode)
 
-    files = task.plot(records, observer, out_dir)
-    files.append("results.json")
     results = to_jsonable(
         {
             "config": {
@@ -332,10 +333,15 @@ def _run_into(
             "wall_time_s": wall_time_s,
             "episodes": per_episode,
             "summary": summary,
-            "files": files,
         }
     )
-    write_json_atomic(out_dir / "results.json", results)
+    try:
+        json_text(results)
+    except ValueError as exc:
+        raise ValueError(f"results.json cannot be written: {exc}") from None
+    with output_set(out_dir) as staging:  # the plots and results.json, all or none
+        results["files"] = [*task.plot(records, observer, staging), "results.json"]
+        write_json_atomic(staging / "results.json", results)
     return results
 
 

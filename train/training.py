@@ -29,11 +29,9 @@ import csv
 import dataclasses
 import functools
 import shutil
-import signal
 import time
 import warnings
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +59,7 @@ from observer_gym.train.run_dir import (
     read_config,
     read_state,
 )
+from observer_gym.train.signals import signals_deferred, sigterm_as_interrupt
 
 TRAIN_SEED_OFFSET = 1_000_000
 EVAL_SEED_OFFSET = 2_000_000
@@ -403,24 +402,6 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
     )
 
 
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``kill``) stops training like Ctrl-C, so both end the same way."""
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def _learn(
     run_dir: Path, config: dict[str, Any], progress: bool, resume: bool = False
 ) -> dict[str, Any]:
@@ -499,7 +480,7 @@ def _learn(
         tic_s = time.perf_counter()
         status = "finished"
         try:
-            with _sigterm_as_interrupt():
+            with sigterm_as_interrupt():
                 model.learn(
                     total_timesteps=max(total - start_steps, 0),
                     callback=callbacks,
@@ -511,24 +492,25 @@ def _learn(
         wall_time_s = time.perf_counter() - tic_s
         steps = int(model.num_timesteps) - start_steps
         train_time_s = max(wall_time_s - evaluation.time_s, 1e-9)
-        if status == "finished":
-            save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
-            if normalize:
-                replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
-            replace_atomically(run_dir / FINAL_MODEL, model.save)
-        latest = latest_checkpoint(run_dir / "checkpoints")
-        state = {
-            "status": status,
-            "timesteps": int(model.num_timesteps),
-            "target_timesteps": total,
-            "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
-            "segment_steps": steps,
-            "segment_wall_time_s": wall_time_s,
-            "segment_eval_time_s": evaluation.time_s,
-            "train_steps_per_s": steps / train_time_s,
-            "writer": writer,
-        }
-        write_json_atomic(run_dir / STATE_FILE, state)
+        with signals_deferred():  # the run's end is written whole, then a signal counts
+            if status == "finished":
+                save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
+                if normalize:
+                    replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+                replace_atomically(run_dir / FINAL_MODEL, model.save)
+            latest = latest_checkpoint(run_dir / "checkpoints")
+            state = {
+                "status": status,
+                "timesteps": int(model.num_timesteps),
+                "target_timesteps": total,
+                "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
+                "segment_steps": steps,
+                "segment_wall_time_s": wall_time_s,
+                "segment_eval_time_s": evaluation.time_s,
+                "train_steps_per_s": steps / train_time_s,
+                "writer": writer,
+            }
+            write_json_atomic(run_dir / STATE_FILE, state)
         if (run_dir / "eval.csv").exists():
             plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
         return state
