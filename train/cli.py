@@ -397,7 +397,10 @@ def _train_run(args: argparse.Namespace) -> int:
             return _error("train", exc)
         from observer_gym.train.training import resume_training, training_text  # deferred
 
-        state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
+        try:
+            state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
+        except ValueError as exc:  # a checkpoint that cannot be loaded, before training
+            return _error("train", exc)
         print(training_text(run_dir, state))
         return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
     if args.seeds is not None:
