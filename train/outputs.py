@@ -404,7 +404,10 @@ def output_set(
     except OSError as exc:
         raise _write_error(out_dir, exc) from exc
     try:
-        yield staging
+        try:
+            yield staging
+        except WriteError as exc:  # named by where it was going, not by the staging folder
+            raise WriteError(str(exc).replace(str(staging), str(out_dir))) from exc
         files = sorted(p for p in staging.rglob("*") if p.is_file())
         files.sort(key=lambda p: p.relative_to(staging).as_posix() in last)
         with signals_deferred():
