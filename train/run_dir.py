@@ -227,18 +227,27 @@ def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
     return _entry_paths(Path(directory), entry)
 
 
+CHECKPOINT_FILES = {"model": "model_{}.zip", "vecnormalize": "vecnormalize_{}.pkl",
+                    "replay_buffer": "replay_buffer_{}.pkl"}  # fmt: skip
+
+
 def _read_entry(path: Path) -> dict[str, Any] | None:
-    """A checkpoint's entry (latest.json, a manifest), or None if it is not one."""
+    """A checkpoint's entry (latest.json, a manifest), or None if it is not one: its
+    ``timesteps`` N, its files as :data:`CHECKPOINT_FILES` names them for N (a model at
+    least) and, if recorded, their ``sha256``."""
     try:
         entry = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    files_ok = isinstance(entry, dict) and all(
-        isinstance(v, str) and "/" not in v
-        for k, v in entry.items()
-        if k not in ("timesteps", "sha256")
-    )
-    if not files_ok or not isinstance(entry.get("timesteps"), int) or "model" not in entry:
+    if not isinstance(entry, dict) or "model" not in entry:
+        return None
+    steps = entry.get("timesteps")
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
+        return None
+    files = {k: v for k, v in entry.items() if k not in ("timesteps", "sha256")}
+    if any(CHECKPOINT_FILES.get(k, "").format(steps) != v for k, v in files.items()):
+        return None
+    if "sha256" in entry and not isinstance(entry["sha256"], dict):
         return None
     return entry
 
