@@ -5,8 +5,10 @@ Each :class:`~observer_gym.train.run.EpisodeSpec` runs as one Ray task calling
 as one calling :func:`~observer_gym.train.training.continue_run`:
 :mod:`observer_gym.train.seeds`), on a local Ray instance or on an existing
 cluster (``ray start --head`` on one machine, ``ray start --address HEAD:6379`` on the
-others; every node needs observer-gym installed). An episode's result depends only on its
-spec, so the records equal the local backend's.
+others, with ``RAY_AUTH_MODE=token`` and the head's ``~/.ray/auth_token`` on every node
+and for the command: docs/compare.md; every node needs observer-gym installed). An
+episode's result depends only on its spec, so the records equal the local backend's; a
+task whose node dies is run again by Ray elsewhere.
 
 Ray is an optional dependency: ``pip install 'observer-gym[distributed]'``.
 """
