@@ -143,7 +143,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-@pytest.mark.slow  # two Ray nodes and two sweeps: about 2 minutes
+@pytest.mark.slow  # two Ray nodes, a sweep on them and one local: about a minute
 def test_a_sweep_on_a_two_node_cluster_survives_a_killed_raylet(cluster, tmp_path):
     address, env, second = cluster
     out = tmp_path / "ray"

@@ -84,3 +84,30 @@ def test_a_cell_that_cannot_be_summarised_writes_nothing(value, tmp_path, capsys
     assert line.startswith("observer-gym sweep: error: ")
     assert "mean_distance_m" in line or "'abc'" in line
     assert snapshot(out) == before
+
+
+def test_a_checkpoint_that_cannot_be_written_is_one_line(tmp_path, capsys):
+    """A full disk at the first checkpoint (PyTorch's zip writer says 'unexpected pos'):
+    one line naming the file, exit code 1, no partial checkpoint and no temp."""
+    out = tmp_path / "run"
+    argv = [
+        "train", "--algo", "ppo", "--obs", "state", "--timesteps", "128", "--n-envs", "1",
+        "--vec-env", "dummy", "--hyperparam", "n_steps=64", "--hyperparam", "batch_size=64",
+        "--hyperparam", "checkpoint_freq=64", "--out", str(out), "--no-progress",
+    ]  # fmt: skip
+    with file_size_limit(FILE_SIZE_LIMIT_BYTES):
+        code = main(argv)
+    assert code == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    model = out / "checkpoints" / "model_64.zip"
+    assert line.startswith(f"observer-gym train: error: could not write {model}: ")
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == []
+
+
+def test_an_output_folder_that_is_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "taken").write_text("")
+    argv = [*COMMANDS["run"], "--episodes", "1", "--out", str(tmp_path / "taken")]
+    assert main([*argv, "--no-progress"]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"observer-gym run: error: [Errno 17] File exists: '{tmp_path / 'taken'}'"
+    ]
