@@ -421,6 +421,13 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
     )
 
 
+def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
+    return ValueError(
+        f"the checkpoint at {steps} steps in {run_dir / CHECKPOINTS} cannot be loaded: "
+        f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    )
+
+
 def _learn(
     run_dir: Path,
     config: dict[str, Any],
@@ -461,7 +468,10 @@ def _learn(
         if normalize:
             options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
             if checkpoint:
-                venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                try:
+                    venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                except Exception as exc:  # a damaged set saved before hashes were recorded
+                    raise _unloadable(run_dir, start_steps, exc) from exc
                 venv.training = True
             else:
                 venv = VecNormalize(venv, **options)
@@ -473,11 +483,8 @@ def _learn(
                 model = cls.load(checkpoint["model"], env=venv, device="cpu")
                 if "replay_buffer" in checkpoint:
                     model.load_replay_buffer(checkpoint["replay_buffer"])
-            except Exception as exc:  # intact files SB3 cannot load (another version)
-                raise ValueError(
-                    f"the checkpoint at {start_steps} steps in {run_dir / CHECKPOINTS} cannot "
-                    f"be loaded: {type(exc).__name__}: {exc}"
-                ) from exc
+            except Exception as exc:  # files SB3 cannot load (another version, no hashes)
+                raise _unloadable(run_dir, start_steps, exc) from exc
         else:
             policy = training["policy"] or default_policy(venv.observation_space)
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
