@@ -28,7 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.train.outputs import format_table, package_versions, write_json_atomic
+from observer_gym.train.outputs import (
+    format_table,
+    output_set,
+    package_versions,
+    write_json_atomic,
+)
 from observer_gym.train.run_dir import read_config, seed_run_dirs
 
 INSTALL_HINT = "pip install 'observer-gym[rl]'"
@@ -226,7 +231,7 @@ def plot_learning_curves(
 ) -> None:
     """Each seed's evaluation curve (thin) and the mean across seeds with its 95 %
     bootstrap band, against env steps."""
-    from observer_gym.train.plots import DPI, new_figure  # deferred: matplotlib
+    from observer_gym.train.plots import new_figure, save_figure  # deferred: matplotlib
 
     fig = new_figure((7.5, 4.5))
     ax = fig.subplots()
@@ -253,7 +258,7 @@ def plot_learning_curves(
     ax.set(xlabel="env steps", ylabel="evaluation return (deterministic policy)", title=title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 # --- the aggregate of a multi-seed training folder -------------------------------------------
@@ -291,8 +296,9 @@ def aggregate_runs(
     out_dir: str | Path, reps: int = FINAL_REPS, curve_reps: int = CURVE_REPS
 ) -> Aggregate:
     """Aggregate the runs of the multi-seed folder ``out_dir`` (``seed_<s>/``, each with
-    its ``eval.csv``): writes ``learning_curves.png``, ``aggregate.md`` and, last and
-    atomically, ``aggregate.json`` into ``out_dir``, and returns what the JSON holds.
+    its ``eval.csv``): writes ``learning_curves.png``, ``aggregate.md`` and, last,
+    ``aggregate.json`` into ``out_dir`` as a set (all or none:
+    :func:`~observer_gym.train.outputs.output_set`), and returns what the JSON holds.
 
     Raises:
         ValueError: no seed runs in ``out_dir``, runs of different envs, algorithms or
@@ -317,7 +323,6 @@ def aggregate_runs(
     final = across_seeds({c.seed: c.return_mean[-1] for c in curves}, reps)
     band = curve_band(curves, curve_reps)
     title = f"{algo.upper()} on {env_id}, obs {obs}: {len(curves)} seeds"
-    plot_learning_curves(curves, band, out_dir / CURVES_PNG, title)
     aggregate = Aggregate(
         env_id=env_id,
         algo=algo,
@@ -329,8 +334,10 @@ def aggregate_runs(
         curve=band,
         files=(CURVES_PNG, AGGREGATE_MD, AGGREGATE_JSON),
     )
-    (out_dir / AGGREGATE_MD).write_text(aggregate_markdown(aggregate), encoding="utf-8")
-    write_json_atomic(out_dir / AGGREGATE_JSON, aggregate.as_dict())
+    with output_set(out_dir, last=(AGGREGATE_JSON,)) as staging:  # all three or none
+        plot_learning_curves(curves, band, staging / CURVES_PNG, title)
+        (staging / AGGREGATE_MD).write_text(aggregate_markdown(aggregate), encoding="utf-8")
+        write_json_atomic(staging / AGGREGATE_JSON, aggregate.as_dict())
     return aggregate
 
 

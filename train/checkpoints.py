@@ -3,11 +3,16 @@
 A checkpoint is ``checkpoints/model_<N>.zip`` (the SB3 model, N its timestep count), with
 ``vecnormalize_<N>.pkl`` if the run normalises and ``replay_buffer_<N>.pkl`` for the
 off-policy algorithms. Each file is written to a temporary name and renamed into place;
-``checkpoints/latest.json`` names the newest complete set and is replaced last, so a run
-killed while saving (Ctrl-C, SIGTERM, SIGKILL, power) leaves the previous set named and
-intact; the temp files such a kill leaves (``.model_<N>.zip.tmp-<PID>``, ...) are removed
-when the run is resumed (:func:`observer_gym.train.outputs.remove_stale_temps`). Only the
-newest ``keep`` sets stay on disk.
+then ``checkpoint_<N>.json`` records the set's files and their sha256, and
+``checkpoints/latest.json`` (the same record) names the newest complete set, replaced
+last. Ctrl-C and SIGTERM wait until the set is saved
+(:func:`~observer_gym.train.signals.signals_deferred`); a run killed while saving
+(SIGKILL, power) leaves the previous set named and intact; the temp files such a kill
+leaves (``.model_<N>.zip.tmp-<PID>``, ...) are removed when the run is resumed
+(:func:`observer_gym.train.outputs.remove_stale_temps`). A resumed run starts from the
+newest set whose files match their hashes
+(:func:`~observer_gym.train.run_dir.intact_checkpoint`). Only the newest ``keep`` sets
+stay on disk.
 """
 
 from __future__ import annotations
@@ -20,7 +25,13 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import replace_atomically, write_json_atomic
-from observer_gym.train.run_dir import LATEST, latest_checkpoint  # noqa: F401  (read here too)
+from observer_gym.train.run_dir import (  # noqa: F401  (latest_checkpoint: read here too)
+    LATEST,
+    MANIFEST,
+    file_sha256,
+    latest_checkpoint,
+)
+from observer_gym.train.signals import signals_deferred
 
 
 def save_checkpoint(
@@ -31,16 +42,20 @@ def save_checkpoint(
     directory.mkdir(parents=True, exist_ok=True)
     steps = int(model.num_timesteps)
     entry: dict[str, Any] = {"timesteps": steps, "model": f"model_{steps}.zip"}
-    replace_atomically(directory / entry["model"], model.save)
-    vec_normalize = model.get_vec_normalize_env()
-    if vec_normalize is not None:
-        entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
-        replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
-    if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
-        entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
-        replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
-    write_json_atomic(directory / LATEST, entry)
-    _prune(directory, keep)
+    with signals_deferred():  # a signal waits for the whole set and latest.json
+        replace_atomically(directory / entry["model"], model.save)
+        vec_normalize = model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
+            replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
+        if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
+            entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
+            replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
+        names = [v for k, v in entry.items() if k != "timesteps"]
+        entry["sha256"] = {name: file_sha256(directory / name) for name in names}
+        write_json_atomic(directory / MANIFEST.format(steps), entry)
+        write_json_atomic(directory / LATEST, entry)
+        _prune(directory, keep)
     return entry
 
 
@@ -49,8 +64,13 @@ def _prune(directory: Path, keep: int) -> None:
         {int(p.stem.split("_")[-1]) for p in directory.glob("model_*.zip")}, reverse=True
     )
     for old in steps[keep:]:
-        for pattern in (f"model_{old}.zip", f"vecnormalize_{old}.pkl", f"replay_buffer_{old}.pkl"):
-            (directory / pattern).unlink(missing_ok=True)
+        for name in (
+            MANIFEST.format(old),  # first: a set without its manifest is never picked
+            f"model_{old}.zip",
+            f"vecnormalize_{old}.pkl",
+            f"replay_buffer_{old}.pkl",
+        ):
+            (directory / name).unlink(missing_ok=True)
 
 
 class CheckpointCallback(EveryStepsCallback):

@@ -41,6 +41,7 @@ from observer_gym.train.cli_args import (
     recorded_args,
 )
 from observer_gym.train.hyperparams import ALGOS
+from observer_gym.train.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 
 @dataclass(frozen=True)
@@ -396,9 +397,12 @@ def _train_run(args: argparse.Namespace) -> int:
             return _error("train", exc)
         from observer_gym.train.training import resume_training, training_text  # deferred
 
-        state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
+        try:
+            state = resume_training(run_dir, args.timesteps, progress=not args.no_progress)
+        except ValueError as exc:  # a checkpoint that cannot be loaded, before training
+            return _error("train", exc)
         print(training_text(run_dir, state))
-        return 130 if state["status"] == "interrupted" else 0
+        return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
     if args.seeds is not None:
         if args.seed is not None:
             return _error("train", "--seed trains one agent, --seeds several: give one of them")
@@ -417,7 +421,7 @@ def _train_run(args: argparse.Namespace) -> int:
     cli_args = recorded_args(args)
     state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
     print(training_text(run_dir, state))
-    return 130 if state["status"] == "interrupted" else 0
+    return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
 
 
 def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict[str, object]:
@@ -501,7 +505,7 @@ def _train_seeds_run(args: argparse.Namespace) -> int:
         print(error_line("observer-gym train", exc), file=sys.stderr)
         return 1
     print(seeds_text(result))
-    return 130 if result.status == "interrupted" else 0
+    return INTERRUPTED_EXIT_CODE if result.status == "interrupted" else 0
 
 
 # --- evaluate --------------------------------------------------------------------------
@@ -760,6 +764,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     argparse raises ``SystemExit`` for ``--help`` (code 0); a mistake in parsing raises
     :class:`~observer_gym.train.cli_args.UsageError` (a ``SystemExit`` with code 2) after
     printing its one line, one found by a command's checks returns 2 after printing its.
+    Ctrl-C and SIGTERM stop any command the same way: ``observer-gym COMMAND: interrupted``
+    (or the command's own account: ``train`` says how far it got), exit code 130, after
+    the file being written, if any, is complete
+    (:func:`~observer_gym.train.signals.signals_deferred`). A file that cannot be read or
+    written (a full disk, no permission: ``OSError``) is one line,
+    ``observer-gym COMMAND: error: ...``, and exit code 1; the file is as it was.
     What a command finds left by a killed run in a folder it uses (an
     :class:`~observer_gym.train.outputs.OutputFolderWarning`), and any other
     :class:`~observer_gym.train.outputs.OneLineWarning`, is one line on stderr,
@@ -780,7 +790,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 shown(message, category, filename, lineno, file, line)
 
         warnings.showwarning = show
-        return args.run(args)
+        try:
+            with sigterm_as_interrupt():
+                return args.run(args)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM where the command does not catch it
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return INTERRUPTED_EXIT_CODE
+        except OSError as exc:  # a file that could not be read or written (a full disk)
+            print(error_line(prog, exc), file=sys.stderr)
+            return 1
 
 
 if __name__ == "__main__":

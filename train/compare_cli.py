@@ -201,11 +201,15 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return _error(str(exc))
     cli_args = recorded_args(args)
-    results = run_comparison(
-        **options,
-        out_dir=args.out if args.out is not None else default_out_dir("compare"),
-        progress=not args.no_progress,
-        cli_args=cli_args,
-    )
+    try:
+        results = run_comparison(
+            **options,
+            out_dir=args.out if args.out is not None else default_out_dir("compare"),
+            progress=not args.no_progress,
+            cli_args=cli_args,
+        )
+    except ValueError as exc:  # results that cannot be written (NaN): nothing written
+        print(error_line("observer-gym compare", exc), file=sys.stderr)
+        return 1
     print(comparison_text(results))
     return 0

@@ -16,8 +16,14 @@ import numpy as np
 from observer_gym.train.aggregate import METHOD
 from observer_gym.train.compare_stats import ORACLE, PERCENT, MetricSpec, compare_metrics
 from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
-from observer_gym.train.outputs import format_table, to_jsonable, write_json_atomic
-from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.outputs import (
+    format_table,
+    json_text,
+    output_set,
+    to_jsonable,
+    write_json_atomic,
+)
+from observer_gym.train.plots import new_figure, save_figure
 
 
 # --- names -------------------------------------------------------------------------------
@@ -295,7 +301,7 @@ def plot_bars(
     )
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(title="observer", fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 # --- the whole output ------------------------------------------------------------------------
@@ -307,42 +313,59 @@ def write_comparison(
 ) -> dict[str, Any]:
     """Write a comparison's outputs into ``out_dir``: the task's plots of every pair (from
     its episodes' ``records``; their names go into the pair's ``files``), a bar chart per
-    metric, ``table.md``, ``table.csv`` and, last and atomically, ``results.json``:
-    ``results`` (``config``, ``versions``, ``wall_time_s``, ``starts_match``, ``pairs``)
-    with the list of ``files``. Returns what ``results.json`` holds (JSON types)."""
+    metric, ``table.md``, ``table.csv`` and, last, ``results.json``: ``results``
+    (``config``, ``versions``, ``wall_time_s``, ``starts_match``, ``pairs``) with the list
+    of ``files``. They are written as a set
+    (:func:`~observer_gym.train.outputs.output_set`): all of them or, if one fails, none.
+    Returns what ``results.json`` holds (JSON types).
+
+    Raises:
+        ValueError: ``results`` holds a value JSON cannot hold (NaN), found before
+            anything is written.
+        WriteError: a file could not be written (a full disk).
+    """
     config, pairs = results["config"], results["pairs"]
     metrics = compare_metrics(task)
     n = config["episodes"]
-    files: list[str] = []
-    for pair in pairs:
-        pair_dir = out_dir / "pairs" / pair["folder"]
-        pair_dir.mkdir(parents=True, exist_ok=True)
-        names = task.plot(records[pair["observer"], pair["controller"]], pair["observer"], pair_dir)
-        pair["files"] = [f"pairs/{pair['folder']}/{name}" for name in names]
-        files += pair["files"]
-    for key, spec in metrics.items():
-        name = f"bar_{key}.png"
-        plot_bars(pairs, config["observers"], config["controllers"], key, spec, n, out_dir / name)
-        files.append(name)
+    try:
+        json_text(results)
+    except ValueError as exc:
+        raise ValueError(f"results.json cannot be written: {exc}") from None
+    files = []
+    with output_set(out_dir) as staging:
+        for pair in pairs:
+            pair_dir = staging / "pairs" / pair["folder"]
+            pair_dir.mkdir(parents=True, exist_ok=True)
+            names = task.plot(
+                records[pair["observer"], pair["controller"]], pair["observer"], pair_dir
+            )
+            pair["files"] = [f"pairs/{pair['folder']}/{name}" for name in names]
+            files += pair["files"]
+        for key, spec in metrics.items():
+            name = f"bar_{key}.png"
+            plot_bars(
+                pairs, config["observers"], config["controllers"], key, spec, n, staging / name
+            )
+            files.append(name)
 
-    table = comparison_table(pairs, metrics, n)
-    across = results.get("across_seeds") or []
-    seeds_table = across_seeds_table(across, next(iter(metrics.values()))) if across else None
-    write_markdown(
-        out_dir / "table.md",
-        table,
-        metrics,
-        config["env_id"],
-        config["seeds"],
-        config["steps"],
-        config["command"],
-        config["cli_args"],
-        seeds_table,
-    )
-    write_csv(out_dir / "table.csv", pairs, metrics)
-    files += ["table.md", "table.csv", "results.json"]
-    written = to_jsonable({**results, "files": files})
-    write_json_atomic(out_dir / "results.json", written)
+        table = comparison_table(pairs, metrics, n)
+        across = results.get("across_seeds") or []
+        seeds_table = across_seeds_table(across, next(iter(metrics.values()))) if across else None
+        write_markdown(
+            staging / "table.md",
+            table,
+            metrics,
+            config["env_id"],
+            config["seeds"],
+            config["steps"],
+            config["command"],
+            config["cli_args"],
+            seeds_table,
+        )
+        write_csv(staging / "table.csv", pairs, metrics)
+        files += ["table.md", "table.csv", "results.json"]
+        written = to_jsonable({**results, "files": files})
+        write_json_atomic(staging / "results.json", written)
     return written
 
 

@@ -27,10 +27,12 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
+from observer_gym.train.cli_args import error_line
 from observer_gym.train.consistency import consistency_text, episode_consistency, nees_flag
-from observer_gym.train.outputs import format_table, replace_atomically
-from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.outputs import format_table, write_text_atomic
+from observer_gym.train.plots import new_figure, save_figure
 from observer_gym.train.run import EpisodeSpec, run_episode
+from observer_gym.train.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 ACCEPTED = (1.0 / 3.0, 3.0)  # the range the tests hold every observer's median NEES/dof to
 
@@ -204,7 +206,7 @@ def plot_option(path: Path, title: str, key: str, summary: Mapping[tuple[str, fl
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(title)
-    replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"))
+    save_figure(fig, path)
 
 
 def option_table(key: str, summary: Mapping[tuple[str, float], dict]) -> str:
@@ -263,7 +265,7 @@ def run_study(
             plot_option(out_dir / f"{name}.png", f"{env_id}: {key}", key, summary)
             sections += [f"### {env_id}: {key}", "", option_table(key, summary), ""]
     text = "\n".join(sections)
-    replace_atomically(out_dir / "tables.md", lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    write_text_atomic(out_dir / "tables.md", text)
     return text
 
 
@@ -300,7 +302,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--{name}: {unknown or 'none given'}; allowed: {', '.join(allowed)}")
     if args.episodes < 2 or args.workers < 1 or args.seed < 0:
         parser.error("--episodes must be >= 2, --workers >= 1 and --seed >= 0")
-    print(run_study(args.out, systems, options, args.episodes, args.workers, args.seed))
+    try:
+        with sigterm_as_interrupt():
+            text = run_study(args.out, systems, options, args.episodes, args.workers, args.seed)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM
+        print(
+            f"{parser.prog}: interrupted; the finished sweeps' cells are kept in {args.out}: "
+            "run the same command again to resume",
+            file=sys.stderr,
+        )
+        return INTERRUPTED_EXIT_CODE
+    except (OSError, ValueError) as exc:
+        print(error_line(parser.prog, exc), file=sys.stderr)
+        return 1
+    print(text)
     return 0
 
 

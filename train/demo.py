@@ -29,7 +29,7 @@ from observer_gym.train.outputs import (
     package_versions,
     write_json_atomic,
 )
-from observer_gym.train.plots import draw_table, new_figure
+from observer_gym.train.plots import draw_table, new_figure, save_figure
 
 ENV_ID = "observer_gym/BallTable-v0"
 CONTROLLER = "lqr"
@@ -263,4 +263,4 @@ def _plot_trajectory(record: dict[str, Any], path: Path) -> None:
         ylim=(-1.5, 1.5),
     )
     err_ax.legend(loc="upper right", fontsize=7)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)

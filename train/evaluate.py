@@ -19,6 +19,7 @@ from observer_gym.train.outputs import (
     OutputFolderWarning,
     format_table,
     output_folder,
+    output_set,
     write_json_atomic,
 )
 from observer_gym.train.run import run_experiment
@@ -190,8 +191,9 @@ def evaluate_seeds(
         evaluation = SeedsEvaluation(
             out_dir, env_id, metric, spec, per_seed, seeds_statistics(per_seed, reps), results
         )
-        (out_dir / ACROSS_SEEDS_MD).write_text(seeds_markdown(evaluation), encoding="utf-8")
-        write_json_atomic(out_dir / ACROSS_SEEDS_JSON, evaluation.as_dict())
+        with output_set(out_dir, last=(ACROSS_SEEDS_JSON,)) as staging:  # both or neither
+            (staging / ACROSS_SEEDS_MD).write_text(seeds_markdown(evaluation), encoding="utf-8")
+            write_json_atomic(staging / ACROSS_SEEDS_JSON, evaluation.as_dict())
     return evaluation
 
 

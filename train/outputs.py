@@ -2,11 +2,14 @@
 text tables; and the output folder's upkeep after a run that was killed.
 
 Atomic writes go through a temp file beside the target whose name carries the writer's
-PID (:data:`TEMP_PATTERNS`). A run killed with SIGKILL (or a power cut) cannot remove its
-temps, nor say that it stopped; :func:`output_folder` therefore, when a command starts
-writing into a folder, removes the temps there whose writer process is gone and reports
-any earlier run into the folder that never finished (its marker file remains), with an
-:class:`OutputFolderWarning` each.
+PID (:data:`TEMP_PATTERNS`), with SIGINT and SIGTERM held until the file is in place
+(:func:`~observer_gym.train.signals.signals_deferred`); a failed write raises
+:class:`WriteError` and leaves the target as it was. A report of several files is staged
+and moved into place as a set (:func:`output_set`). A run killed with SIGKILL (or a power
+cut) cannot remove its temps, nor say that it stopped; :func:`output_folder` therefore,
+when a command starts writing into a folder, removes the temps there whose writer process
+is gone and reports any earlier run into the folder that never finished (its marker file
+remains), with an :class:`OutputFolderWarning` each.
 
 Whether a writer is gone (:func:`writer_alive`): each writer records its PID, its host
 name and, on Linux, its process start time (:func:`writer_identity`). On the same host it
@@ -20,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import socket
 import tempfile
 import time
@@ -32,6 +36,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from observer_gym.train.signals import signals_deferred
 
 # The distributions that decide what an experiment computes.
 VERSIONED_PACKAGES = (
@@ -78,6 +84,41 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
+def _unwritable(value: Any, where: str) -> tuple[str, Any] | None:
+    """The first place in ``value`` (JSON types) that JSON cannot hold, and its value."""
+    if isinstance(value, dict):
+        items = ((f"{where}.{key}" if where else str(key), v) for key, v in value.items())
+    elif isinstance(value, list):
+        items = ((f"{where}[{k}]", v) for k, v in enumerate(value))
+    elif isinstance(value, float):
+        return None if np.isfinite(value) else (where, value)
+    elif value is None or isinstance(value, str | int):
+        return None
+    else:
+        return where, value
+    return next((bad for place, v in items if (bad := _unwritable(v, place))), None)
+
+
+def json_text(data: Any) -> str:
+    """``data`` as the JSON text :func:`write_json_atomic` writes (NumPy values converted
+    by :func:`to_jsonable`, indented).
+
+    Raises:
+        ValueError: naming the first value JSON cannot hold (NaN, infinity, an object)
+            and where it is (``cells[1].statistics.mean``); an undefined number must be
+            None.
+    """
+    data = to_jsonable(data)
+    try:
+        return json.dumps(data, indent=2, allow_nan=False) + "\n"
+    except (ValueError, TypeError):
+        where, value = _unwritable(data, "") or ("", data)
+        raise ValueError(
+            f"{where or 'the data'} is {value!r}, which JSON cannot hold (an undefined "
+            "number is None)"
+        ) from None
+
+
 class OneLineWarning(UserWarning):
     """A warning the ``observer-gym`` command shows as one line,
     ``observer-gym COMMAND: warning: ...`` (without Python's file and line)."""
@@ -89,8 +130,9 @@ class OutputFolderWarning(OneLineWarning):
 
 
 # The temp files of the atomic writes: write_json_atomic's ".NAME.PID.XXXXXXXX.tmp" (before
-# PIDs were recorded ".NAME.XXXXXXXX.tmp", the writer unknown) and replace_atomically's
-# ".NAME.tmp-PID"; the group "pid" is the writer's.
+# PIDs were recorded ".NAME.XXXXXXXX.tmp", the writer unknown), replace_atomically's
+# ".NAME.tmp-PID" and output_set's staging folder ".outputs.tmp-PID"; the group "pid" is
+# the writer's.
 TEMP_PATTERNS = (
     re.compile(r"^\..+?\.(?:(?P<pid>\d+)\.)?[a-z0-9_]{8}\.tmp$"),
     re.compile(r"^\..+\.tmp-(?P<pid>\d+)$"),
@@ -154,20 +196,23 @@ def writer_alive(record: Mapping[str, Any]) -> bool:
 
 
 def remove_stale_temps(folder: str | os.PathLike, all_temps: bool = False) -> list[Path]:
-    """Remove the atomic writes' temp files (:data:`TEMP_PATTERNS`) in ``folder`` and its
-    subfolders whose writer process is gone (a temp without a PID counts as gone), or all
-    of them with ``all_temps``; warns (:class:`OutputFolderWarning`) naming how many, and
-    returns their paths."""
+    """Remove the atomic writes' temp files and staging folders (:data:`TEMP_PATTERNS`) in
+    ``folder`` and its subfolders whose writer process is gone (a temp without a PID counts
+    as gone), or all of them with ``all_temps``; warns (:class:`OutputFolderWarning`)
+    naming how many, and returns their paths."""
     folder = Path(folder)
     removed = []
     for path in sorted(folder.rglob(".*")) if folder.is_dir() else []:
         match = next((m for p in TEMP_PATTERNS if (m := p.match(path.name))), None)
-        if match is None or not path.is_file():
-            continue
+        if match is None or path.is_symlink() or not (path.is_file() or path.is_dir()):
+            continue  # (a path inside a staging folder removed just before is gone)
         pid = match["pid"]
         if not all_temps and pid is not None and process_alive(int(pid)):
             continue
-        path.unlink(missing_ok=True)
+        if path.is_dir():  # output_set's staging folder
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
         removed.append(path)
     if removed:
         names = ", ".join(p.relative_to(folder).as_posix() for p in removed[:3])
@@ -275,40 +320,106 @@ def output_folder(
         marker_path.unlink(missing_ok=True)
 
 
+class WriteError(OSError):
+    """A file could not be written: its path and why. The file is as it was before."""
+
+
+def _write_error(path: Path, exc: BaseException) -> WriteError:
+    return WriteError(f"could not write {path}: {' '.join(str(exc).split())}")
+
+
 def replace_atomically(path: str | os.PathLike, write: Callable[[Path], Any]) -> None:
-    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX); the
-    temp is ``.NAME.tmp-PID`` beside it, removed if ``write`` fails."""
+    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX), with
+    SIGINT and SIGTERM held until both are done
+    (:func:`~observer_gym.train.signals.signals_deferred`). The temp is ``.NAME.tmp-PID``
+    beside ``path``; if ``write`` or the rename fails, the temp is removed, ``path`` is as
+    it was and :class:`WriteError` names it (an ``OSError`` from the file system, or a
+    ``RuntimeError`` from PyTorch's zip writer, which reports a full disk so)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with signals_deferred():
+        try:
+            write(tmp)
+            os.replace(tmp, path)
+        except (OSError, RuntimeError) as exc:
+            raise _write_error(path, exc) from exc
+        finally:
+            tmp.unlink(missing_ok=True)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` as :func:`replace_atomically` does."""
+    replace_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as JSON to a temp file beside ``path`` (``.NAME.PID.XXXXXXXX.tmp``),
-    then rename it into place.
+    then rename it into place, with SIGINT and SIGTERM held until both are done
+    (:func:`~observer_gym.train.signals.signals_deferred`).
 
     A reader sees the old file or the whole new one, never half of it. NumPy values are
     converted (:func:`to_jsonable`); NaN and infinity raise ``ValueError`` (they are not
-    JSON), so undefined numbers must be given as None. No temp file is left behind unless
-    the process is killed while writing (:func:`remove_stale_temps` removes it then).
+    JSON), before anything is written, so undefined numbers must be given as None. A
+    failed write raises :class:`WriteError` and leaves ``path`` as it was. No temp file
+    is left behind unless the process is killed while writing
+    (:func:`remove_stale_temps` removes it then).
     """
     path = Path(path)
-    text = json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n"
-    fd, tmp_name = tempfile.mkstemp(
-        dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
-    )
+    text = json_text(data)
+    with signals_deferred():
+        try:
+            fd, tmp_name = tempfile.mkstemp(
+                dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
+            )
+        except OSError as exc:
+            raise _write_error(path, exc) from exc
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            os.chmod(tmp_name, 0o644)  # mkstemp makes it owner-only
+            os.replace(tmp_name, path)
+        except OSError as exc:
+            raise _write_error(path, exc) from exc
+        finally:
+            Path(tmp_name).unlink(missing_ok=True)
+
+
+@contextmanager
+def output_set(
+    out_dir: str | os.PathLike, last: Sequence[str] = ("results.json",)
+) -> Iterator[Path]:
+    """A staging folder, ``out_dir/.outputs.tmp-PID``, to write a set of outputs into as
+    into ``out_dir``; they reach ``out_dir`` together or not at all.
+
+    If the block ends normally, every file written there is renamed to the same place in
+    ``out_dir`` (subfolders made as needed; the names in ``last`` after the others), with
+    SIGINT and SIGTERM held until all are in place. If it raises (a bad value, a full disk,
+    Ctrl-C), the staging folder is removed and ``out_dir`` keeps the files it had: a reader
+    finds the earlier set or the new one, not a part of each.
+    """
+    out_dir = Path(out_dir)
+    staging = out_dir / f".outputs.tmp-{os.getpid()}"
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp_name, 0o644)  # mkstemp makes it owner-only
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
+        staging.mkdir()
+    except OSError as exc:
+        raise _write_error(out_dir, exc) from exc
+    try:
+        try:
+            yield staging
+        except WriteError as exc:  # named by where it was going, not by the staging folder
+            raise WriteError(str(exc).replace(str(staging), str(out_dir))) from exc
+        files = sorted(p for p in staging.rglob("*") if p.is_file())
+        files.sort(key=lambda p: p.relative_to(staging).as_posix() in last)
+        with signals_deferred():
+            for file in files:
+                target = out_dir / file.relative_to(staging)
+                try:
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(file, target)
+                except OSError as exc:
+                    raise _write_error(target, exc) from exc
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

@@ -13,9 +13,19 @@ from matplotlib.figure import Figure
 
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
 from observer_gym.train.metrics import TOLERANCE_M
+from observer_gym.train.outputs import replace_atomically
 
 DPI = 110
 MIN_LOG_DISTANCE_M = 1e-5  # distances are drawn on a log axis; exact zeros are lifted here
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: float = DPI) -> None:
+    """Save ``fig`` to ``path`` in the format of its suffix, atomically
+    (:func:`~observer_gym.train.outputs.replace_atomically`): a failed or interrupted save
+    leaves no partial image."""
+    path = Path(path)
+    fmt = path.suffix.lstrip(".") or "png"
+    replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt))
 
 
 def new_figure(figsize: tuple[float, float]) -> Figure:
@@ -78,7 +88,7 @@ def plot_paths(
     ax.set(xlim=(-limit_m, limit_m), ylim=(-limit_m, limit_m))
     ax.set_aspect("equal")
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)  # off the table
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 def plot_distances(
@@ -105,7 +115,7 @@ def plot_distances(
     ax.set(xlabel="time (s)", ylabel="distance (m)", title=title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="upper right", fontsize=7, ncols=2)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 def plot_estimate(
@@ -149,7 +159,7 @@ def plot_estimate(
         bottom.set(xlabel="time (s)", ylabel=f"error {name} (mm)")
         bottom.legend(loc="upper right", fontsize=7)
     fig.suptitle(title)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 def plot_learning_curve(csv_path: Path, path: Path, config: dict) -> None:
@@ -168,4 +178,4 @@ def plot_learning_curve(csv_path: Path, path: Path, config: dict) -> None:
     )
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)

@@ -5,8 +5,10 @@ Each :class:`~observer_gym.train.run.EpisodeSpec` runs as one Ray task calling
 as one calling :func:`~observer_gym.train.training.continue_run`:
 :mod:`observer_gym.train.seeds`), on a local Ray instance or on an existing
 cluster (``ray start --head`` on one machine, ``ray start --address HEAD:6379`` on the
-others; every node needs observer-gym installed). An episode's result depends only on its
-spec, so the records equal the local backend's.
+others, with ``RAY_AUTH_MODE=token`` and the head's ``~/.ray/auth_token`` on every node
+and for the command: docs/compare.md; every node needs observer-gym installed). An
+episode's result depends only on its spec, so the records equal the local backend's; a
+task whose node dies is run again by Ray elsewhere.
 
 Ray is an optional dependency: ``pip install 'observer-gym[distributed]'``.
 """
@@ -16,6 +18,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import sys
+import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -44,6 +48,41 @@ def local_cpus() -> int:
     return os.cpu_count() or 1
 
 
+AUTH_HINT = (
+    "if it runs, it may use token authentication, which 'ray start --head' turns on when "
+    "the head has a ~/.ray/auth_token (any local Ray run writes one): run with "
+    "RAY_AUTH_MODE=token, the cluster's token in ~/.ray/auth_token here "
+    "(docs/compare.md, 'On a Ray cluster')"
+)
+
+
+def _connect(ray: Any, address: str) -> None:
+    """``ray.init`` on the cluster at ``address``; a cluster that cannot be reached (or
+    refuses this process's token) is a ``ConnectionError`` of one line saying what to
+    do. Ray's core prints a warning per connection retry on the standard error (file
+    descriptor 2); those are held back while connecting and shown only if it connects."""
+    held = tempfile.TemporaryFile()
+    stderr = os.dup(2)
+    sys.stderr.flush()
+    os.dup2(held.fileno(), 2)
+    try:
+        ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+    except (ConnectionError, ray.exceptions.AuthenticationError) as exc:
+        why = " ".join(str(exc).split())[:300]
+        hint = "" if os.environ.get("RAY_AUTH_MODE") == "token" else f"; {AUTH_HINT}"
+        raise ConnectionError(
+            f"could not connect to the Ray cluster at {address} ({why}){hint}"
+        ) from None
+    else:
+        held.seek(0)
+        os.write(stderr, held.read())
+    finally:
+        sys.stderr.flush()
+        os.dup2(stderr, 2)
+        os.close(stderr)
+        held.close()
+
+
 def iter_tasks_ray(
     function: Callable[..., Any],
     arguments: Sequence[tuple[Any, ...]],
@@ -63,6 +102,8 @@ def iter_tasks_ray(
 
     Raises:
         ImportError: Ray is not installed (the message says how to install it).
+        ConnectionError: no cluster at ``address`` accepts this process (the message
+            says what to do when token authentication is the reason).
     """
     ray = _import_ray()
     connected_here = not ray.is_initialized()
@@ -76,7 +117,7 @@ def iter_tasks_ray(
                 logging_level=logging.ERROR,
             )
         else:  # a shared cluster: its warnings may concern this run
-            ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+            _connect(ray, address)
     pending: list[Any] = []
     try:
         task = ray.remote(num_cpus=1)(function)

@@ -37,7 +37,9 @@ from observer_gym.train.consistency import (
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import (
     format_table,
+    json_text,
     output_folder,
+    output_set,
     package_versions,
     to_jsonable,
     write_json_atomic,
@@ -249,9 +251,10 @@ def run_experiment(
     Writes into ``out_dir`` (created; see :func:`~observer_gym.train.outputs.output_folder`
     for what is removed and reported there before, and the folder removed again if the
     run fails before writing anything) the task's plots (BallTable: ``path.png``,
-    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``
-    (atomically): ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of
-    the task's ``episode_metrics``), ``summary``, ``files``.
+    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``:
+    ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of the task's
+    ``episode_metrics``), ``summary``, ``files``; as a set
+    (:func:`~observer_gym.train.outputs.output_set`): all of them or, if one fails, none.
 
     Args:
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
@@ -329,8 +332,6 @@ def _run_into(
     summary = task.summarize(per_episode)
     consistency = nees_flag(per_episode)._asdict()
 
-    files = task.plot(records, observer, out_dir)
-    files.append("results.json")
     results = to_jsonable(
         {
             "config": {
@@ -356,10 +357,15 @@ def _run_into(
             "episodes": per_episode,
             "summary": summary,
             "consistency": consistency,
-            "files": files,
         }
     )
-    write_json_atomic(out_dir / "results.json", results)
+    try:
+        json_text(results)
+    except ValueError as exc:
+        raise ValueError(f"results.json cannot be written: {exc}") from None
+    with output_set(out_dir) as staging:  # the plots and results.json, all or none
+        results["files"] = [*task.plot(records, observer, staging), "results.json"]
+        write_json_atomic(staging / "results.json", results)
     return results
 
 

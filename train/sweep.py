@@ -352,7 +352,10 @@ def run_sweep(
 
     Raises:
         ValueError: a bad input, or an ``out_dir`` holding another sweep
-            (:func:`check_out_dir`).
+            (:func:`check_out_dir`), before anything runs; cells that cannot be summarised
+            (a value that is not a finite number), before any output is written.
+        WriteError: an output could not be written (the earlier outputs are kept).
+        KeyboardInterrupt: Ctrl-C; the cells written stay, each whole.
     """
     tic_s = time.perf_counter()
     plan = check_sweep(
@@ -384,7 +387,12 @@ def run_sweep(
         cells.update(ran)
         ran_s = time.perf_counter()
 
-        results = assemble_results(plan, cells, versions)
+        try:
+            results = assemble_results(plan, cells, versions)
+        except (ValueError, TypeError) as exc:  # a cell file holding a value of no number
+            raise ValueError(
+                f"the cells in {out_dir / CELLS_DIR} cannot be summarised: {exc}"
+            ) from None
         if not results["starts_match"]:
             warnings.warn(
                 "episode i of the cells of a grid point does not always start from the same "

@@ -24,6 +24,7 @@ from observer_gym.train.cli_args import (
     recorded_args,
 )
 from observer_gym.train.compare_cli import check_pairs, name_list
+from observer_gym.train.signals import INTERRUPTED_EXIT_CODE
 from observer_gym.train.sweep_grid import vary_option
 
 DEFAULT_EPISODES = 10
@@ -132,7 +133,9 @@ def _error(message: object) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sweep of ``args``; 0 on success, 2 (with a one-line message on stderr) for
-    an input rejected before anything runs. The progress bar shows only on a terminal."""
+    an input rejected before anything runs, 1 for cells that cannot be summarised (no
+    output written), 130 for Ctrl-C or SIGTERM (the cells written are kept, each whole).
+    The progress bar shows only on a terminal."""
     from observer_gym.train.checks import names_for
     from observer_gym.train.sweep_grid import check_grid
 
@@ -167,12 +170,23 @@ def run(args: argparse.Namespace) -> int:
         check_sweep(**options, out_dir=args.out)
     except ValueError as exc:
         return _error(exc)
-    result = run_sweep(
-        **options,
-        out_dir=args.out,
-        progress=not args.no_progress and sys.stderr.isatty(),
-        cli_args=recorded_args(args),
-    )
+    try:
+        result = run_sweep(
+            **options,
+            out_dir=args.out,
+            progress=not args.no_progress and sys.stderr.isatty(),
+            cli_args=recorded_args(args),
+        )
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (observer_gym.train.cli.main)
+        print(
+            f"observer-gym sweep: interrupted; the finished cells are kept in {args.out}: "
+            "run the same command again to resume",
+            file=sys.stderr,
+        )
+        return INTERRUPTED_EXIT_CODE
+    except ValueError as exc:  # cells that cannot be summarised: nothing written
+        print(error_line("observer-gym sweep", exc), file=sys.stderr)
+        return 1
     print(
         sweep_text(
             result.results,

@@ -25,8 +25,8 @@ from observer_gym.train.compare_report import (
 )
 from observer_gym.train.compare_stats import PERCENT, MetricSpec
 from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
-from observer_gym.train.outputs import format_table, write_json_atomic
-from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.outputs import format_table, json_text, output_set, write_text_atomic
+from observer_gym.train.plots import new_figure, save_figure
 from observer_gym.train.sweep_grid import point_text, value_text
 
 ROW_COLUMNS = ("observer", "controller", "episode", "seed")
@@ -196,22 +196,34 @@ def plot_key(path: Path, results: Mapping[str, Any], key: str) -> None:
         f"{config['episodes']} episode(s) per point; {held}",
         fontsize=9,
     )
-    fig.savefig(path, dpi=DPI)
+    save_figure(fig, path)
 
 
 # --- all of them -------------------------------------------------------------------------------
 def write_outputs(out_dir: Path, results: Mapping[str, Any]) -> dict[str, Any]:
-    """Write ``table.md``, ``episodes.csv``, ``<key>.png`` per varied key and, last and
-    atomically, ``results.json`` (``results`` with the list of ``files``) into
-    ``out_dir``; returns what results.json holds."""
+    """Write ``table.md``, ``episodes.csv``, ``<key>.png`` per varied key and, last,
+    ``results.json`` (``results`` with the list of ``files``) into ``out_dir``, as a set
+    (:func:`~observer_gym.train.outputs.output_set`): all of them or, if one fails, none,
+    the folder's earlier outputs kept. Returns what results.json holds.
+
+    Raises:
+        ValueError: ``results`` holds a value JSON cannot hold (NaN: a cell file with a
+            number that is not finite), found before anything is written.
+        WriteError: a file could not be written (a full disk).
+    """
     plots = [f"{key}.png" for key in results["config"]["keys"]]
-    for key, name in zip(results["config"]["keys"], plots, strict=True):
-        plot_key(out_dir / name, results, key)
-    write_markdown(out_dir / "table.md", results)
-    write_episodes_csv(out_dir / "episodes.csv", results)
     written = {**results, "files": ["table.md", "episodes.csv", *plots, "results.json"]}
-    write_json_atomic(out_dir / "results.json", written)
-    return written
+    try:
+        text = json_text(written)
+    except ValueError as exc:
+        raise ValueError(f"results.json cannot be written: {exc}") from None
+    with output_set(out_dir) as staging:
+        for key, name in zip(results["config"]["keys"], plots, strict=True):
+            plot_key(staging / name, results, key)
+        write_markdown(staging / "table.md", results)
+        write_episodes_csv(staging / "episodes.csv", results)
+        write_text_atomic(staging / "results.json", text)
+    return json.loads(text)
 
 
 def sweep_text(

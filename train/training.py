@@ -29,11 +29,9 @@ import csv
 import dataclasses
 import functools
 import shutil
-import signal
 import time
 import warnings
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +40,7 @@ import numpy as np
 from observer_gym.train.agent_env import ImageOptions, make_agent_env, observer_for
 from observer_gym.train.callbacks import EveryStepsCallback
 from observer_gym.train.outputs import (
+    OneLineWarning,
     OutputFolderWarning,
     output_folder,
     package_versions,
@@ -51,16 +50,25 @@ from observer_gym.train.outputs import (
     writer_identity,
 )
 from observer_gym.train.run_dir import (
-    CONFIG_FILE,
+    CHECKPOINTS,
     FINAL_MODEL,
     FINAL_VECNORMALIZE,
+    LATEST,
     STATE_FILE,
     check_resumable,
+    intact_checkpoint,
     killed_text,
     latest_checkpoint,
     read_config,
     read_state,
+    write_config,
 )
+from observer_gym.train.signals import signals_deferred, sigterm_as_interrupt
+
+
+class CheckpointWarning(OneLineWarning):
+    """A checkpoint passed over when resuming (a file missing or damaged)."""
+
 
 TRAIN_SEED_OFFSET = 1_000_000
 EVAL_SEED_OFFSET = 2_000_000
@@ -210,9 +218,10 @@ def run_config(
 
 def write_run_config(run_dir: Path, config: Mapping[str, Any]) -> None:
     """Create ``run_dir`` (removing stale temps there) and write ``config`` as its
-    config.json, atomically."""
+    config.json, atomically, with its sha256 (:func:`~observer_gym.train.run_dir.
+    write_config`)."""
     with output_folder(run_dir, "train", marker=False):
-        write_json_atomic(run_dir / CONFIG_FILE, config)
+        write_config(run_dir, config)
 
 
 def check_training(
@@ -310,17 +319,26 @@ def resume_training(
     A run that was killed (SIGKILL: :func:`~observer_gym.train.run_dir.read_state`) is
     reported with an :class:`~observer_gym.train.outputs.OutputFolderWarning`, and every
     temp file of the atomic writes in ``run_dir`` is removed (no run is writing there),
-    with another.
+    with another. The checkpoint is the newest intact one
+    (:func:`~observer_gym.train.run_dir.intact_checkpoint`); each newer one passed over
+    (a file missing or damaged) is reported with a :class:`CheckpointWarning`.
 
     Raises:
-        ValueError: no run or no checkpoint there, a run still writing there, or a bad
-            ``timesteps``.
+        ValueError: no run or no intact checkpoint there, a config.json changed since the
+            run wrote it, a run still writing there, a bad ``timesteps``, or a checkpoint
+            that cannot be loaded.
     """
     run_dir = Path(run_dir)
     state = check_resumable(run_dir)
     config = read_config(run_dir)
+    checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
+    for problem in problems:
+        warnings.warn(
+            f"{problem}; resuming from the checkpoint at {checkpoint['timesteps']} steps",
+            CheckpointWarning,
+            stacklevel=2,
+        )
     if state is not None and state["status"] == "killed":
-        checkpoint = latest_checkpoint(run_dir / "checkpoints")
         warnings.warn(
             f"{killed_text(run_dir, state)}; resuming from its checkpoint at "
             f"{checkpoint['timesteps']} steps",
@@ -332,8 +350,8 @@ def resume_training(
         if int(timesteps) != timesteps or timesteps < 1:
             raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
         config["hyperparams"]["n_timesteps"] = int(timesteps)
-        write_json_atomic(run_dir / CONFIG_FILE, config)
-    return _learn(run_dir, config, progress=progress, resume=True)
+        write_config(run_dir, config)
+    return _learn(run_dir, config, progress=progress, checkpoint=checkpoint)
 
 
 def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str, Any]:
@@ -353,7 +371,7 @@ def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str,
     state = read_state(run_dir)
     if state is not None and state["status"] == "finished" and timesteps is None:
         return state
-    if latest_checkpoint(run_dir / "checkpoints") is not None:
+    if (run_dir / CHECKPOINTS / LATEST).exists():  # resumed from its newest intact one
         return resume_training(run_dir, timesteps, progress=False)
     if state is not None and state["status"] == "running":
         raise ValueError(f"the training run in {run_dir} is still running; stop it first")
@@ -371,7 +389,7 @@ def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str,
     remove_stale_temps(run_dir, all_temps=True)
     if timesteps is not None:
         config["hyperparams"]["n_timesteps"] = int(timesteps)
-        write_json_atomic(run_dir / CONFIG_FILE, config)
+        write_config(run_dir, config)
     return _learn(run_dir, config, progress=False)
 
 
@@ -403,27 +421,21 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
     )
 
 
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``kill``) stops training like Ctrl-C, so both end the same way."""
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
+    return ValueError(
+        f"the checkpoint at {steps} steps in {run_dir / CHECKPOINTS} cannot be loaded: "
+        f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    )
 
 
 def _learn(
-    run_dir: Path, config: dict[str, Any], progress: bool, resume: bool = False
+    run_dir: Path,
+    config: dict[str, Any],
+    progress: bool,
+    checkpoint: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
+    """Train the run in ``run_dir`` (from ``checkpoint``, as
+    :func:`~observer_gym.train.run_dir.intact_checkpoint` gives it, when resuming)."""
     import torch
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.utils import set_random_seed
@@ -441,7 +453,7 @@ def _learn(
     cls = algorithm_class(config["algo"])
     seed = config["seed"]
     torch.set_num_threads(training["torch_threads"])
-    checkpoint = latest_checkpoint(run_dir / "checkpoints") if resume else None
+    resume = checkpoint is not None
     start_steps = int(checkpoint["timesteps"]) if checkpoint else 0
     set_random_seed(seed + start_steps)
     total = training["n_timesteps"]
@@ -456,7 +468,10 @@ def _learn(
         if normalize:
             options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
             if checkpoint:
-                venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                try:
+                    venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                except Exception as exc:  # a damaged set saved before hashes were recorded
+                    raise _unloadable(run_dir, start_steps, exc) from exc
                 venv.training = True
             else:
                 venv = VecNormalize(venv, **options)
@@ -464,9 +479,12 @@ def _learn(
                 eval_env, training=False, norm_obs=options.get("norm_obs", True), norm_reward=False
             )
         if checkpoint:
-            model = cls.load(checkpoint["model"], env=venv, device="cpu")
-            if "replay_buffer" in checkpoint:
-                model.load_replay_buffer(checkpoint["replay_buffer"])
+            try:
+                model = cls.load(checkpoint["model"], env=venv, device="cpu")
+                if "replay_buffer" in checkpoint:
+                    model.load_replay_buffer(checkpoint["replay_buffer"])
+            except Exception as exc:  # files SB3 cannot load (another version, no hashes)
+                raise _unloadable(run_dir, start_steps, exc) from exc
         else:
             policy = training["policy"] or default_policy(venv.observation_space)
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
@@ -499,7 +517,7 @@ def _learn(
         tic_s = time.perf_counter()
         status = "finished"
         try:
-            with _sigterm_as_interrupt():
+            with sigterm_as_interrupt():
                 model.learn(
                     total_timesteps=max(total - start_steps, 0),
                     callback=callbacks,
@@ -511,24 +529,25 @@ def _learn(
         wall_time_s = time.perf_counter() - tic_s
         steps = int(model.num_timesteps) - start_steps
         train_time_s = max(wall_time_s - evaluation.time_s, 1e-9)
-        if status == "finished":
-            save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
-            if normalize:
-                replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
-            replace_atomically(run_dir / FINAL_MODEL, model.save)
-        latest = latest_checkpoint(run_dir / "checkpoints")
-        state = {
-            "status": status,
-            "timesteps": int(model.num_timesteps),
-            "target_timesteps": total,
-            "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
-            "segment_steps": steps,
-            "segment_wall_time_s": wall_time_s,
-            "segment_eval_time_s": evaluation.time_s,
-            "train_steps_per_s": steps / train_time_s,
-            "writer": writer,
-        }
-        write_json_atomic(run_dir / STATE_FILE, state)
+        with signals_deferred():  # the run's end is written whole, then a signal counts
+            if status == "finished":
+                save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
+                if normalize:
+                    replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+                replace_atomically(run_dir / FINAL_MODEL, model.save)
+            latest = latest_checkpoint(run_dir / "checkpoints")
+            state = {
+                "status": status,
+                "timesteps": int(model.num_timesteps),
+                "target_timesteps": total,
+                "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
+                "segment_steps": steps,
+                "segment_wall_time_s": wall_time_s,
+                "segment_eval_time_s": evaluation.time_s,
+                "train_steps_per_s": steps / train_time_s,
+                "writer": writer,
+            }
+            write_json_atomic(run_dir / STATE_FILE, state)
         if (run_dir / "eval.csv").exists():
             plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
         return state

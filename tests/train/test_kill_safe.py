@@ -267,7 +267,7 @@ def test_a_failed_run_leaves_no_empty_folder(command, tmp_path, monkeypatch):
 def test_a_failed_training_run_leaves_no_empty_folder(tmp_path, monkeypatch):
     from observer_gym.train import training
 
-    monkeypatch.setattr(training, "write_json_atomic", _fail)
+    monkeypatch.setattr(training, "write_config", _fail)  # config.json: its first write
     with pytest.raises(RuntimeError, match="before writing anything"):
         training.train_agent("BallTable-v0", "ppo", "state", tmp_path / "a" / "run")
     assert list(tmp_path.iterdir()) == []

@@ -434,13 +434,15 @@ def single_camera_figure(single: dict):
 def save_plots(two: dict, single: dict, out_dir: Path) -> list[Path]:
     """Save :func:`two_camera_figure` and :func:`single_camera_figure` into ``out_dir`` as
     two_cameras_ellipses.png and single_camera_ellipses.png; their paths."""
+    from observer_gym.train.plots import save_figure  # deferred: matplotlib
+
     paths = []
     for fig, name in (
         (two_camera_figure(two), "two_cameras_ellipses.png"),
         (single_camera_figure(single), "single_camera_ellipses.png"),
     ):
         paths.append(out_dir / name)
-        fig.savefig(paths[-1], dpi=110)
+        save_figure(fig, paths[-1], dpi=110)
     return paths
 
 

@@ -284,6 +284,8 @@ def save_plot(sigmas: list[float], mse: dict, out_dir: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from observer_gym.train.plots import save_figure
+
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), constrained_layout=True)
     for q, ax in enumerate(axes.flat):
         for f, colour, label in (("kf", "tab:red", "KF"), ("stkf", "tab:blue", "STKF")):
@@ -296,7 +298,7 @@ def save_plot(sigmas: list[float], mse: dict, out_dir: Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes.flat[0].legend(fontsize=8)
     path = out_dir / "fig8_mse_vs_noise.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 

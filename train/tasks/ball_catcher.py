@@ -17,7 +17,7 @@ from scipy.stats import binomtest
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.train.metrics import rmse
-from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.plots import new_figure, save_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
@@ -189,7 +189,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ax.set_ylabel("z offset at the box's plane (mm)")
     ax.set_title(f"Where the ball crossed the box's front plane ({len(records)} episodes)")
     ax.legend(loc="upper right", fontsize=8)
-    fig.savefig(out_dir / "plane.png", dpi=DPI)
+    save_figure(fig, out_dir / "plane.png")
     files = ["plane.png"]
     if records[0]["estimate"] is not None:
         first = records[0]
@@ -206,6 +206,6 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time (s)")
         axes[0].set_title(f"Observer '{observer}': ball position error, episode 0")
-        fig.savefig(out_dir / "estimate.png", dpi=DPI)
+        save_figure(fig, out_dir / "estimate.png")
         files.append("estimate.png")
     return files

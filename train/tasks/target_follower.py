@@ -24,7 +24,7 @@ import numpy as np
 
 from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateIndex
 from observer_gym.train.metrics import rmse
-from observer_gym.train.plots import DPI, new_figure
+from observer_gym.train.plots import new_figure, save_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
@@ -222,7 +222,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ax.set_ylabel("y_i (px, up)")
     ax.set_title("Target centre in the image (start: dot)")
     ax.legend(fontsize=7, loc="upper right")
-    fig.savefig(out_dir / "image.png", dpi=DPI)
+    save_figure(fig, out_dir / "image.png")
 
     fig = new_figure((8.0, 5.0))
     axes = fig.subplots(2, 1, sharex=True)
@@ -242,7 +242,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     axes[1].set_ylabel("d_x - d* (px)")
     axes[1].set_xlabel("time (s)")
     axes[0].set_title(f"Image error, {len(records)} episodes (grey: episode 0's occlusions)")
-    fig.savefig(out_dir / "error.png", dpi=DPI)
+    save_figure(fig, out_dir / "error.png")
     files = ["image.png", "error.png"]
     if records[0]["estimate"] is not None:
         r = records[0]
@@ -264,6 +264,6 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
         axes[0].legend(fontsize=8, loc="upper right")
         axes[-1].set_xlabel("time (s)")
         axes[0].set_title(f"Observer '{observer}': image state, episode 0")
-        fig.savefig(out_dir / "estimate.png", dpi=DPI)
+        save_figure(fig, out_dir / "estimate.png")
         files.append("estimate.png")
     return files

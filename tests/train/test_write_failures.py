@@ -1,0 +1,113 @@
+"""Outputs that cannot be written: a full disk (the file size limit, EFBIG) while ``run``
+or ``compare`` writes, and a sweep whose cells hold a number JSON cannot hold. Each is
+one ``error:`` line and exit code 1, and the folder keeps the outputs it had, byte for
+byte: a report is written as a set or not at all, and no partial file (a cut plot) is
+left."""
+
+from __future__ import annotations
+
+import json
+import resource
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from observer_gym.train.cli import main
+
+FILE_SIZE_LIMIT_BYTES = 16_000  # a plot is larger; results.json and table.md are not
+
+
+@contextmanager
+def file_size_limit(limit_bytes: int) -> Iterator[None]:
+    """Writing past ``limit_bytes`` fails with EFBIG (Python ignores SIGXFSZ)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (hidden ones too) and its bytes."""
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes() for p in folder.rglob("*") if p.is_file()
+    }
+
+
+COMMANDS = {
+    "run": ["run", "--observer", "oracle", "--controller", "lqr"],
+    "compare": ["compare", "--observers", "oracle", "--controllers", "lqr"],
+}
+
+
+@pytest.mark.parametrize("command", COMMANDS.values(), ids=COMMANDS.keys())
+def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(command, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = [*command, "--episodes", "1", "--steps", "5", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    before = snapshot(out)
+    assert any(len(data) > FILE_SIZE_LIMIT_BYTES for name, data in before.items())
+    argv[argv.index("--steps") + 1] = "6"  # other numbers: a new set of outputs
+    capsys.readouterr()
+    with file_size_limit(FILE_SIZE_LIMIT_BYTES):
+        code = main(argv)
+    assert code == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"observer-gym {command[0]}: error: could not write {out}/")
+    assert line.endswith("File too large")
+    assert snapshot(out) == before  # no partial plot, no new file beside the old ones
+
+
+SWEEP = [
+    "sweep", "--vary", "measurement_noise_px=0,2", "--observers", "oracle",
+    "--controllers", "lqr", "--episodes", "2", "--steps", "5", "--no-progress",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("value", [float("nan"), "abc"], ids=["nan", "text"])
+def test_a_cell_that_cannot_be_summarised_writes_nothing(value, tmp_path, capsys):
+    """A cell file whose metric is NaN (or text): before, the table, CSV and plot were
+    rewritten and results.json then failed, the old one left beside them."""
+    out = tmp_path / "sweep"
+    assert main([*SWEEP, "--out", str(out)]) == 0
+    (cell,) = (out / "cells").glob("measurement_noise_px-2.0__*.json")
+    data = json.loads(cell.read_text())
+    data["episodes"][0]["mean_distance_m"] = value
+    cell.write_text(json.dumps(data))
+    before = snapshot(out)
+    capsys.readouterr()
+    assert main([*SWEEP, "--out", str(out)]) == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("observer-gym sweep: error: ")
+    assert "mean_distance_m" in line or "'abc'" in line
+    assert snapshot(out) == before
+
+
+def test_a_checkpoint_that_cannot_be_written_is_one_line(tmp_path, capsys):
+    """A full disk at the first checkpoint (PyTorch's zip writer says 'unexpected pos'):
+    one line naming the file, exit code 1, no partial checkpoint and no temp."""
+    out = tmp_path / "run"
+    argv = [
+        "train", "--algo", "ppo", "--obs", "state", "--timesteps", "128", "--n-envs", "1",
+        "--vec-env", "dummy", "--hyperparam", "n_steps=64", "--hyperparam", "batch_size=64",
+        "--hyperparam", "checkpoint_freq=64", "--out", str(out), "--no-progress",
+    ]  # fmt: skip
+    with file_size_limit(FILE_SIZE_LIMIT_BYTES):
+        code = main(argv)
+    assert code == 1
+    (line,) = capsys.readouterr().err.splitlines()
+    model = out / "checkpoints" / "model_64.zip"
+    assert line.startswith(f"observer-gym train: error: could not write {model}: ")
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == []
+
+
+def test_an_output_folder_that_is_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "taken").write_text("")
+    argv = [*COMMANDS["run"], "--episodes", "1", "--out", str(tmp_path / "taken")]
+    assert main([*argv, "--no-progress"]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"observer-gym run: error: [Errno 17] File exists: '{tmp_path / 'taken'}'"
+    ]
