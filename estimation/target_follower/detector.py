@@ -13,8 +13,17 @@ Pixels whose HSV colour is orange are segmented, the largest connected blob is t
   tests/estimation/test_target_follower_observer.py).
 
 A blob smaller than ``min_area_px`` (or none) is "no detection": the target is hidden,
-outside the image, or too far. A partly hidden target is still detected, with the bias
-that its visible part gives.
+outside the image, or too far. So is a blob that is not a whole disc, whose centroid and
+area would be the visible part's, off by up to half the width, with no error model to
+say so (:mod:`~observer_gym.estimation.target_follower.detector_error` measures whole
+discs only):
+
+- a blob touching the image's border (the target is cut by the image's edge);
+- a blob whose bounding box is wider or taller than the disc of its area by more than
+  ``max_extent_ratio`` (plus a pixel for the rim's rounding): a disc of area A has
+  extent 2 sqrt(A / pi) in both directions (times sqrt(f_x / f_y) across), while a disc
+  cut by a chord keeps its full extent along the chord and loses area (a half disc:
+  1.41 times the diameter of its area); the target is partly hidden.
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ class TargetFollowerDetector:
     min_value: int = 60
     min_area_px: int = 12
     width_scale: float = 1.03
+    max_extent_ratio: float = 1.15
 
     def mask(self, image_rgb: np.ndarray) -> np.ndarray:
         """The binary mask of target-coloured pixels (uint8, 0 or 255)."""
@@ -56,7 +66,16 @@ class TargetFollowerDetector:
         area = float(stats[best, cv2.CC_STAT_AREA])
         if area < self.min_area_px:
             return None
-        u, v = centroids[best]
+        left, top, width_px, height_px = (int(v) for v in stats[best, :4])
+        rows, cols = mask.shape
+        if left == 0 or top == 0 or left + width_px == cols or top + height_px == rows:
+            return None  # cut by the image's edge
         fx, fy = float(K[0, 0]), float(K[1, 1])
-        d_x = self.width_scale * 2.0 * math.sqrt(area / math.pi) * math.sqrt(fx / fy)
+        # a whole disc of area A: extent 2 sqrt(A / pi) down, times sqrt(f_x / f_y) across
+        diameter_px = 2.0 * math.sqrt(area / math.pi)
+        extent = max(width_px * math.sqrt(fy / fx), height_px * math.sqrt(fx / fy))
+        if extent > self.max_extent_ratio * diameter_px + 1.0:
+            return None  # not a whole disc: partly hidden
+        u, v = centroids[best]
+        d_x = self.width_scale * diameter_px * math.sqrt(fx / fy)
         return np.array([u - K[0, 2], K[1, 2] - v, d_x])

@@ -50,6 +50,35 @@ def test_detector_on_rendered_frames(make_env):
     assert abs(mean[2]) < 0.015 and worst[2] < 0.05
 
 
+def _disc_image(centre_px, radius_px, hide=None):
+    """A grey 320 x 240 frame with an orange disc; ``hide`` (x0, y0, x1, y1) painted grey."""
+    import cv2
+
+    image = np.full((240, 320, 3), 90, np.uint8)
+    cv2.circle(image, centre_px, radius_px, (255, 120, 0), thickness=-1)
+    if hide is not None:
+        cv2.rectangle(image, hide[:2], hide[2:], (90, 90, 90), thickness=-1)
+    return image
+
+
+def test_detector_refuses_a_target_cut_by_the_border_or_partly_hidden():
+    """Its error model covers whole discs only: a cut one is no detection."""
+    K = np.array([[260.0, 0.0, 160.0], [0.0, 260.0, 120.0], [0.0, 0.0, 1.0]])
+    detector = TargetFollowerDetector()
+    whole = detector.detect(_disc_image((200, 100), 20), K)
+    assert whole is not None
+    np.testing.assert_allclose(whole[:2], [40.0, 20.0], atol=0.3)
+    assert abs(whole[2] / 41.0 - 1.0) < 0.05  # the drawn disc spans 41 px
+    # a small slice gone (the chord 0.8 r from the centre): still a disc within the model
+    assert detector.detect(_disc_image((200, 100), 20, hide=(0, 0, 319, 83)), K) is not None
+    # cut by the image's bottom edge, at three depths
+    for centre_v in (230, 245, 255):
+        assert detector.detect(_disc_image((200, centre_v), 20), K) is None
+    # the left half hidden (an occluder's edge through the centre), or the top third
+    assert detector.detect(_disc_image((200, 100), 20, hide=(150, 0, 200, 239)), K) is None
+    assert detector.detect(_disc_image((200, 100), 20, hide=(0, 0, 319, 93)), K) is None
+
+
 def _closed_loop(make_env, obs_mode, hold_s, steps, occlusions_s=(4.0,), **kwargs):
     env = make_env(
         ENV_ID, obs_mode=obs_mode, target_motion="profile", occluder_hold_s=hold_s, **kwargs
