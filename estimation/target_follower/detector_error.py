@@ -8,7 +8,8 @@ m ahead) with the robot driven by small random actions (so the target takes ever
 and sub-pixel phase on the image); every frame whose target lies wholly on the image and
 is not hidden is detected, and the error against the simulator's image state recorded.
 Frames with a partly cut or partly hidden target are not in the model: their error is
-the missing part's (up to half the width), an outlier the filters' gate handles.
+the missing part's (up to half the width), and the detector refuses such a blob
+(:class:`~observer_gym.estimation.target_follower.detector.TargetFollowerDetector`).
 
 The stored model, per level: the mean and the root mean square of each coordinate's
 error divided by the target's width d_x. Every error grows with the target's size (the
