@@ -69,6 +69,7 @@ the frame, else the env config's), H x W x 3: others raise ``ValueError``.
 
 from __future__ import annotations
 
+import math
 import numbers
 from typing import Any
 
@@ -82,6 +83,7 @@ from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.estimation.ball_catcher.frames import FramePixels
 from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.r_scale import checked_r_scale
 
 INITIAL_STD_POS_M = 10.0
 INITIAL_STD_VEL_MPS = 10.0
@@ -97,13 +99,16 @@ ACCEL_NOISE_STD = 0.05
 DEFAULT_REACQUIRE_AFTER = 3  # consecutive gate rejections that restart the filter
 
 
-def default_pixel_std_px(config: Any) -> float:
-    """The pixel noise the BallCatcher filters assume: the env's ``measurement_noise_px`` in
-    measurements mode, floored at 0.1 px for round-off, RGB_PIXEL_STD_PX for the rgb
-    detector."""
-    if config.obs_mode == "rgb":
-        return RGB_PIXEL_STD_PX
-    return max(config.measurement_noise_px, 0.1)
+def default_pixel_std_px(env: BallCatcherEnv, r_scale: float = 1.0) -> float:
+    """The pixel noise the BallCatcher filters assume (their noise rule): in measurements
+    mode the declared noise, ``env.sensor_spec.measurement_noise_std_px`` (with its float32
+    floor); RGB_PIXEL_STD_PX for the rgb detector; R = std^2 I times ``r_scale``."""
+    r_scale = checked_r_scale(r_scale)
+    if env.config.obs_mode == "rgb":
+        std = RGB_PIXEL_STD_PX
+    else:
+        std = env.sensor_spec.measurement_noise_std_px
+    return std * math.sqrt(r_scale)
 
 
 def initial_estimate(config: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -124,15 +129,15 @@ class BallCatcherObserver:
 
     Args:
         env: the (unwrapped) BallCatcher env, made with obs_mode "rgb" or "measurements".
-        pixel_std_px: the pixel noise the filter assumes (default: the env's
-            ``measurement_noise_px`` in measurements mode, floored at 0.1 px for
-            round-off, and RGB_PIXEL_STD_PX for the rgb detector).
+        pixel_std_px: the pixel noise the filter assumes (default:
+            :func:`default_pixel_std_px`, the declared noise).
         gate_p: p of the outlier test (30); None switches the gate off.
         accel_noise_std: the ballistic model's white acceleration noise (m/s^2 per sqrt(s)).
         detector: the rgb detector (default :class:`BallCatcherDetector`).
         reacquire_after: consecutive gate rejections after which the filter restarts
             from the prior and the rejected frames (see the module docstring); an
             integer >= 1.
+        r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
     """
 
     def __init__(
@@ -143,6 +148,7 @@ class BallCatcherObserver:
         accel_noise_std: float = ACCEL_NOISE_STD,
         detector: BallCatcherDetector | None = None,
         reacquire_after: int = DEFAULT_REACQUIRE_AFTER,
+        r_scale: float = 1.0,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(
@@ -163,7 +169,7 @@ class BallCatcherObserver:
         self.rgb = self.pixels.rgb
         self.detector = self.pixels.detector
         self.pixel_std_px = float(
-            default_pixel_std_px(cfg) if pixel_std_px is None else pixel_std_px
+            default_pixel_std_px(env, r_scale) if pixel_std_px is None else pixel_std_px
         )
         self.gate_p = gate_p
         self.accel_noise_std = float(accel_noise_std)

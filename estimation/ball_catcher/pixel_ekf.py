@@ -245,6 +245,7 @@ class BallCatcherPixelEKF:
             :func:`history_for` the env's config).
         iterations: linearisations per update at most (1: the plain EKF).
         initial_std_pos_m, initial_std_vel_mps: the prior's standard deviations.
+        r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
     """
 
     def __init__(
@@ -259,6 +260,7 @@ class BallCatcherPixelEKF:
         iterations: int = DEFAULT_ITERATIONS,
         initial_std_pos_m: float = INITIAL_STD_POS_M,
         initial_std_vel_mps: float = INITIAL_STD_VEL_MPS,
+        r_scale: float = 1.0,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(
@@ -267,7 +269,7 @@ class BallCatcherPixelEKF:
         cfg = env.config
         self.pixels = FramePixels(cfg, detector, owner="BallCatcherPixelEKF")
         self.pixel_std_px = float(
-            default_pixel_std_px(cfg) if pixel_std_px is None else pixel_std_px
+            default_pixel_std_px(env, r_scale) if pixel_std_px is None else pixel_std_px
         )
         self.gate_p = gate_p
         drag = cfg.air_drag if drag is None else bool(drag)

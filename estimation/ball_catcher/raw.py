@@ -113,7 +113,7 @@ class BallCatcherRaw:
         cfg = env.config
         self.pixels = FramePixels(cfg, detector, owner="BallCatcherRaw")
         self.pixel_std_px = float(
-            default_pixel_std_px(cfg) if pixel_std_px is None else pixel_std_px
+            default_pixel_std_px(env) if pixel_std_px is None else pixel_std_px
         )
         if not (np.isfinite(self.pixel_std_px) and self.pixel_std_px > 0.0):
             raise ValueError(f"BallCatcherRaw: pixel_std_px = {pixel_std_px!r}, must be > 0")

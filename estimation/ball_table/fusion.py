@@ -40,10 +40,10 @@ class Fused:
 
 
 def history_s(env: BallTableEnv) -> float:
-    """How far back capture-time fusion keeps the filter's past: the env's latency with
-    five standard deviations of its jitters, and two frame periods."""
-    cfg = env.config
-    return cfg.latency_s + 5.0 * (cfg.latency_jitter_s + cfg.jitter_s) + 2.0 * cfg.dt_s
+    """How far back capture-time fusion keeps the filter's past: the declared sensor's
+    (``SensorSpec.history_s``: its latest delivery and capture jitter to five standard
+    deviations, and two control steps)."""
+    return env.sensor_spec.history_s(env.config.dt_s)
 
 
 class FusedObserver:

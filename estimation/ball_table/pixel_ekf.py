@@ -42,8 +42,9 @@ the step's time.
 Pixel noise: from rgb, the image stage's measured errors (corners of the red top 0.18-0.31
 px RMS, outline 0.15 px, ball centre 0.06 px on 400 rendered frames, fixed camera and head
 motion), rounded up because they are correlated from frame to frame; in measurements
-mode the env's ``measurement_noise_px`` with a floor of MEASUREMENT_FLOOR_PX for what the
-model leaves out: the arm holds the table's centre to 0.02 mm once settled, but
+mode the declared pixel noise (``SensorSpec.measurement_noise_std_px``, the noise rule of
+estimation/ball_table/noise.py) with a floor of MEASUREMENT_FLOOR_PX for what the model
+leaves out: the arm holds the table's centre to 0.02 mm once settled, but
 its joints lag in fast tilt moves (0.3 mm, 0.1 px, under the tests' circle-tracking law;
 up to 2.3 mm under 0.1 rad steps every frame).
 """
@@ -72,7 +73,9 @@ from observer_gym.estimation.ball_table.models import (
     RollingBallModel,
     TiltLagModel,
 )
+from observer_gym.estimation.ball_table.noise import ball_process_params, checked_r_scale
 from observer_gym.estimation.ball_table.observer import (
+    RGB_BALL_STD_M,
     BallTableObserverParams,
     tilt_covariance_blocks,
 )
@@ -376,9 +379,13 @@ class BallTablePixelEKF(FusedObserver):
         params: PixelEKFParams | None = None,
         detector: BallTableDetector | None = None,
         latency_aware: bool = True,
+        r_scale: float = 1.0,
     ) -> None:
-        self.params = params or PixelEKFParams()
         cfg = env.config
+        self.params = params or PixelEKFParams(
+            filters=BallTableObserverParams(ball=ball_process_params(cfg, RGB_BALL_STD_M))
+        )
+        self.r_scale = checked_r_scale(r_scale)
         filters = self.params.filters
         self.ball_model = RollingBallModel(filters.ball)
         self.tilt_model = TiltLagModel.from_arm(
@@ -387,8 +394,10 @@ class BallTablePixelEKF(FusedObserver):
         if cfg.obs_mode == "rgb":
             std = dict(RGB_STD_PX)
         else:
-            noise = math.hypot(MEASUREMENT_FLOOR_PX, cfg.measurement_noise_px)
+            # the declared pixel noise, with the floor for what the model leaves out
+            noise = math.hypot(MEASUREMENT_FLOOR_PX, env.sensor_spec.measurement_noise_std_px)
             std = {RED_TOP: noise, BORDER_OUTLINE: noise, "ball": noise}
+        std = {k: v * math.sqrt(self.r_scale) for k, v in std.items()}  # R times r_scale
         given = {
             RED_TOP: self.params.corner_std_px,
             BORDER_OUTLINE: self.params.outline_std_px,

@@ -96,23 +96,13 @@ from observer_gym.envs.target_follower.motion import (
     WALK_LAG_S,
     WALK_TIME_CONSTANT_S,
 )
+from observer_gym.estimation.r_scale import checked_r_scale
 from observer_gym.estimation.target_follower.detector_error import (
     DetectorErrorModel,
     load_detector_error,
 )
 
 __all__ = ["NoiseRule", "TargetMotionNoise", "checked_r_scale", "target_motion_noise"]
-
-
-def checked_r_scale(r_scale: float) -> float:
-    """``r_scale`` as a float; ValueError unless finite and > 0."""
-    try:
-        value = float(r_scale)
-    except (TypeError, ValueError):
-        raise ValueError(f"r_scale = {r_scale!r}: must be a finite number > 0") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"r_scale = {r_scale!r}: must be a finite number > 0")
-    return value
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,240 @@
+"""BallTable's noise rule: the measurement noise R of ``kf``/``kf-latency`` (tilt and ball
+position on the table, from the geometry stage) and of ``ekf`` (pixels), from what a
+calibrated rig knows, the same way under every sensor option. Nothing here is tuned per
+condition.
+
+**kf, kf-latency** (the detection: tilt (2,) in rad, ball position on the table (2,) in m):
+
+- ``obs_mode="measurements"``: the declared pixel noise sigma =
+  ``SensorSpec.measurement_noise_std_px`` on each of the 11 reported pixels (the red
+  top's 4 corners, the ball's centre and radius) through the geometry stage: R = sigma^2
+  J J^T, J the stage's Jacobian d(tilt, ball) / d(pixels) at the frame's pixels (central
+  differences: the stage is OpenCV's PnP, which gives no derivatives). Seen nearly
+  head-on, the red top's square makes the tilt ill-conditioned: 1 px of corner noise is
+  about 55 mrad of tilt and 5 mm of ball position (the ball is placed on the estimated
+  table). J is kept while every pixel stays within ``JACOBIAN_REUSE_PX`` of where it was
+  taken (45 us per geometry-stage call, 22 calls per Jacobian). On perfect pixels the
+  stage itself errs a little (:data:`PERFECT_PIXELS_BALL_STD_M`, measured): R gains it;
+- ``obs_mode="rgb"``: the detector's error on rendered frames
+  (tests/estimation/test_ball_table_detector.py: tilt 3.5 and 1.0 mrad on its two axes,
+  ball 0.3 mm; ``BallTableObserverParams.tilt_meas_std_rad`` and ``ball.sigma_v_m``);
+- timing, for ``kf`` (which fuses a frame when it is delivered): the frame is older than
+  the step it is fused at by its latency a (declared ``latency_s``, spreads
+  ``latency_jitter_s`` and ``jitter_s``), and meanwhile the ball moved by v a and the
+  tilt by theta' a, so R gains E[a^2] (v v^T + P_v) with E[a^2] = latency_s^2 +
+  latency_jitter_s^2 + jitter_s^2 (the same for the tilt with its rate). ``kf-latency``
+  fuses at the capture time: no timing term.
+
+**ekf** (pixels): sigma on every pixel in measurements mode; from rgb the image stage's
+measured pixel errors (:data:`~observer_gym.estimation.ball_table.pixel_ekf.RGB_STD_PX`).
+It fuses at capture time: no timing term.
+
+Every R is the rule's times ``r_scale`` (1; sensitivity studies).
+
+**Q** (:func:`ball_process_params`, the rolling-ball model's w1 and w2), from the
+disturbance model (envs/ball_table/disturbances.py) and what the model leaves out:
+
+- the model's own error: the ball's acceleration over a 20 ms step departs from
+  (5/7) g sin(tilt) at the true tilt by 0.17 and 0.12 m/s^2 RMS, 0.53 and 0.37 at the
+  99th percentile (measured with the LQR, no pushes; nearly white: lag-one correlation
+  0.01 and -0.09). Its tails come in transients (a 10 cm start), where a Q of the RMS
+  gated out good frames of perfect pixels (three rejections and a restart every few
+  steps), so sigma_w = MODEL_ACCEL_STD_MPS2 is the 99th percentile: w2's stationary std
+  and w1's intensity sigma_w^2 x 20 ms;
+- pushes: impulses uniform in [0, ``push_impulse_ns``] in a uniform horizontal direction
+  at ``push_rate_hz`` on the ball of mass m, which set its velocity by J / m and roll on
+  at 5/7 of that: w1's intensity gains rate (5/7 J / m)^2 / 6 per axis (exact for the
+  jumps' variance).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from observer_gym.envs.sensor import SensorSpec
+from observer_gym.estimation.ball_table.features import RED_TOP, BallTableFeatures
+from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
+from observer_gym.estimation.ball_table.models import ROLLING_ACCEL_FACTOR, RollingBallParams
+from observer_gym.estimation.r_scale import checked_r_scale
+
+__all__ = [
+    "JACOBIAN_REUSE_PX",
+    "PERFECT_PIXELS_BALL_STD_M",
+    "PERFECT_PIXELS_TILT_STD_RAD",
+    "BallTableNoiseRule",
+    "ball_process_params",
+    "checked_r_scale",
+]
+
+# The geometry stage's own error on the perfect detector's pixels (measurements mode at
+# 0 px), what the model leaves out (the ball's contact with the table; float32 pixels):
+# measured RMS 0.015 and 0.007 mm of ball position, 0.00016 mrad of tilt, over 6
+# episodes of the LQR with pushes (tests/estimation/test_consistency_ball_table.py::
+# test_the_model_floors_cover_the_sim); the ball's taken larger for its tails (0.26 mm
+# at most).
+PERFECT_PIXELS_BALL_STD_M = 3e-5
+PERFECT_PIXELS_TILT_STD_RAD = 2e-7
+JACOBIAN_REUSE_PX = 2.0
+# The rolling model's acceleration error (see the module docstring), over MODEL_STEP_S.
+MODEL_ACCEL_STD_MPS2 = 0.5
+MODEL_STEP_S = 0.02
+BALL_MASS_KG = (
+    0.05  # envs/assets/ball.urdf  # a Jacobian serves while no pixel moved more than this
+)
+_STEP_PX = 0.01  # central-difference step
+
+
+def ball_process_params(config, sigma_v_m: float) -> RollingBallParams:
+    """The rolling-ball model's noise for a BallTable config (see the module docstring),
+    with ``sigma_v_m`` as its position noise (the rgb detector's)."""
+    # w1's intensity: sigma_w^2 dt (the model's error) + rate (5/7 J / m)^2 / 6 (pushes)
+    push_dv_mps = ROLLING_ACCEL_FACTOR * config.push_impulse_ns / BALL_MASS_KG
+    q_w1 = MODEL_ACCEL_STD_MPS2**2 * MODEL_STEP_S + config.push_rate_hz * push_dv_mps**2 / 6.0
+    return RollingBallParams(
+        sigma_w=MODEL_ACCEL_STD_MPS2,
+        sigma_v_m=sigma_v_m,
+        w1_psd_time_s=q_w1 / MODEL_ACCEL_STD_MPS2**2,
+    )
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+class BallTableNoiseRule:
+    """R of BallTable's filters for one env (see the module docstring).
+
+    Args:
+        sensor: the declared sensor (``env.sensor_spec``).
+        from_pixels: the env renders frames (``obs_mode="rgb"``).
+        detector: the geometry stage the detections come from.
+        rgb_tilt_std_rad, rgb_ball_std_m: the rgb detector's measured errors.
+        r_scale: R as the rule gives it times this (> 0).
+        fused_at_delivery: the filter fuses a frame at the step it is delivered in (adds
+            the timing term).
+    """
+
+    def __init__(
+        self,
+        sensor: SensorSpec,
+        from_pixels: bool,
+        detector: BallTableDetector,
+        rgb_tilt_std_rad: tuple[float, float],
+        rgb_ball_std_m: float,
+        r_scale: float = 1.0,
+        fused_at_delivery: bool = False,
+    ) -> None:
+        self.sensor = sensor
+        self.r_scale = checked_r_scale(r_scale)
+        self.from_pixels = bool(from_pixels)
+        self.detector = detector
+        self.pixel_var_px2 = sensor.measurement_noise_std_px**2
+        # E[a^2] of a frame's age at the step it is fused at (0 for capture-time fusion)
+        self.age_sq_s2 = (
+            sensor.latency_s**2 + sensor.latency_jitter_s**2 + sensor.jitter_s**2
+            if fused_at_delivery
+            else 0.0
+        )
+        s = self.r_scale
+        self._rgb_R = (
+            _readonly(s * np.diag(np.square(np.asarray(rgb_tilt_std_rad, dtype=float)))),
+            _readonly(s * rgb_ball_std_m**2 * np.eye(2)),
+        )
+        self._linearised: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.jacobians_taken = 0
+
+    def reset(self) -> None:
+        self._linearised = None
+
+    # --- kf: tilt and ball -------------------------------------------------------------
+    def detection_R(
+        self, features: BallTableFeatures, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(R of the tilt (2, 2), R of the ball's position (2, 2)) of a detection from
+        ``features``, before the timing term; read-only arrays, the same objects while
+        the Jacobian is reused."""
+        if self.from_pixels:
+            return self._rgb_R
+        pixels = _measured_pixels(features)
+        cached = self._linearised
+        if pixels is None:  # no table: nothing to weigh
+            return self._rgb_R
+        if (
+            cached is not None
+            and cached[0].size == pixels.size
+            and np.all(np.abs(pixels - cached[0]) <= JACOBIAN_REUSE_PX)
+        ):
+            return cached[1], cached[2]
+        J = self._jacobian(pixels, K, T_world_cam)
+        if J is None:  # the stage fails beside these pixels: keep the last R
+            return (cached[1], cached[2]) if cached is not None else self._rgb_R
+        # R = sigma^2 J J^T + the stage's own error on perfect pixels, tilt's and ball's
+        R = self.pixel_var_px2 * J.dot(J.T)
+        R[:2, :2] += PERFECT_PIXELS_TILT_STD_RAD**2 * np.eye(2)
+        if R.shape[0] == 4:
+            R[2:, 2:] += PERFECT_PIXELS_BALL_STD_M**2 * np.eye(2)
+        R *= self.r_scale
+        R_tilt = _readonly(R[:2, :2].copy())
+        R_ball = _readonly(R[2:, 2:].copy()) if R.shape[0] == 4 else self._rgb_R[1]
+        self._linearised = (pixels, R_tilt, R_ball)
+        return R_tilt, R_ball
+
+    def _jacobian(self, pixels: np.ndarray, K, T_world_cam) -> np.ndarray | None:
+        """d(tilt, ball) / d(pixels) (4, 11), or d(tilt) / d(corners) (2, 8) without a
+        ball, by central differences; None if the stage finds no table (or ball) beside
+        ``pixels``."""
+        self.jacobians_taken += 1
+        columns = []
+        for i in range(pixels.size):
+            step = np.zeros(pixels.size)
+            step[i] = _STEP_PX
+            ahead = self._detected(pixels + step, K, T_world_cam)
+            behind = self._detected(pixels - step, K, T_world_cam)
+            if ahead is None or behind is None:
+                return None
+            columns.append((ahead - behind) / (2.0 * _STEP_PX))
+        return np.column_stack(columns)
+
+    def _detected(self, pixels: np.ndarray, K, T_world_cam) -> np.ndarray | None:
+        with_ball = pixels.size == 11
+        ball_px = pixels[8:11] if with_ball else None
+        features = BallTableFeatures(
+            pixels[:8].reshape(4, 2), ball_px, RED_TOP, source="measurement"
+        )
+        detection = self.detector.detect(features, K, T_world_cam)
+        if not detection.table_found or (with_ball and not detection.ball_found):
+            return None
+        if not with_ball:
+            return np.asarray(detection.tilt_rad, dtype=float)
+        return np.concatenate([detection.tilt_rad, detection.ball_pos_table_m])
+
+    def with_timing(self, R: np.ndarray, rate: np.ndarray, rate_cov: np.ndarray) -> np.ndarray:
+        """R plus the timing term of a delivery-time filter, r_scale E[a^2] (v v^T + P_v),
+        for the measured quantity's rate v and its covariance (R itself without one)."""
+        if self.age_sq_s2 == 0.0:
+            return R
+        v = np.asarray(rate, dtype=float)
+        return R + self.r_scale * self.age_sq_s2 * (np.outer(v, v) + rate_cov)
+
+    # --- ekf: pixels -------------------------------------------------------------------
+    def pixel_std_px(self, rgb_std_px: float) -> float:
+        """The std of one pixel for ``ekf`` (before ``r_scale``): the declared noise in
+        measurements mode, ``rgb_std_px`` (the image stage's measured error) from rgb."""
+        return rgb_std_px if self.from_pixels else math.sqrt(self.pixel_var_px2)
+
+
+def _measured_pixels(features: BallTableFeatures) -> np.ndarray | None:
+    """The pixels of a measurement's red-top corners (8) and ball (3) if it was seen with
+    finite pixels; None without a table with finite corners."""
+    if features.corners_px is None or features.corner_model != RED_TOP:
+        return None
+    corners = np.asarray(features.corners_px, float).ravel()
+    if not np.all(np.isfinite(corners)):
+        return None
+    ball = None if features.ball_px is None else np.asarray(features.ball_px, float)[:3]
+    if ball is None or not np.all(np.isfinite(ball)):  # no ball detection: the tilt's alone
+        return corners
+    return np.concatenate([corners, ball])

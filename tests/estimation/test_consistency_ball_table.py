@@ -1,0 +1,179 @@
+"""BallTable's estimating observers say how large their error is (issue 23): median
+episode NEES/dof within [1/3, 3] under the sensor options, R x 100 outside; the noise
+rule's R against the detections' scatter; the model floors against the simulator.
+
+Cells: 3 episodes (seeds 0-2) x 150 steps, closed loop with the LQR on the observer's own
+estimate, perfect-detector measurements. Measured with this code (median of the 3):
+kf and kf-latency 0.38 at 0 px, 1.21 at 0.5 px, 1.88 at 2 px, 0.69 at 20 % drops; kf 0.91
+at a latency of 0.1 s; ekf 1.01 at 0.5 px, 2.44 at 2 px. With R x 100 at 0 px: 0.19 (kf),
+0.17 (ekf). At 0 px the estimate rests on the model floors alone and the episodes spread
+widely (ekf 0.19-4.69): their error is heavy-tailed.
+
+Cells still outside the band are marked ``xfail(strict=True)`` with their measured value,
+so that fixing them makes the test fail until the mark goes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_table.layout import CORNERS_PX
+from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.ball_table.features import (
+    RED_TOP,
+    BallTableFeatures,
+    features_from_measurement,
+)
+from observer_gym.estimation.ball_table.geometry_stage import (
+    BallTableDetector,
+    model_corners_table,
+)
+from observer_gym.estimation.ball_table.noise import (
+    PERFECT_PIXELS_BALL_STD_M,
+    BallTableNoiseRule,
+)
+from observer_gym.estimation.ball_table.observer import TILT_RATE_MODEL_STD_RADPS
+from observer_gym.estimation.ball_table.pixel_ekf import (
+    MEASUREMENT_FLOOR_PX,
+    T_world_table,
+    project,
+)
+from observer_gym.train.consistency_study import measure_consistency
+
+ENV_ID = "observer_gym/BallTable-v0"
+OBSERVERS = ("kf", "kf-latency", "ekf")
+LATENCY_AWARE = ("kf-latency", "ekf")
+EPISODES, STEPS = 3, 150
+LOW, HIGH = 1.0 / 3.0, 3.0
+CONDITIONS = {
+    "0px": {"measurement_noise_px": 0.0},
+    "0.5px": {"measurement_noise_px": 0.5},
+    "2px": {"measurement_noise_px": 2.0},
+    "drops": {"frame_drop_prob": 0.2},
+    "latency": {"latency_s": 0.1},
+}
+# Measured outside the band (median of the 3 episodes) and left open in issue 23.
+OUTSIDE = {
+    ("ekf", "0px"): "measured 0.25 (episodes 0.19, 4.69, 0.25): the heavy-tailed corner floor",
+    ("ekf", "drops"): "measured 0.25, as at 0 px",
+    ("ekf", "latency"): "measured 4.8; not yet analysed",
+    ("kf-latency", "latency"): "measured 12: the ball's x, predicted over the latency, errs "
+    "3x its claimed std; not yet analysed",
+}
+CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
+    (o, "latency") for o in ("kf", *LATENCY_AWARE)
+]
+
+
+def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
+    run = measure_consistency(
+        ENV_ID, observer, "lqr", EPISODES, STEPS, env_kwargs, observer_options=options
+    )
+    print(f"\n{observer} {env_kwargs} {options}: NEES/dof {run.nees_ratios}")
+    return run.median_nees_ratio
+
+
+@pytest.mark.parametrize(
+    ("observer", "condition"),
+    [
+        pytest.param(o, c, marks=pytest.mark.xfail(strict=True, reason=OUTSIDE[(o, c)]))
+        if (o, c) in OUTSIDE
+        else (o, c)
+        for o, c in CELLS
+    ],
+)
+def test_median_nees_per_dof_is_within_the_band(observer, condition):
+    ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
+    assert LOW <= ratio <= HIGH, ratio
+
+
+@pytest.mark.parametrize("observer", OBSERVERS)
+def test_a_hundredfold_R_fails_the_band(observer):
+    ratio = _median_nees(f"{observer}-measurements", CONDITIONS["0px"], r_scale=100.0)
+    assert ratio < LOW, ratio
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "x"])
+def test_r_scale_must_be_a_positive_number(make_env, bad):
+    env = make_env(ENV_ID, obs_mode="measurements")
+    for observer in OBSERVERS:
+        with pytest.raises(ValueError, match="r_scale"):
+            VisionObserver(env, observer=observer, r_scale=bad)
+
+
+def test_R_is_the_scatter_of_the_detections_under_pixel_noise(make_env):
+    """The rule's R = sigma^2 J J^T (the geometry stage linearised) against the scatter of
+    400 detections of one frame's pixels with Gaussian noise of 0.5 px added: R covers
+    each variance and claims at most twice it (measured: the scatter is 67-82 % of R; the
+    stage refuses 16 % of the noisy frames, its largest errors among them, because the
+    noisy radius no longer fits the ball's distance)."""
+    env = make_env(ENV_ID, obs_mode="measurements", measurement_noise_px=0.5)
+    obs, info = env.reset(seed=3)
+    for _ in range(10):
+        obs, *_, info = env.step(np.array([0.04, -0.02], np.float32))
+    frame = info["frames"][-1]
+    K, T_world_cam = np.asarray(frame["K"]), np.asarray(frame["T_world_cam"])
+    features = features_from_measurement(obs)
+    detector = BallTableDetector()
+    rule = BallTableNoiseRule(env.unwrapped.sensor_spec, False, detector, (0.0, 0.0), 0.0)
+    R_tilt, R_ball = rule.detection_R(features, K, T_world_cam)
+    rng = np.random.default_rng(0)
+    found = []
+    for _ in range(400):
+        corners = features.corners_px + rng.normal(0.0, 0.5, (4, 2))
+        ball = features.ball_px + rng.normal(0.0, 0.5, 3)
+        noisy = BallTableFeatures(corners, ball, RED_TOP, source="measurement")
+        detection = detector.detect(noisy, K, T_world_cam)
+        if detection.table_found and detection.ball_found:
+            found.append(np.concatenate([detection.tilt_rad, detection.ball_pos_table_m]))
+    found = np.array(found)
+    assert len(found) > 300  # the stage refuses some (a ball size that does not fit)
+    scatter = np.var(found, axis=0)
+    predicted = np.concatenate([np.diag(R_tilt), np.diag(R_ball)])
+    ratio = scatter / predicted
+    print(f"\nscatter / R: {ratio}")
+    assert np.all((ratio > 0.5) & (ratio < 1.1)), ratio
+
+
+def test_the_model_floors_cover_the_sim(make_env):
+    """What the models leave out, measured on perfect pixels (0 px) over 3 episodes of the
+    LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error, the tilt
+    rate's departure from the lag model, and the table corners' departure from a table
+    held at its home centre (ekf). Each RMS at most 25 % above its floor, and each floor
+    at most 3x its RMS (measured RMS: 0.015 mm, 7-9 mrad/s, 0.052 px)."""
+    state_env = make_env(ENV_ID, obs_mode="state")
+    env = make_env(ENV_ID, obs_mode="measurements", push_rate_hz=0.5)
+    pipeline = VisionObserver(env, observer="kf").pipeline
+    controller = make_controller("lqr", state_env)
+    tau_s = pipeline.tilt_model.tau_s
+    detector = BallTableDetector()
+    corners_table = model_corners_table(RED_TOP)
+    ball_err, rate_err, corner_err = [], [], []
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        for _ in range(200):
+            action, _ = controller.predict(np.asarray(info["state"], np.float32))
+            obs, _, terminated, truncated, info = env.step(action)
+            x = info["state"]
+            rate_err.append(x[6:8] - (np.asarray(info["applied_action"]) - x[4:6]) / tau_s)
+            if info["frames"]:
+                frame = info["frames"][-1]
+                K, T_world_cam = np.asarray(frame["K"]), np.asarray(frame["T_world_cam"])
+                detection = detector.detect(features_from_measurement(obs), K, T_world_cam)
+                if detection.ball_found:
+                    ball_err.append(detection.ball_pos_table_m - x[:2])
+                T = T_world_table(x[4:6])
+                held, _ = project(K, T_world_cam, corners_table @ T[:3, :3].T + T[:3, 3])
+                corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - held)
+            if terminated or truncated:
+                break
+    for errors, floor in [
+        (ball_err, PERFECT_PIXELS_BALL_STD_M),
+        (rate_err, TILT_RATE_MODEL_STD_RADPS),
+        (corner_err, MEASUREMENT_FLOOR_PX),
+    ]:
+        rms = float(np.sqrt(np.mean(np.square(errors))))
+        print(f"\nRMS {rms:.3g}, floor {floor:.3g}")
+        assert rms <= 1.25 * floor and floor <= 3.0 * rms
