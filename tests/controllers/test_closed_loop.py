@@ -21,7 +21,8 @@ START_DISTANCE_M = 0.10
 BAND_M = 0.01
 SECONDS = 4.0
 SETTLING_BOUND_S = 1.2  # measured 0.7-0.8 s over these seeds
-FINAL_BOUND_M = 0.002  # the last second's largest distance; measured < 1 mm
+FINAL_BOUND_M = 0.004  # the last second's largest distance; measured 0.5-2.5 mm (under 1 mm
+# with the hand-tuned Q before the noise rule: it trusted the rolling model 5x more)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
