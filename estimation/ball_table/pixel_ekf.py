@@ -349,13 +349,13 @@ class PixelEKF:
         return mean
 
     def covariance(self) -> np.ndarray:
-        P, tau = self.ekf.P, self.tilt_model.tau_s
+        P, g = self.ekf.P, self.tilt_model.rate_gain_per_s
         cov = np.zeros((STATE_DIM, STATE_DIM))
         cov[0:4, 0:4] = P[0:4, 0:4]
-        tilt_covariance_blocks(cov, P[TILT, TILT], tau)
-        # cov(ball, rate) = -cov(ball, theta) / tau: rate = (u - theta) / tau, u known
+        tilt_covariance_blocks(cov, P[TILT, TILT], g)
+        # cov(ball, rate) = -g cov(ball, theta): rate = g (u - theta), u known
         cov[0:4, 4:6] = P[0:4, TILT]
-        cov[0:4, 6:8] = -P[0:4, TILT] / tau
+        cov[0:4, 6:8] = -g * P[0:4, TILT]
         cov[4:8, 0:4] = cov[0:4, 4:8].T
         return cov
 
