@@ -95,4 +95,10 @@ class FusedObserver:
             used = measurement is not None and self.core.update(measurement)
         nis = measurement.nis if measurement is not None else None
         dof = measurement.nis_dof if measurement is not None else 0
-        return Estimate(self.core.mean(), self.core.covariance(), used, raw, time_s, nis, dof)
+        covariance = self._reported(self.core.covariance())
+        return Estimate(self.core.mean(), covariance, used, raw, time_s, nis, dof)
+
+    def _reported(self, covariance: np.ndarray) -> np.ndarray:
+        """The covariance the observer reports for its core's ``covariance`` (a subclass
+        adds what its filters do not hold, e.g. the calibration's offset)."""
+        return covariance

@@ -31,6 +31,13 @@ It fuses at capture time: no timing term.
 
 Every R is the rule's times ``r_scale`` (1; sensitivity studies).
 
+**Calibration**: the declared calibration uncertainty through the geometry stage
+(estimation/calibration.py: the stage run with the camera moved along each calibration
+parameter) gives the covariance of the constant offset it puts on the tilt and the ball's
+position (and, through the observers' rate g (u - tilt), on the tilt rate); both
+observers add it to the covariance they report (:meth:`reported`), not to R (no
+innovation sees a constant offset).
+
 **Q** (:func:`ball_process_params`, the rolling-ball model's w1 and w2), from the
 disturbance model (envs/ball_table/disturbances.py) and what the model leaves out:
 
@@ -57,6 +64,7 @@ from observer_gym.envs.sensor import SensorSpec
 from observer_gym.estimation.ball_table.features import RED_TOP, BallTableFeatures
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
 from observer_gym.estimation.ball_table.models import ROLLING_ACCEL_FACTOR, RollingBallParams
+from observer_gym.estimation.calibration import calibration_covariance, calibration_variances
 from observer_gym.estimation.r_scale import checked_r_scale
 
 __all__ = [
@@ -145,9 +153,65 @@ class BallTableNoiseRule:
         )
         self._linearised: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.jacobians_taken = 0
+        self._calibration_variances = calibration_variances(sensor)
+        # the declared calibration's covariance of (tilt, ball), and the pixels it was
+        # taken at
+        self._calibrated: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._linearised = None
+        self._calibrated = None
+
+    # --- the calibration's offset (reported, not in R) ---------------------------------
+    def calibration_cov(
+        self, features: BallTableFeatures, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> np.ndarray | None:
+        """The declared calibration uncertainty's covariance (4, 4) of (tilt, ball position)
+        at these features (estimation/calibration.py), None without calibration error
+        or a table and ball; kept while no pixel moves more than ``JACOBIAN_REUSE_PX``."""
+        if not self._calibration_variances:
+            return None
+        pixels = _measured_pixels(features)
+        if pixels is None or pixels.size != 11:
+            return None if self._calibrated is None else self._calibrated[1]
+        cached = self._calibrated
+        if (
+            cached is not None
+            and cached[0].size == pixels.size
+            and np.all(np.abs(pixels - cached[0]) <= JACOBIAN_REUSE_PX)
+        ):
+            return cached[1]
+
+        def detected(K_: np.ndarray, T_: np.ndarray) -> np.ndarray | None:
+            detection = self.detector.detect(features, K_, T_)
+            if not (detection.table_found and detection.ball_found):
+                return None
+            return np.concatenate([detection.tilt_rad, detection.ball_pos_table_m])
+
+        sigma = calibration_covariance(detected, K, T_world_cam, self._calibration_variances)
+        if sigma is None:
+            return None if cached is None else cached[1]
+        self._calibrated = (pixels, sigma)
+        return sigma
+
+    def reported(
+        self, cov: np.ndarray, calibration: np.ndarray | None, rate_gain_per_s: float
+    ) -> np.ndarray:
+        """The covariance an observer reports (the env's state layout, a new array): its
+        filters' ``cov`` plus the calibration's offset d = (d_tilt, d_ball), which no
+        innovation sees, on the ball's position (0:2), the tilt (4:6) and the tilt rate
+        (6:8), which the observers compute as g (u - tilt): an offset d_tilt on the tilt
+        is -g d_tilt on the rate. Added: A Sigma A^T with the rows of A mapping d to
+        those entries."""
+        if calibration is None:
+            return cov
+        A = np.zeros((cov.shape[0], 4))
+        A[4:6, 0:2] = np.eye(2)  # tilt += d_tilt
+        A[6:8, 0:2] = -rate_gain_per_s * np.eye(2)  # rate += -g d_tilt
+        A[0:2, 2:4] = np.eye(2)  # ball position += d_ball
+        out = np.array(cov, dtype=float) + A.dot(calibration).dot(A.T)
+        out.flags.writeable = False
+        return out
 
     # --- kf: tilt and ball -------------------------------------------------------------
     def detection_R(

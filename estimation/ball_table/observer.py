@@ -364,6 +364,10 @@ class BallTableObserver(FusedObserver):
     def reset(self) -> None:
         super().reset()
         self.noise.reset()
+        self._calibration: np.ndarray | None = None
+
+    def _reported(self, covariance: np.ndarray) -> np.ndarray:
+        return self.noise.reported(covariance, self._calibration, self.tilt_model.rate_gain_per_s)
 
     @property
     def detector(self) -> BallTableDetector:
@@ -383,6 +387,7 @@ class BallTableObserver(FusedObserver):
         detection = self.reader.detector.detect(features, K, T_world_cam)
         tilt, ball = detected_parts(detection)
         tilt_R, ball_R = self.noise.detection_R(features, K, T_world_cam)
+        self._calibration = self.noise.calibration_cov(features, K, T_world_cam)
         return detection, Fused(TiltBallDetection(tilt, ball, tilt_R, ball_R))
 
     def _start(self, time_s: float, measurement: Fused | None) -> tuple[TiltBallFilters, bool]:
