@@ -14,6 +14,7 @@ from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
+from observer_gym.estimation.ball_catcher.pixel_ekf import BallCatcherPixelEKF
 
 ENV_ID = "observer_gym/BallCatcher-v0"
 
@@ -66,8 +67,46 @@ def test_detector_finds_the_ball_centre_to_a_tenth_of_a_pixel():
     errors = np.array(errors)
     assert len(errors) > 150 and missed <= 0.02 * len(errors)
     rmse_px = np.sqrt(np.mean(errors**2, axis=0))
-    assert np.all(rmse_px < 0.15), rmse_px  # measured 0.09 px
+    assert np.all(rmse_px < 0.15), rmse_px  # measured 0.095 px (0.09 without the smoothing)
     assert np.abs(errors).max() < 0.5
+
+
+def test_detector_rarely_takes_noise_for_the_ball_at_the_heaviest_image_noise():
+    """image_noise_std=64 (the env's maximum), 4 flights, frames with the ball wholly in
+    view: detections more than 3 px from the projected centre are false (a blob of noise
+    pixels that pass the colour test, mostly on the grey box, larger than the far ball).
+    Measured: 4 of 159 false, 2 missed, the others 0.15 / 0.19 px RMS (u / v), within the
+    0.2 px the filters assume; without the smoothing 34 of 159 false and 0.24 / 0.32 px."""
+    env = gym.make(ENV_ID, obs_mode="rgb", image_noise_std=64.0)
+    detector = BallCatcherDetector()
+    errors, false, missed, in_view = [], 0, 0, 0
+    try:
+        for first, infos in flights(env.unwrapped, range(4)):
+            throw = first["throw"]
+            for info in infos:
+                for frame in info["frames"]:
+                    t = frame["capture_time_s"]
+                    if t > throw["crossing_time_s"] - 0.03:
+                        continue
+                    uv, _ = project_points(
+                        frame["K"], frame["T_world_cam"], parabola(throw, t)[None]
+                    )
+                    if not (5 < uv[0, 0] < 315 and 5 < uv[0, 1] < 235):
+                        continue
+                    in_view += 1
+                    found = detector.detect(frame["image"])
+                    if found is None:
+                        missed += 1
+                    elif np.linalg.norm(found - uv[0]) > 3.0:
+                        false += 1
+                    else:
+                        errors.append(found - uv[0])
+    finally:
+        env.close()
+    assert in_view > 150 and missed <= 0.03 * in_view, (in_view, missed)
+    assert false <= 0.05 * in_view, false
+    rmse_px = np.sqrt(np.mean(np.array(errors) ** 2, axis=0))
+    assert np.all(rmse_px < 0.25), rmse_px
 
 
 def test_detector_reports_nothing_for_an_empty_or_cut_ball():
@@ -164,7 +203,8 @@ def corrupted_flight(env, pipeline, seed, corrupt, steps=60):
     return throw, burst_end_s, rows
 
 
-def test_estimate_recovers_after_a_burst_of_false_detections():
+@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, BallCatcherPixelEKF])
+def test_estimate_recovers_after_a_burst_of_false_detections(pipeline_class):
     """20 frames (0.2 s) in mid-flight report a uniform random pixel instead of the ball.
     Before re-acquisition the filter accepted some, then gated out every good frame for
     the rest of the flight (errors of 0.2-12 m with a covariance of millimetres).
@@ -174,9 +214,12 @@ def test_estimate_recovers_after_a_burst_of_false_detections():
     detection costs at most 3 more; 3 good frames from both cameras fix the position to
     ~0.5 px x 3 m / 208 px ~ 7 mm per viewline. So 0.1 s (10 frames) after the burst the
     error is back at the millimetre level of a clean flight: below 5 cm (measured: at most
-    ~8 mm), and from then until the crossing the NEES is that of a consistent filter."""
+    ~8 mm), and from then until the crossing the NEES is that of a consistent filter.
+    The same bounds for the ekf, which restarts in the same way (measured over these 8
+    flights: at most 6.8 / 7.1 mm, median 3.7 / 4.5 mm, mean NEES 3.4 / 4.7, 5-6 / 5-8
+    restarts per flight for kf / ekf)."""
     env = gym.make(ENV_ID, obs_mode="measurements").unwrapped
-    pipeline = BallCatcherObserver(env)
+    pipeline = pipeline_class(env)
     rng = np.random.default_rng(0)
 
     def noise(n, frame):
@@ -238,17 +281,19 @@ def test_estimate_recovers_after_false_green_blobs_in_rendered_frames():
     assert restarts >= 1
 
 
+@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, BallCatcherPixelEKF])
 @pytest.mark.parametrize("preset", ["alternating", "synchronised", "random_offsets", "single"])
-def test_no_restart_on_clean_flights(preset):
+def test_no_restart_on_clean_flights(preset, pipeline_class):
     """Without false detections the re-acquisition never fires before the crossing."""
     env = gym.make(ENV_ID, obs_mode="measurements", camera_preset=preset).unwrapped
-    pipeline = BallCatcherObserver(env)
+    pipeline = pipeline_class(env)
     try:
         for seed in range(8):
             throw, _, rows = corrupted_flight(env, pipeline, seed, lambda n, f: f, steps=40)
             assert rows[-1][0] < throw["crossing_time_s"]
             assert pipeline.reacquisitions == 0
-            assert pipeline.filter.restart_count == 0
+            if pipeline_class is BallCatcherObserver:
+                assert pipeline.filter.restart_count == 0
     finally:
         env.close()
 
