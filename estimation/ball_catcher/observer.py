@@ -103,13 +103,39 @@ DEFAULT_REACQUIRE_AFTER = 3  # consecutive gate rejections that restart the filt
 def default_pixel_std_px(env: BallCatcherEnv, r_scale: float = 1.0) -> float:
     """The pixel noise the BallCatcher filters assume (their noise rule): in measurements
     mode the declared noise, ``env.sensor_spec.measurement_noise_std_px`` (with its float32
-    floor); RGB_PIXEL_STD_PX for the rgb detector; R = std^2 I times ``r_scale``."""
+    floor); RGB_PIXEL_STD_PX for the rgb detector; plus the declared calibration
+    uncertainty as pixel variance (:func:`calibration_pixel_var_px2`); R = std^2 I times
+    ``r_scale``."""
     r_scale = checked_r_scale(r_scale)
     if env.config.obs_mode == "rgb":
         std = RGB_PIXEL_STD_PX
     else:
         std = env.sensor_spec.measurement_noise_std_px
-    return std * math.sqrt(r_scale)
+    variance = std**2 + calibration_pixel_var_px2(env)
+    return math.sqrt(variance * r_scale)
+
+
+def calibration_pixel_var_px2(env: BallCatcherEnv) -> float:
+    """The declared calibration uncertainty (``env.sensor_spec``) as a variance per pixel
+    axis (px^2), at the image's corner (its largest): a rotation of s rad about a uniform
+    direction moves a pixel by f s about the camera's x and y axes and by r s about its
+    optical axis (r: the distance from the principal point, at most the half-diagonal),
+    per-axis variance (f^2 + r^2) s^2 / 3; a focal scale error e_f moves it by e_f r;
+    a principal-point offset of p px, p^2 / 2 per axis. Each camera's error is one
+    constant offset per episode, which the filters take as white noise in R: the
+    viewline filter's rows from several cameras then see it, as a triangulation would.
+    Translation errors are not in it (their pixel shift depends on the ball's depth)."""
+    sensor = env.sensor_spec
+    intrinsics = env.camera_intrinsics()[0]
+    f = intrinsics.fx_px
+    r = 0.5 * math.hypot(intrinsics.width_px, intrinsics.height_px)
+    s = math.radians(sensor.calib_rotation_error_deg)
+    # (f^2 + r^2) s^2 / 3 + (e_f r)^2 + p^2 / 2
+    return (
+        (f * f + r * r) * s * s / 3.0
+        + (sensor.calib_focal_error * r) ** 2
+        + sensor.calib_principal_point_error_px**2 / 2.0
+    )
 
 
 def checked_reacquire_after(reacquire_after: Any, owner: str) -> int:
