@@ -36,6 +36,7 @@ import numpy as np
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.estimation.ball_table.ball_image import CUT, ball_circle
 from observer_gym.estimation.ball_table.corners import (
+    BORDER_PROBE_PX,
     check_corners,
     coarse_corners,
     find_corners,
@@ -71,6 +72,7 @@ from observer_gym.estimation.ball_table.region import (
     rect_inside,
     trackable,
 )
+from observer_gym.estimation.ball_table.scale import image_scale
 from observer_gym.estimation.ball_table.tracker import TRACK_INSIDE_PX, tracked_boxes
 
 REPORT_MS = 2.9  # docs/spec/table_ball.md, "Results to beat" (detection + filter, i7-8750H)
@@ -180,16 +182,16 @@ def staged_region(
         corners, failure = refine_corners(red_contour, quad, ball_px)
     watch.lap("red top: refinement")
     axes = image_axes(K, T_world_cam)
+    probe_px = BORDER_PROBE_PX * image_scale(K)
     if corners is not None:
-        corners, failure = check_corners(corners, red_hls, red_offset, ball_px, axes, RED_TOP)
+        corners, failure = check_corners(corners, rgb, ball_px, axes, RED_TOP, probe_px)
     red_top = (corners, failure)
     watch.lap("red top: order+border check")
     if corners is not None:
         outline = outline_beside_red_top(outline_contour, corners, image_size, ball_px)
     else:
-        hls = to_hls(blurred) if hls is None else hls
         outline = find_corners(
-            BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
+            BORDER_OUTLINE, outline_contour, image_size, ball_px, rgb, axes, probe_px
         )
     features = assemble_features({RED_TOP: red_top, BORDER_OUTLINE: outline}, ball_px, ball_failure)
     watch.lap("border outline")

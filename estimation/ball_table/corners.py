@@ -6,9 +6,11 @@ dropped, the 4 longest segments intersected (:func:`coarse_corners`; Bezier para
 measured from each segment's midpoint); each side's line fitted to its outline pixels and
 moved out by the half-pixel bias of boundary pixel centres (:func:`refine_corners`); the
 corners named (:func:`order_corners`) and a black border confirmed along every side
-(:func:`borders_confirmed`). The renderer does not anti-alias, so a nearly horizontal side
-is only known to ~0.3 px whatever one does: corner RMSE 0.24 px, almost all of it in v
-(tests/estimation/test_ball_table_detector.py, 155 rendered 320x240 frames).
+(:func:`borders_confirmed`, on the raw frame). The renderer does not anti-alias, so a
+nearly horizontal side is only known to ~0.3 px whatever one does: corner RMSE 0.24 px,
+almost all of it in v (tests/estimation/test_ball_table_detector.py, 155 rendered 320x240
+frames; at 84 x 84, 0.12 px in u and 0.35 px in v:
+tests/estimation/test_ball_table_small_frames.py).
 
 Beside the red top's corners, the borders' outline takes a cheaper path
 (:func:`outline_beside_red_top`): its sides are cut where it reaches farthest toward each
@@ -26,8 +28,14 @@ import numpy as np
 from observer_gym.estimation.ball_table.features import RED_TOP
 from observer_gym.estimation.ball_table.masks import touches_image_edge
 
-BORDER_PROBE_MAX_L = 59  # a border pixel next to a side: darker than any red-top pixel
+# A border pixel next to a side: its lightness (max + min) / 2 on the raw frame below this,
+# darker than any red-top pixel (black ~10, red top 107, grey occluder 82 and 113).
+BORDER_PROBE_MAX_L = 59
 APPROX_EPSILON_FRACTION = 0.01  # approxPolyDP tolerance, of the image width (step 2)
+# ... but at least this: a digital straight side's hull strays up to 1 px from the side's
+# line, and the mask's clean-up rounds the corners by about a pixel more. Below 200 px of
+# width, 1 % is less (0.84 px at 84 px), and a side came out as two segments.
+APPROX_EPSILON_MIN_PX = 2.0
 BEZIER_PRODUCT_MAX = 1.5  # |t_a| |t_b| bound for a valid corner (step 4)
 BALL_HULL_MARGIN_PX = 0.5  # hull points within rho + this of the ball are dropped (step 3)
 BALL_EDGE_MARGIN_PX = 2.0  # the refinement ignores outline pixels within rho + this
@@ -35,10 +43,17 @@ SIDE_END_MARGIN_PX = 3  # the refinement leaves out this many pixels at each end
 MIN_SIDE_POINTS = 6
 # Outline corner to red-top corner, of the red top's side: the borders' corner is 1.4 cm
 # (w sqrt 2) out in the table plane plus their 3 cm height's parallax; measured 0.105-0.150
-# on rendered frames (fixed camera, head motion up to 15 deg).
+# on rendered frames (fixed camera, head motion up to 15 deg). The outline's corner is one
+# of its pixels, and the red top's corner is known to a fraction of one: the range is
+# widened by OUTLINE_CORNER_SLACK_PX at either end, which matters when the side is short
+# (at 84 x 84 px, a 30 px side: offsets measured 1.34-3.57 px, 0.044-0.117 of the side).
 OUTLINE_CORNER_OFFSET_RANGE = (0.05, 0.3)
+OUTLINE_CORNER_SLACK_PX = 1.0
 BORDER_PROBES = (0.2, 0.35, 0.5, 0.65, 0.8)  # where the border check looks along each side
-BORDER_PROBE_PX = 2.0  # how far outside (red top) or inside (outline) a side it looks
+# How far outside (red top) or inside (outline) a side it looks, at the spec's 320x240
+# (focal length 160 px): half the borders' image width there (~4 px); the image stage
+# scales it with the focal length (scale.image_scale: 0.525 px at 84 x 84).
+BORDER_PROBE_PX = 2.0
 BORDER_MIN_DARK_FRACTION = 0.75
 
 
@@ -54,10 +69,10 @@ def coarse_corners(
     contour: np.ndarray | None, image_size: tuple[int, int], ball_px: np.ndarray | None
 ) -> tuple[CoarseQuad | None, str | None]:
     """Table steps 2-4 on an outline: convexHull, approxPolyDP (epsilon 1 % of the image
-    width), hull points near the ball dropped, the 4 longest segments, their lines
-    intersected. Returns the quadrilateral, or (None, reason): no outline, an outline
-    touching the image's edge (clipped), or not exactly the 4 intersections of neighbouring
-    segments valid corners.
+    width, at least APPROX_EPSILON_MIN_PX), hull points near the ball dropped, the 4
+    longest segments, their lines intersected. Returns the quadrilateral, or (None,
+    reason): no outline, an outline touching the image's edge (clipped), or not exactly the
+    4 intersections of neighbouring segments valid corners.
 
     The Bezier parameters are measured from each segment's midpoint in half-lengths
     (t = 2 s - 1 for the Bezier parameter s in [0, 1]), so a segment's ends are |t| = 1 and
@@ -71,7 +86,8 @@ def coarse_corners(
     hull = contour[hull_index].reshape(-1, 2)
     if touches_image_edge(cv2.boundingRect(hull), image_size):  # its extremes are the hull's
         return None, "clipped"
-    poly = cv2.approxPolyDP(hull, APPROX_EPSILON_FRACTION * image_size[0], True)
+    epsilon = max(APPROX_EPSILON_FRACTION * image_size[0], APPROX_EPSILON_MIN_PX)
+    poly = cv2.approxPolyDP(hull, epsilon, True)
     # Each vertex with its index in the contour, through its hull point.
     index_of = {(x, y): i for (x, y), i in zip(hull.tolist(), hull_index.tolist(), strict=True)}
     vertices = [(x, y, index_of[x, y]) for x, y in poly.reshape(-1, 2).tolist()]
@@ -230,25 +246,26 @@ _QUADRANT_SLOT = {(True, True): 0, (False, True): 1, (False, False): 2, (True, F
 
 def borders_confirmed(
     corners: list[tuple[float, float]],
-    hls: np.ndarray,
-    offset: tuple[int, int],
+    rgb: np.ndarray,
     ball_px: np.ndarray | None,
     outside: bool,
+    probe_px: float = BORDER_PROBE_PX,
 ) -> bool:
-    """Whether a black border runs along every side: just outside each side of the red top
-    (``outside=True``) or just inside each side of the outer outline. A side made by
-    something else (the occluder's edge, the image's edge, paint) fails. (Plain Python:
-    a few dozen probes.)"""
-    height, width = hls.shape[:2]
-    pixel = hls.item  # (row, column, 1): the lightness, as a Python int
-    ox, oy = offset
+    """Whether a black border runs along every side: ``probe_px`` just outside each side
+    of the red top (``outside=True``) or just inside each side of the outer outline. A side
+    made by something else (the occluder's edge, the image's edge, paint) fails. The probes
+    read the raw frame ``rgb`` (full size), whose pixels are the renderer's flat colours:
+    a border one pixel wide (84 x 84 frames) is black there, where the blur has mixed it
+    with its neighbours. (Plain Python: a few dozen probes.)"""
+    height, width = rgb.shape[:2]
+    pixel = rgb.item  # (row, column, channel), as a Python int
     cu = 0.25 * (corners[0][0] + corners[1][0] + corners[2][0] + corners[3][0])
     cv = 0.25 * (corners[0][1] + corners[1][1] + corners[2][1] + corners[3][1])
-    shift = BORDER_PROBE_PX if outside else -BORDER_PROBE_PX
+    shift = probe_px if outside else -probe_px
     bu, bv, reach2 = 0.0, 0.0, -1.0  # probes within reach of the ball's centre are skipped
     if ball_px is not None:
         bu, bv, rho = ball_px.tolist()
-        reach2 = (rho + BORDER_PROBE_PX) ** 2
+        reach2 = (rho + probe_px) ** 2
     for k in range(4):
         (x0, y0), (x1, y1) = corners[k], corners[k - 3]
         dx, dy = x1 - x0, y1 - y0
@@ -262,10 +279,11 @@ def borders_confirmed(
             x, y = sx + f * dx, sy + f * dy
             if (x - bu) ** 2 + (y - bv) ** 2 <= reach2:
                 continue
-            i, j = round(x) - ox, round(y) - oy
+            i, j = round(x), round(y)
             if 0 <= i < width and 0 <= j < height:
                 used += 1
-                if pixel(j, i, 1) < BORDER_PROBE_MAX_L:
+                r, g, b = pixel(j, i, 0), pixel(j, i, 1), pixel(j, i, 2)
+                if max(r, g, b) + min(r, g, b) < 2 * BORDER_PROBE_MAX_L:  # HLS lightness
                     dark += 1
         if used < 3 or dark < BORDER_MIN_DARK_FRACTION * used:
             return False
@@ -274,18 +292,19 @@ def borders_confirmed(
 
 def check_corners(
     corners: list[tuple[float, float]],
-    hls: np.ndarray,
-    offset: tuple[int, int],
+    rgb: np.ndarray,
     ball_px: np.ndarray | None,
     axes: list[list[float]],
     model: str,
+    probe_px: float = BORDER_PROBE_PX,
 ) -> tuple[np.ndarray | None, str | None]:
     """Refined corners of ``model`` named (table step 5's ordering) and their borders
-    confirmed, as a (4, 2) array, or (None, reason)."""
+    confirmed (:func:`borders_confirmed` on the raw frame ``rgb``, ``probe_px`` from each
+    side), as a (4, 2) array, or (None, reason)."""
     ordered = order_corners(corners, axes)
     if ordered is None:
         return None, "ordering"
-    if not borders_confirmed(ordered, hls, offset, ball_px, outside=model == RED_TOP):
+    if not borders_confirmed(ordered, rgb, ball_px, model == RED_TOP, probe_px):
         return None, "borders"
     return np.array(ordered), None
 
@@ -295,9 +314,9 @@ def find_corners(
     contour: np.ndarray | None,
     image_size: tuple[int, int],
     ball_px: np.ndarray | None,
-    hls: np.ndarray,
-    offset: tuple[int, int],
+    rgb: np.ndarray,
     axes: list[list[float]],
+    probe_px: float = BORDER_PROBE_PX,
 ) -> tuple[np.ndarray | None, str | None]:
     """Table steps 2-5 (up to PnP) on one outline: its named corners, or (None, reason)."""
     quad, failure = coarse_corners(contour, image_size, ball_px)
@@ -306,7 +325,7 @@ def find_corners(
     corners, failure = refine_corners(contour, quad, ball_px)
     if corners is None:
         return None, failure
-    return check_corners(corners, hls, offset, ball_px, axes, model)
+    return check_corners(corners, rgb, ball_px, axes, model, probe_px)
 
 
 def outline_beside_red_top(
@@ -321,12 +340,12 @@ def outline_beside_red_top(
     Outline corner k is the outline's farthest pixel from the red top's centre in the
     direction of red corner k (the borders run parallel to the red top's sides, a few
     pixels out), which names it; it must lie OUTLINE_CORNER_OFFSET_RANGE of the red top's
-    side from red corner k. Those 4 pixels cut the outline into its sides, which are
-    refined like the red top's (:func:`refine_corners`). No border probes here: the joint
-    pose checks all 8 corners against each other (``BallTableDetector.table_pose``), and a
-    side made by anything but the borders puts its two corners off by more than that
-    allows; on the occluder and head-motion frames of the tests the same frames are found
-    with or without them.
+    side (+- OUTLINE_CORNER_SLACK_PX) from red corner k. Those 4 pixels cut the outline
+    into its sides, which are refined like the red top's (:func:`refine_corners`). No
+    border probes here: the joint pose checks all 8 corners against each other
+    (``BallTableDetector.table_pose``), and a side made by anything but the borders puts
+    its two corners off by more than that allows; on the occluder and head-motion frames of
+    the tests the same frames are found with or without them.
     """
     if contour is None:
         return None, "no_blob"
@@ -342,7 +361,9 @@ def outline_beside_red_top(
     dist = math.dist
     r0, r1, r2, r3 = red
     side = 0.25 * (dist(r3, r0) + dist(r0, r1) + dist(r1, r2) + dist(r2, r3))
-    low, high = OUTLINE_CORNER_OFFSET_RANGE[0] * side, OUTLINE_CORNER_OFFSET_RANGE[1] * side
+    slack = OUTLINE_CORNER_SLACK_PX
+    low = OUTLINE_CORNER_OFFSET_RANGE[0] * side - slack
+    high = OUTLINE_CORNER_OFFSET_RANGE[1] * side + slack
     c0, c1, c2, c3 = coarse
     if not (
         low <= dist(r0, c0) <= high

@@ -10,6 +10,13 @@ finds the region of interest by the coarse look
 works in a given one, which is how
 :class:`~observer_gym.estimation.ball_table.tracker.TableTracker` reuses the previous
 frame's. The steps themselves live in masks.py, ball_image.py and corners.py.
+
+Frames smaller than the spec's 320x240 (a shorter focal length: the policy's 84 x 84 is
+42 px) see the same scene smaller: the border probes' distance, a size in the scene,
+shrinks with the focal length (scale.py); the pixel constants that stand for the pixel grid
+itself (blur, clean-up, the refinement's margins) do not; approxPolyDP's tolerance has a
+floor and the outline's corner offsets a slack of about a pixel (corners.py), and a square
+too small to pin the tilt on its own gives no pose (geometry_stage.py).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import numpy as np
 
 from observer_gym.estimation.ball_table.ball_image import CUT, ball_circle
 from observer_gym.estimation.ball_table.corners import (
+    BORDER_PROBE_PX,
     find_corners,
     image_axes,
     outline_beside_red_top,
@@ -34,6 +42,7 @@ from observer_gym.estimation.ball_table.masks import (
     to_hls,
 )
 from observer_gym.estimation.ball_table.region import Located, locate, rect_inside, trackable
+from observer_gym.estimation.ball_table.scale import image_scale
 
 
 def extract_features(rgb: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> BallTableFeatures:
@@ -65,8 +74,10 @@ def features_in_region(
 ) -> RegionFeatures | None:
     """The image stage in ``located``'s region of interest (the whole frame when it has
     none) and ball window; HLS and the red mask only in its ``red_top`` box, if given
-    (else in the whole region; the ball's and the outline's fallbacks convert the whole
-    region when they need it).
+    (else in the whole region; the ball's fallback converts the whole region when it needs
+    it). The border probes read the raw frame, BORDER_PROBE_PX times the frame's
+    :func:`~observer_gym.estimation.ball_table.scale.image_scale` from each side: half the
+    borders' image width at every focal length up to the spec's camera's.
 
     With ``inside_px`` (regions tracked from the previous frame, :class:`TableTracker`):
     None, unless the outline of red top + borders and the red top's own outline each lie
@@ -74,9 +85,9 @@ def features_in_region(
     found (a flagged frame is left to the full search). The regions then hold the table
     with at least the room around it that the coarse look's region leaves (ROI_MARGIN_PX
     less a coarse pixel's reach): the masks the outlines rest on are computed from true
-    neighbours (3x3 blur; the open/close only ever meets non-red pixels there), the border
-    probes (BORDER_PROBE_PX outside the red top) fall inside the red top's box, and the
-    features are the full search's.
+    neighbours (3x3 blur; the open/close only ever meets non-red pixels there), and the
+    features are the full search's (the border probes read the whole raw frame either
+    way).
     """
     height, width = rgb.shape[:2]
     image_size = (width, height)
@@ -105,13 +116,13 @@ def features_in_region(
         hls = to_hls(blurred)
         ball_px, ball_failure = ball_circle(rgb, None, hls, offset)
     axes = image_axes(K, T_world_cam)
-    red = find_corners(RED_TOP, red_contour, image_size, ball_px, red_hls, red_offset, axes)
+    probe_px = BORDER_PROBE_PX * image_scale(K)
+    red = find_corners(RED_TOP, red_contour, image_size, ball_px, rgb, axes, probe_px)
     if red[0] is not None:
         outline = outline_beside_red_top(outline_contour, red[0], image_size, ball_px)
     else:
-        hls = to_hls(blurred) if hls is None else hls
         outline = find_corners(
-            BORDER_OUTLINE, outline_contour, image_size, ball_px, hls, offset, axes
+            BORDER_OUTLINE, outline_contour, image_size, ball_px, rgb, axes, probe_px
         )
     features = assemble_features({RED_TOP: red, BORDER_OUTLINE: outline}, ball_px, ball_failure)
     if inside_px is not None and not trackable(features):
