@@ -16,7 +16,7 @@ ENV_ID = "observer_gym/BallTable-v0"
 DT_S = 0.02
 # Documented bounds (measured values in the comments; `python benchmarks/quality_observer.py`).
 POS_RMSE_BOUND_M = 0.0007  # measured 0.43-0.45 mm over 20 s from rgb (seeds 0-3)
-VEL_RMSE_BOUND_MPS = 0.012  # measured 8.1 mm/s (seed 0; the noise rule's Q)
+VEL_RMSE_BOUND_MPS = 0.012  # measured 7.8-8.1 mm/s (the noise rule's Q)
 TILT_RMSE_BOUND_RAD = 0.004  # measured ~2-3 mrad
 RECOVERY_S = 0.3  # after a blind spell the position error is back under RECOVERED_ERR_M
 RECOVERED_ERR_M = 0.005
@@ -113,7 +113,7 @@ def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
     assert vel_rmse < 0.65 * raw_vel_rmse
     # Consistency: the time-averaged NEES/dof of (x, y, vx, vy) within issue 23's band
     # [1/3, 3]. R is the rgb detector's measured error and Q the noise rule's; nothing is
-    # tuned to this run (measured 1.08, seed 0).
+    # tuned to this run (measured 1.08 and 1.05, seeds 0 and 1).
     assert 1.0 / 3.0 < nees.mean() / 4.0 < 3.0, nees.mean() / 4.0
 
 
