@@ -75,8 +75,9 @@ def test_detector_rarely_takes_noise_for_the_ball_at_the_heaviest_image_noise():
     """image_noise_std=64 (the env's maximum), 4 flights, frames with the ball wholly in
     view: detections more than 3 px from the projected centre are false (a blob of noise
     pixels that pass the colour test, mostly on the grey box, larger than the far ball).
-    Measured: 4 of 159 false, 2 missed, the others 0.15 / 0.19 px RMS (u / v), within the
-    0.2 px the filters assume; without the smoothing 34 of 159 false and 0.24 / 0.32 px."""
+    Measured: 4 of 159 false, 2 missed, the others 0.15 / 0.19 px RMS (u / v), the
+    error model's end at this noise (observer.rgb_pixel_std_px); without the smoothing 34
+    of 159 false and 0.24 / 0.32 px."""
     env = gym.make(ENV_ID, obs_mode="rgb", image_noise_std=64.0)
     detector = BallCatcherDetector()
     errors, false, missed, in_view = [], 0, 0, 0
