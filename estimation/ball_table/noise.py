@@ -73,7 +73,6 @@ __all__ = [
     "PERFECT_PIXELS_TILT_STD_RAD",
     "BallTableNoiseRule",
     "ball_process_params",
-    "checked_r_scale",
 ]
 
 # The geometry stage's own error on the perfect detector's pixels (measurements mode at
@@ -152,7 +151,6 @@ class BallTableNoiseRule:
             _readonly(s * rgb_ball_std_m**2 * np.eye(2)),
         )
         self._linearised: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.jacobians_taken = 0
         self._calibration_variances = calibration_variances(sensor)
         # the declared calibration's covariance of (tilt, ball), and the pixels it was
         # taken at
@@ -250,7 +248,6 @@ class BallTableNoiseRule:
         """d(tilt, ball) / d(pixels) (4, 11), or d(tilt) / d(corners) (2, 8) without a
         ball, by central differences; None if the stage finds no table (or ball) beside
         ``pixels``."""
-        self.jacobians_taken += 1
         columns = []
         for i in range(pixels.size):
             step = np.zeros(pixels.size)

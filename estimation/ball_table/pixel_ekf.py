@@ -75,11 +75,7 @@ from observer_gym.estimation.ball_table.models import (
     RollingBallModel,
     TiltLagModel,
 )
-from observer_gym.estimation.ball_table.noise import (
-    BallTableNoiseRule,
-    ball_process_params,
-    checked_r_scale,
-)
+from observer_gym.estimation.ball_table.noise import BallTableNoiseRule, ball_process_params
 from observer_gym.estimation.ball_table.observer import (
     RGB_BALL_STD_M,
     BallTableObserverParams,
@@ -88,6 +84,7 @@ from observer_gym.estimation.ball_table.observer import (
 from observer_gym.estimation.ekf import ExtendedKalmanFilter
 from observer_gym.estimation.filter_copy import copy_filter
 from observer_gym.estimation.gating import ChiSquareGate
+from observer_gym.estimation.r_scale import checked_r_scale
 
 __all__ = ["BallTablePixelEKF", "PixelEKFParams", "PixelMeasurement", "project"]
 

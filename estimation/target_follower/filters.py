@@ -56,12 +56,12 @@ import numpy as np
 import scipy.stats
 
 from observer_gym.estimation.filters import KalmanFilter, UpdateResult
+from observer_gym.estimation.r_scale import checked_r_scale
 from observer_gym.estimation.self_tuning import SelfTuningR
 from observer_gym.estimation.target_follower.models import (
     MEASUREMENT_MATRIX,
     image_state_transition,
 )
-from observer_gym.estimation.target_follower.noise import checked_r_scale
 from observer_gym.estimation.target_follower.tracks import TrackPair, TrackRule
 
 __all__ = ["Table1Noise", "VSEParams", "VisualStateEstimator"]

@@ -102,7 +102,7 @@ from observer_gym.estimation.target_follower.detector_error import (
     load_detector_error,
 )
 
-__all__ = ["NoiseRule", "TargetMotionNoise", "checked_r_scale", "target_motion_noise"]
+__all__ = ["NoiseRule", "TargetMotionNoise", "target_motion_noise"]
 
 
 @dataclass(frozen=True)
