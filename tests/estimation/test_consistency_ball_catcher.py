@@ -15,21 +15,19 @@ Cells still outside the band are marked ``xfail(strict=True)`` with their measur
 from __future__ import annotations
 
 import pytest
-
-from observer_gym.estimation import VisionObserver
-from observer_gym.train.consistency_study import measure_consistency
+from consistency_cells import (
+    CONDITIONS,
+    HIGH,
+    LOW,
+    NOT_POSITIVE,
+    assert_r_scale_refused,
+    band_cells,
+    median_nees,
+)
 
 ENV_ID = "observer_gym/BallCatcher-v0"
 OBSERVERS = ("kf", "ekf")  # kf-latency is kf under a second name
 EPISODES = 3
-LOW, HIGH = 1.0 / 3.0, 3.0
-CONDITIONS = {
-    "0px": {"measurement_noise_px": 0.0},
-    "0.5px": {"measurement_noise_px": 0.5},
-    "2px": {"measurement_noise_px": 2.0},
-    "drops": {"frame_drop_prob": 0.2},
-    "latency": {"latency_s": 0.1},
-}
 OUTSIDE = {
     ("kf", "latency"): "measured 0.32, just below the band; not yet analysed",
 }
@@ -37,22 +35,10 @@ CELLS = [(o, c) for o in OBSERVERS for c in CONDITIONS]
 
 
 def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
-    run = measure_consistency(
-        ENV_ID, observer, "intercept", EPISODES, None, env_kwargs, observer_options=options
-    )
-    print(f"\n{observer} {env_kwargs} {options}: NEES/dof {run.nees_ratios}")
-    return run.median_nees_ratio
+    return median_nees(ENV_ID, observer, "intercept", EPISODES, None, env_kwargs, **options)
 
 
-@pytest.mark.parametrize(
-    ("observer", "condition"),
-    [
-        pytest.param(o, c, marks=pytest.mark.xfail(strict=True, reason=OUTSIDE[(o, c)]))
-        if (o, c) in OUTSIDE
-        else (o, c)
-        for o, c in CELLS
-    ],
-)
+@pytest.mark.parametrize(("observer", "condition"), band_cells(CELLS, OUTSIDE))
 def test_median_nees_per_dof_over_the_flight_is_within_the_band(observer, condition):
     ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
     assert LOW <= ratio <= HIGH, ratio
@@ -64,12 +50,9 @@ def test_a_hundredfold_R_fails_the_band(observer):
     assert ratio < LOW, ratio
 
 
-@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "x"])
+@pytest.mark.parametrize("bad", NOT_POSITIVE)
 def test_r_scale_must_be_a_positive_number(make_env, bad):
-    env = make_env(ENV_ID, obs_mode="measurements")
-    for observer in OBSERVERS:
-        with pytest.raises(ValueError, match="r_scale"):
-            VisionObserver(env, observer=observer, r_scale=bad)
+    assert_r_scale_refused(make_env(ENV_ID, obs_mode="measurements"), OBSERVERS, bad)
 
 
 @pytest.mark.parametrize("observer", OBSERVERS)

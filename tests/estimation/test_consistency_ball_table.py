@@ -21,6 +21,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from consistency_cells import (
+    CONDITIONS,
+    HIGH,
+    LOW,
+    NOT_POSITIVE,
+    assert_r_scale_refused,
+    band_cells,
+    median_nees,
+)
 
 from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table.layout import CORNERS_PX
@@ -44,20 +53,11 @@ from observer_gym.estimation.ball_table.pixel_ekf import (
     T_world_table,
     project,
 )
-from observer_gym.train.consistency_study import measure_consistency
 
 ENV_ID = "observer_gym/BallTable-v0"
 OBSERVERS = ("kf", "kf-latency", "ekf")
 LATENCY_AWARE = ("kf-latency", "ekf")
 EPISODES, STEPS = 3, 150
-LOW, HIGH = 1.0 / 3.0, 3.0
-CONDITIONS = {
-    "0px": {"measurement_noise_px": 0.0},
-    "0.5px": {"measurement_noise_px": 0.5},
-    "2px": {"measurement_noise_px": 2.0},
-    "drops": {"frame_drop_prob": 0.2},
-    "latency": {"latency_s": 0.1},
-}
 # Measured outside the band (median of the 3 episodes) and left open in issue 23.
 OUTSIDE = {
     ("kf", "0px"): "measured 0.21: Q at the model error's 99th percentile",
@@ -75,22 +75,10 @@ CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + 
 
 
 def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
-    run = measure_consistency(
-        ENV_ID, observer, "lqr", EPISODES, STEPS, env_kwargs, observer_options=options
-    )
-    print(f"\n{observer} {env_kwargs} {options}: NEES/dof {run.nees_ratios}")
-    return run.median_nees_ratio
+    return median_nees(ENV_ID, observer, "lqr", EPISODES, STEPS, env_kwargs, **options)
 
 
-@pytest.mark.parametrize(
-    ("observer", "condition"),
-    [
-        pytest.param(o, c, marks=pytest.mark.xfail(strict=True, reason=OUTSIDE[(o, c)]))
-        if (o, c) in OUTSIDE
-        else (o, c)
-        for o, c in CELLS
-    ],
-)
+@pytest.mark.parametrize(("observer", "condition"), band_cells(CELLS, OUTSIDE))
 def test_median_nees_per_dof_is_within_the_band(observer, condition):
     ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
     assert LOW <= ratio <= HIGH, ratio
@@ -102,12 +90,9 @@ def test_a_hundredfold_R_fails_the_band(observer):
     assert ratio < LOW, ratio
 
 
-@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), "x"])
+@pytest.mark.parametrize("bad", NOT_POSITIVE)
 def test_r_scale_must_be_a_positive_number(make_env, bad):
-    env = make_env(ENV_ID, obs_mode="measurements")
-    for observer in OBSERVERS:
-        with pytest.raises(ValueError, match="r_scale"):
-            VisionObserver(env, observer=observer, r_scale=bad)
+    assert_r_scale_refused(make_env(ENV_ID, obs_mode="measurements"), OBSERVERS, bad)
 
 
 def test_R_is_the_scatter_of_the_detections_under_pixel_noise(make_env):

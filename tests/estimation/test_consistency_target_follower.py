@@ -19,40 +19,34 @@ import math
 
 import numpy as np
 import pytest
+from consistency_cells import (
+    CONDITIONS,
+    HIGH,
+    LOW,
+    NOT_POSITIVE,
+    assert_r_scale_refused,
+    median_nees,
+)
 
 from observer_gym.controllers import make_controller
 from observer_gym.envs.target_follower import DETECTED, TARGET_PX, StateIndex
-from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.observer import default_pipeline
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
 from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.observer import RESTART_UPDATES
 from observer_gym.train.consistency import nees_per_step
-from observer_gym.train.consistency_study import measure_consistency
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 OBSERVERS = ("kf", "stkf", "kf-latency", "stkf-latency", "ekf")
 LATENCY_AWARE = ("kf-latency", "stkf-latency", "ekf")
 EPISODES, STEPS = 3, 150
-LOW, HIGH = 1.0 / 3.0, 3.0
-CONDITIONS = {
-    "0px": {"measurement_noise_px": 0.0},
-    "0.5px": {"measurement_noise_px": 0.5},
-    "2px": {"measurement_noise_px": 2.0},
-    "drops": {"frame_drop_prob": 0.2},
-    "latency": {"latency_s": 0.1},
-}
 CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
     (o, "latency") for o in LATENCY_AWARE
 ]
 
 
 def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
-    run = measure_consistency(
-        ENV_ID, observer, "vtc", EPISODES, STEPS, env_kwargs, observer_options=options
-    )
-    print(f"\n{observer} {env_kwargs} {options}: NEES/dof {run.nees_ratios}")
-    return run.median_nees_ratio
+    return median_nees(ENV_ID, observer, "vtc", EPISODES, STEPS, env_kwargs, **options)
 
 
 @pytest.mark.parametrize(("observer", "condition"), CELLS)
@@ -86,12 +80,9 @@ def test_from_rendered_frames_with_image_noise(observer):
     assert LOW <= ratio <= HIGH, ratio
 
 
-@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf, "x"])
+@pytest.mark.parametrize("bad", NOT_POSITIVE)
 def test_r_scale_must_be_a_positive_number(make_env, bad):
-    env = make_env(ENV_ID, obs_mode="measurements")
-    for observer in OBSERVERS:
-        with pytest.raises(ValueError, match="r_scale"):
-            VisionObserver(env, observer=observer, r_scale=bad)
+    assert_r_scale_refused(make_env(ENV_ID, obs_mode="measurements"), OBSERVERS, bad)
 
 
 def test_process_noise_covers_the_target_motion(make_env):

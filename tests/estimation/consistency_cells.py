@@ -1,0 +1,60 @@
+"""What the per-system consistency tests (tests/estimation/test_consistency_*.py) share:
+issue 23's band, the sensor conditions every estimating observer is held to, one cell's
+median episode NEES/dof, the cells still outside the band as strict expected failures,
+and the check that ``r_scale`` refuses what is no positive number."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+import pytest
+
+from observer_gym.estimation import VisionObserver
+from observer_gym.train.consistency_study import measure_consistency
+
+LOW, HIGH = 1.0 / 3.0, 3.0
+CONDITIONS = {
+    "0px": {"measurement_noise_px": 0.0},
+    "0.5px": {"measurement_noise_px": 0.5},
+    "2px": {"measurement_noise_px": 2.0},
+    "drops": {"frame_drop_prob": 0.2},
+    "latency": {"latency_s": 0.1},
+}
+NOT_POSITIVE = [0.0, -1.0, float("nan"), float("inf"), "x"]
+
+
+def median_nees(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    steps: int | None,
+    env_kwargs: Mapping,
+    **options,
+) -> float:
+    """The median episode NEES/dof of ``episodes`` closed-loop episodes (seeds 0, 1, ...),
+    printed with each episode's for ``pytest -s``."""
+    run = measure_consistency(
+        env_id, observer, controller, episodes, steps, env_kwargs, observer_options=options
+    )
+    print(f"\n{observer} {dict(env_kwargs)} {options}: NEES/dof {run.nees_ratios}")
+    return run.median_nees_ratio
+
+
+def band_cells(cells: Iterable[tuple[str, str]], outside: Mapping[tuple[str, str], str]) -> list:
+    """(observer, condition) parameters, those in ``outside`` (measured outside the band)
+    marked ``xfail(strict=True)`` with their reason: fixing one fails the test until its
+    mark goes."""
+    return [
+        pytest.param(o, c, marks=pytest.mark.xfail(strict=True, reason=outside[(o, c)]))
+        if (o, c) in outside
+        else (o, c)
+        for o, c in cells
+    ]
+
+
+def assert_r_scale_refused(env, observers: Iterable[str], bad) -> None:
+    """Every observer in ``observers`` refuses ``r_scale=bad`` with a ValueError naming it."""
+    for observer in observers:
+        with pytest.raises(ValueError, match="r_scale"):
+            VisionObserver(env, observer=observer, r_scale=bad)
