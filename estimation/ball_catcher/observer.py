@@ -151,6 +151,37 @@ def calibration_pixel_var_px2(env: BallCatcherEnv) -> float:
     )
 
 
+class RejectionRuns:
+    """Per camera, the current run of frames in a row a filter did not use (gated out):
+    the capture time of its first and its length. When one camera's run reaches
+    ``reacquire_after`` the estimate is taken as lost (not the frames wrong): the filter
+    restarts from the first frame of that run on, and every run starts anew."""
+
+    def __init__(self, reacquire_after: int) -> None:
+        self.reacquire_after = reacquire_after
+        self._runs: dict[Any, tuple[float, int]] = {}  # camera -> (first capture, count)
+
+    def used(self, camera: Any) -> None:
+        """A frame of ``camera`` was used: its run ends."""
+        self._runs.pop(camera, None)
+
+    def not_used(self, camera: Any, capture_time_s: float) -> float | None:
+        """A frame of ``camera`` captured at ``capture_time_s`` was not used: the capture
+        time to restart from when its run reached ``reacquire_after`` (every run then
+        ends), else None."""
+        first_s, count = self._runs.get(camera, (capture_time_s, 0))
+        first_s, count = min(first_s, capture_time_s), count + 1
+        if count < self.reacquire_after:
+            self._runs[camera] = (first_s, count)
+            return None
+        self._runs.clear()
+        return first_s
+
+    def oldest_start_s(self, default_s: float) -> float:
+        """The first capture time of the oldest open run, or ``default_s`` if earlier."""
+        return min([default_s] + [first_s for first_s, _ in self._runs.values()])
+
+
 def checked_reacquire_after(reacquire_after: Any, owner: str) -> int:
     """``reacquire_after`` as an int: an integer >= 1 (a Python or NumPy integer, not a
     bool), else ``ValueError`` naming ``owner``."""
@@ -228,8 +259,7 @@ class BallCatcherObserver:
             gate_p=self.gate_p,
             accel_noise_std=self.accel_noise_std,
         )
-        # per camera: (capture time of the first, count) of its current run of rejections
-        self._rejected: dict[Any, tuple[float, int]] = {}
+        self._rejected = RejectionRuns(self.reacquire_after)
         self.reacquisitions = 0
         self._nis, self._nis_dof = 0.0, 0  # this step's accepted frames' NIS and dimension
 
@@ -275,17 +305,14 @@ class BallCatcherObserver:
             return False
         camera = frame["camera_id"]
         if result.accepted:
-            self._rejected.pop(camera, None)
+            self._rejected.used(camera)
             # d^T S^-1 d of the frame's two viewline rows (a late frame's: at its capture time)
             self._nis += result.nis
             self._nis_dof += 2
             return True
-        first_s, count = self._rejected.get(camera, (t_s, 0))
-        self._rejected[camera] = (min(first_s, t_s), count + 1)
-        if count + 1 < self.reacquire_after:
+        since_s = self._rejected.not_used(camera, t_s)
+        if since_s is None:
             return False
-        since_s = self._rejected[camera][0]
-        self._rejected.clear()
         self.reacquisitions += 1
         accepted_before = kf.accepted_count
         kf.restart(self.x0, self.P0, 0.0, since_s)

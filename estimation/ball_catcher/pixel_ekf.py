@@ -78,6 +78,7 @@ from observer_gym.estimation.ball_catcher.models import BallFlight, env_drag_per
 from observer_gym.estimation.ball_catcher.observer import (
     ACCEL_NOISE_STD,
     DEFAULT_REACQUIRE_AFTER,
+    RejectionRuns,
     checked_reacquire_after,
     default_pixel_std_px,
     initial_estimate,
@@ -311,8 +312,7 @@ class BallCatcherPixelEKF:
     def reset(self) -> None:
         self.core = self._new_core()
         self.fusion = CaptureTimeFusion(self.core, latency_aware=True, history_s=self.history_s)
-        # per camera: (capture time of the first, count) of its current run of frames not used
-        self._rejected: dict[Any, tuple[float, int]] = {}
+        self._rejected = RejectionRuns(self.reacquire_after)
         self.reacquisitions = 0
         # every detection delivered and still needed for a restart (see _forget)
         self._kept: list[TimedMeasurement] = []
@@ -370,15 +370,11 @@ class BallCatcherPixelEKF:
         result = self.core.results.get(id(m.measurement))
         camera = m.measurement.camera_id
         if result is not None and result.accepted:
-            self._rejected.pop(camera, None)
+            self._rejected.used(camera)
             return False
-        t_s = m.capture_time_s
-        first_s, count = self._rejected.get(camera, (t_s, 0))
-        self._rejected[camera] = (min(first_s, t_s), count + 1)
-        if count + 1 < self.reacquire_after:
+        since_s = self._rejected.not_used(camera, m.capture_time_s)
+        if since_s is None:
             return False
-        since_s = self._rejected[camera][0]
-        self._rejected.clear()
         return self._restart(since_s, now_s, action)
 
     def _restart(self, since_s: float, now_s: float, action: np.ndarray | None) -> bool:
@@ -408,7 +404,7 @@ class BallCatcherPixelEKF:
         """Keep the detections a restart can still fuse again: those captured since the
         oldest open run's first frame, and every one of the last ``history_s`` (a frame
         delivered later can start a run that far back)."""
-        oldest_s = min([now_s - self.history_s] + [s for s, _ in self._rejected.values()])
+        oldest_s = self._rejected.oldest_start_s(now_s - self.history_s)
         self._kept = [m for m in self._kept if m.capture_time_s >= oldest_s]
         kept_ids = {id(m.measurement) for m in self._kept}
         core = self.core

@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.ball_table import BallTableEnv
+from observer_gym.estimation.ball_table.features import BallTableFeatures
 from observer_gym.estimation.ball_table.frames import FrameReader
+from observer_gym.estimation.ball_table.noise import BallTableNoiseRule
 from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 
@@ -54,19 +56,41 @@ class FusedObserver:
     :class:`~observer_gym.estimation.latency.CaptureTimeFusion`, which keeps
     :func:`history_s` of the filter's past to rewind to.
 
+    The covariance it reports is the core's plus the declared calibration's offset, which
+    no filter holds (the noise rule's :meth:`~observer_gym.estimation.ball_table.noise.
+    BallTableNoiseRule.reported`, at the frame a subclass last gave to
+    :meth:`_track_calibration`; ``rate_gain_per_s``: the tilt rate's g in g (u - tilt)).
+
     A subclass gives :meth:`_read` (the frame's raw detection and the core's measurement)
     and :meth:`_start` (the core)."""
 
-    def __init__(self, env: BallTableEnv, reader: FrameReader, latency_aware: bool) -> None:
+    def __init__(
+        self,
+        env: BallTableEnv,
+        reader: FrameReader,
+        latency_aware: bool,
+        noise: BallTableNoiseRule,
+        rate_gain_per_s: float,
+    ) -> None:
         self.reader = reader
         self.latency_aware = latency_aware
         self.history_s = history_s(env)
+        self.noise = noise
+        self.rate_gain_per_s = rate_gain_per_s
         self.reset()
 
     def reset(self) -> None:
         self.reader.reset()
+        self.noise.reset()
+        self._calibration: np.ndarray | None = None
         self.core: Any = None
         self.fusion: CaptureTimeFusion | None = None
+
+    def _track_calibration(
+        self, features: BallTableFeatures, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> None:
+        """The calibration's offset at this frame's features (kept for the report)."""
+        self._calibration = self.noise.calibration_cov(features, K, T_world_cam)
 
     def _read(self, obs: Any, frame: dict) -> tuple[Any, Fused]:
         """(the frame's raw detection, the core's measurement of it)."""
@@ -99,6 +123,5 @@ class FusedObserver:
         return Estimate(self.core.mean(), covariance, used, raw, time_s, nis, dof)
 
     def _reported(self, covariance: np.ndarray) -> np.ndarray:
-        """The covariance the observer reports for its core's ``covariance`` (a subclass
-        adds what its filters do not hold, e.g. the calibration's offset)."""
-        return covariance
+        """The core's ``covariance`` plus the calibration's offset (see the class)."""
+        return self.noise.reported(covariance, self._calibration, self.rate_gain_per_s)

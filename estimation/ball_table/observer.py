@@ -350,7 +350,7 @@ class BallTableObserver(FusedObserver):
             cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
         )
         reader = FrameReader(env, detector, type(self).__name__)
-        self.noise = BallTableNoiseRule(
+        noise = BallTableNoiseRule(
             env.sensor_spec,
             cfg.obs_mode == "rgb",
             reader.detector,
@@ -359,15 +359,7 @@ class BallTableObserver(FusedObserver):
             r_scale,
             fused_at_delivery=not latency_aware,
         )
-        super().__init__(env, reader, latency_aware)
-
-    def reset(self) -> None:
-        super().reset()
-        self.noise.reset()
-        self._calibration: np.ndarray | None = None
-
-    def _reported(self, covariance: np.ndarray) -> np.ndarray:
-        return self.noise.reported(covariance, self._calibration, self.tilt_model.rate_gain_per_s)
+        super().__init__(env, reader, latency_aware, noise, self.tilt_model.rate_gain_per_s)
 
     @property
     def detector(self) -> BallTableDetector:
@@ -387,7 +379,7 @@ class BallTableObserver(FusedObserver):
         detection = self.reader.detector.detect(features, K, T_world_cam)
         tilt, ball = detected_parts(detection)
         tilt_R, ball_R = self.noise.detection_R(features, K, T_world_cam)
-        self._calibration = self.noise.calibration_cov(features, K, T_world_cam)
+        self._track_calibration(features, K, T_world_cam)
         return detection, Fused(TiltBallDetection(tilt, ball, tilt_R, ball_R))
 
     def _start(self, time_s: float, measurement: Fused | None) -> tuple[TiltBallFilters, bool]:

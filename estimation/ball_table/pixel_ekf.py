@@ -412,18 +412,10 @@ class BallTablePixelEKF(FusedObserver):
         }
         reader = FrameReader(env, detector, type(self).__name__)
         # the calibration's offset on the state (the noise rule's; not in R)
-        self.noise = BallTableNoiseRule(
+        noise = BallTableNoiseRule(
             env.sensor_spec, cfg.obs_mode == "rgb", reader.detector, (0.0, 0.0), 0.0
         )
-        super().__init__(env, reader, latency_aware)
-
-    def reset(self) -> None:
-        super().reset()
-        self.noise.reset()
-        self._calibration: np.ndarray | None = None
-
-    def _reported(self, covariance: np.ndarray) -> np.ndarray:
-        return self.noise.reported(covariance, self._calibration, self.tilt_model.rate_gain_per_s)
+        super().__init__(env, reader, latency_aware, noise, self.tilt_model.rate_gain_per_s)
 
     @property
     def reacquisitions(self) -> int:
@@ -463,7 +455,7 @@ class BallTablePixelEKF(FusedObserver):
     def _read(self, obs: Any, frame: dict) -> tuple[BallTableFeatures, Fused]:
         features = self.reader.features(obs, frame)
         K, T_world_cam = (np.asarray(frame[k], dtype=float) for k in ("K", "T_world_cam"))
-        self._calibration = self.noise.calibration_cov(features, K, T_world_cam)
+        self._track_calibration(features, K, T_world_cam)
         return features, Fused(self.pixel_measurement(features, K, T_world_cam))
 
     def _start(self, time_s: float, measurement: Fused | None) -> tuple[PixelEKF, bool]:
