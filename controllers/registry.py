@@ -34,6 +34,7 @@ class ControllerDesign(NamedTuple):
     # builds the controller's first argument (its plant) from an env; raises ValueError
     # for an env the controller is not made for
     design_input: Callable[[gym.Env], Any]
+    summary: str = ""  # one line for 'observer-gym list'
 
 
 def controllers_of(system: System) -> Mapping[str, ControllerDesign]:
@@ -76,7 +77,7 @@ def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
             f"make_controller: env = {env!r}, must be a gymnasium env of a registered system "
             f"({', '.join(s.env_id for s in SYSTEMS)}), e.g. gym.make(...)"
         )
-    cls, design_input = check_controller_fits(name, system_of(env))
+    cls, design_input, _ = check_controller_fits(name, system_of(env))
     allowed = list(inspect.signature(cls).parameters)[1:]
     unknown = sorted(set(options) - set(allowed))
     if unknown:

@@ -67,6 +67,19 @@ class ObserverPipeline(Protocol):
 # Builds a pipeline for a system's (unwrapped) env: factory(env, **options).
 PipelineFactory = Callable[..., ObserverPipeline]
 
+# What each observer name means on every system that has it: one line for
+# 'observer-gym list' and the docs.
+OBSERVER_ROLES = {
+    "kf": "detector + Kalman filter, each frame fused when it is delivered",
+    "kf-latency": "detector + Kalman filter, each frame fused at its capture time and "
+    "predicted to now (latency-aware)",
+    "stkf": "detector + self-tuning Kalman filter (R adapted online)",
+    "stkf-latency": "detector + self-tuning Kalman filter, latency-aware",
+    "ekf": "one extended Kalman filter on the image features' pixels",
+    "raw": "the detector alone: the newest detection held, rates by finite differences",
+    "oracle-visible": "the true state while the camera sees it, predicted otherwise",
+}
+
 
 def observers_of_system(system: System) -> Mapping[str, PipelineFactory]:
     """The observers of ``system``: the ``OBSERVERS`` of its package
@@ -144,7 +157,12 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         pipeline: the detector + filters to use; default :func:`default_pipeline`.
         observer: the name of one of the system's observers (default: its first);
             not with ``pipeline``.
+        name: how error messages name a given ``pipeline`` (default: its class name).
         **options: passed to the observer's pipeline (not with ``pipeline``).
+
+    Every estimate is checked against the env's state layout: ``observe`` must return an
+    :class:`Estimate` whose mean (n,) and covariance (n, n) are finite, else ValueError
+    naming the observer and what is wrong.
     """
 
     def __init__(
@@ -152,12 +170,13 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         env: gym.Env,
         pipeline: ObserverPipeline | None = None,
         observer: str | None = None,
+        name: str | None = None,
         **options: Any,
     ):
         # Recorded so that gymnasium can re-create the wrapped env from its spec (a given
         # pipeline instance would then be shared; the default one is built afresh).
         gym.utils.RecordConstructorArgs.__init__(
-            self, pipeline=pipeline, observer=observer, **options
+            self, pipeline=pipeline, observer=observer, name=name, **options
         )
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
@@ -173,6 +192,7 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if pipeline is None:
             pipeline = default_pipeline(env, observer, **options)
         self.pipeline = pipeline
+        self.name = name or observer or type(pipeline).__name__
         self.observation_space = base.state_space
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -194,11 +214,41 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return estimate_obs, reward, terminated, truncated, info
 
     def _estimate(self, obs, info: dict, action):
-        estimate = self.pipeline.observe(obs, info, action)
+        estimate = checked_estimate(
+            self.pipeline.observe(obs, info, action), self.observation_space.shape[0], self.name
+        )
         info = {**info, "estimate": estimate.as_info()}
         space = self.observation_space
         mean = np.clip(estimate.mean, space.low, space.high).astype(space.dtype)
         return mean, info
+
+
+def checked_estimate(estimate: Any, n: int, who: str) -> Estimate:
+    """``estimate`` if it is an :class:`Estimate` with a finite mean of shape (n,) and a
+    finite covariance of shape (n, n); ValueError naming observer ``who`` otherwise."""
+    if not isinstance(estimate, Estimate):
+        raise ValueError(
+            f"observer {who!r}: observe() must return an observer_gym.estimation.Estimate, "
+            f"got {type(estimate).__name__}"
+        )
+    mean, covariance = np.asarray(estimate.mean), np.asarray(estimate.covariance)
+    if mean.shape != (n,) or covariance.shape != (n, n):
+        raise ValueError(
+            f"observer {who!r}: the estimate must have the env's state layout, a mean of "
+            f"shape ({n},) and a covariance of shape ({n}, {n}); got {mean.shape} and "
+            f"{covariance.shape}"
+        )
+    if mean.dtype.kind not in "biuf" or covariance.dtype.kind not in "biuf":
+        raise ValueError(
+            f"observer {who!r}: the estimate must be real numbers, got dtypes {mean.dtype} "
+            f"and {covariance.dtype}"
+        )
+    if not (np.isfinite(mean).all() and np.isfinite(covariance).all()):
+        raise ValueError(
+            f"observer {who!r}: the estimate is not finite at t = {estimate.time_s} s "
+            f"(mean {reprlib.repr(mean.tolist())})"
+        )
+    return estimate
 
 
 def checked_rgb_frame(image: Any, size_px: tuple[int, int], who: str) -> np.ndarray:

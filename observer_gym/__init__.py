@@ -1,6 +1,10 @@
 """observer-gym: Gymnasium environments in PyBullet controlled through what their cameras
 see, with vision + Kalman-filter observers, control baselines and RL tools.
 
+The experiments of the ``observer-gym`` command are functions here: ``run``, ``compare``,
+``sweep`` and ``evaluate`` (:mod:`observer_gym.train.api`, imported on first use), taking
+the package's names, import paths, factories or objects as observers and controllers.
+
 Importing ``observer_gym`` or any part of it (``observer_gym.envs``, ``.estimation``,
 ``.controllers``, ``.train``) registers every env with Gymnasium, so a process that only
 unpickles an env factory (a ``SubprocVecEnv`` worker started with "spawn") finds the ids.
@@ -17,4 +21,17 @@ except metadata.PackageNotFoundError:  # running from a source tree that is not 
 
 register_envs()
 
-__all__ = ["__version__"]
+API = ("run", "compare", "sweep", "evaluate")
+
+
+def __getattr__(name: str):
+    """The experiment functions, imported when first used: ``import observer_gym`` stays
+    light (Gymnasium and the env registry only)."""
+    if name in API:
+        from observer_gym.train import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["__version__", *API]

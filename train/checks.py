@@ -28,6 +28,8 @@ import numpy as np
 
 from observer_gym.envs import SYSTEMS, system_for_id
 from observer_gym.envs.config import check_render_mode
+from observer_gym.train import entries
+from observer_gym.train.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.hyperparams import ALGOS, resolve_hyperparams
 from observer_gym.train.run_dir import (
     CONFIG_FILE,
@@ -111,6 +113,8 @@ SYSTEM_NAMES: dict[str, SystemNames] = {
 }
 # a trained agent, wherever a controller is taken: "ppo:DIR, sac:DIR, td3:DIR"
 AGENT_FORMS = ", ".join(f"{algo}:DIR" for algo in ALGOS)
+# what else a controller can be: a saved stable-baselines3 model or an outside factory
+OUTSIDE_FORMS = "ALGO:PATH.zip, an import path package.module:factory"
 # the backends of train --seeds (as of compare)
 BACKENDS = ("local", "ray")
 RAY_INSTALL_HINT = "pip install 'observer-gym[distributed]'"
@@ -147,14 +151,27 @@ def per_env(field: str) -> str:
 
 def check_observer(env_id: str, observer: str) -> str:
     """The registered id of ``env_id`` after checking that ``observer`` is one of its
-    task's observers; ValueError listing them otherwise."""
+    task's observers, or an outside observer (:mod:`observer_gym.train.entries`) whose
+    factory imports; ValueError naming what is allowed otherwise."""
     env_id = system_for_id(env_id).env_id
-    observers = names_for(env_id).observers
-    if observer not in observers:
-        raise ValueError(
-            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
-        )
+    if observer not in names_for(env_id).observers:
+        entries.load_factory(_observer_plugin(env_id, observer))
     return env_id
+
+
+def _observer_plugin(env_id: str, observer: str) -> entries.Plugin:
+    plugin = entries.find_plugin("observer", observer)
+    if plugin is None:
+        builtins = list(names_for(env_id).observers)
+        raise ValueError(entries.unknown_message("observer", observer, env_id, builtins))
+    return plugin
+
+
+def observer_mode(env_id: str, observer: str) -> str:
+    """The ``obs_mode`` of the env ``observer`` reads: a task observer's, or an outside
+    observer's ("measurements" with the ``-measurements`` suffix, else "rgb")."""
+    modes = names_for(env_id).observers
+    return modes[observer] if observer in modes else _observer_plugin(env_id, observer).obs_mode
 
 
 def check_controller(controller: str, env_id: str, observer: str) -> None:
@@ -168,9 +185,17 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
     names = SYSTEM_NAMES[system.name]
     reads_frames = observer in names.frame_observers
     agent_spec = parse_agent_spec(controller)
+    if agent_spec is not None and is_policy_file(agent_spec[1]):
+        check_policy_file(controller, agent_spec[1])
+        agent_spec = None
+    elif agent_spec is None and controller not in names.controllers:
+        plugin = entries.find_plugin("controller", controller)
+        if plugin is not None:
+            entries.load_factory(plugin)
+            agent_spec = None
     if agent_spec is None:
-        if controller not in names.controllers:
-            fits = ", ".join([*names.controllers, AGENT_FORMS])
+        if controller not in names.controllers and not _outside(controller):
+            fits = ", ".join([*names.controllers, AGENT_FORMS, OUTSIDE_FORMS])
             for other in SYSTEMS:
                 if other != system and controller in SYSTEM_NAMES[other.name].controllers:
                     raise ValueError(
@@ -182,6 +207,14 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
             raise ValueError(frames_message(controller, observer))
         return
     check_agent(controller, system.env_id, reads_frames, observer)
+
+
+def _outside(controller: str) -> bool:
+    """Whether ``controller`` is a stable-baselines3 zip or an outside controller."""
+    spec = parse_agent_spec(controller)
+    if spec is not None:
+        return is_policy_file(spec[1])
+    return entries.find_plugin("controller", controller) is not None
 
 
 def frames_message(controller: str, observer: str) -> str:

@@ -24,8 +24,11 @@ from importlib import metadata
 
 from observer_gym.train import compare_cli, sweep_cli
 from observer_gym.train.cli_args import (
+    OUTSIDE_CONTROLLERS_HELP,
+    OUTSIDE_OBSERVERS_HELP,
     Parser,
     UsageError,
+    add_entry_option_arguments,
     add_env_option_argument,
     add_output_arguments,
     controller_name,
@@ -99,7 +102,7 @@ def _demo_run(args: argparse.Namespace) -> int:
 
 # --- run -------------------------------------------------------------------------------
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train.checks import observer_choices, per_env
+    from observer_gym.train.checks import per_env
 
     parser.add_argument(
         "--env",
@@ -109,12 +112,15 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--observer",
-        choices=observer_choices(),
         required=True,
+        metavar="OBSERVER",
         help=(
             "what the controller sees: oracle (the true state), kf (Kalman-filter estimate "
             "from camera pixels), kf-measurements (the same from perfect-detector pixel "
-            "measurements, no rendering); per env: " + per_env("observers")
+            "measurements, no rendering); per env: "
+            + per_env("observers")
+            + "; "
+            + OUTSIDE_OBSERVERS_HELP
         ),
     )
     parser.add_argument(
@@ -126,9 +132,10 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
             "the env's controller, per env: "
             + per_env("controllers")
             + "; any env: a trained agent as ALGO:DIR (ppo:runs/x) or a shipped one as "
-            "ALGO:NAME (ppo:ball_table-estimate)"
+            "ALGO:NAME (ppo:ball_table-estimate); " + OUTSIDE_CONTROLLERS_HELP
         ),
     )
+    add_entry_option_arguments(parser)
     parser.add_argument(
         "--episodes", type=positive_int, default=10, help="episodes to run (default: %(default)s)"
     )
@@ -172,35 +179,42 @@ def _run_run(args: argparse.Namespace) -> int:
         check_controller,
         check_env_options,
         check_observer,
-        names_for,
+        observer_mode,
     )
 
     try:
         env_id = check_observer(args.env, args.observer)
         check_controller(args.controller, env_id, args.observer)
-        obs_mode = names_for(env_id).observers[args.observer]
+        obs_mode = observer_mode(env_id, args.observer)
         check_env_options(env_id, obs_mode, dict(args.env_option))
     except ValueError as exc:  # an observer, controller or env option the env does not take
         return _error("run", exc)
 
-    from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run import results_text, run_experiment  # deferred: the layers
+    from observer_gym.train import api  # deferred: the layers
+    from observer_gym.train.run import EpisodeError
 
-    cli_args = recorded_args(args)
-    results = run_experiment(
-        env_id=args.env,
-        observer=args.observer,
-        controller=args.controller,
-        episodes=args.episodes,
-        seed=args.seed,
-        out_dir=args.out if args.out is not None else default_out_dir("run"),
-        steps=args.steps,
-        workers=args.workers,
-        progress=not args.no_progress,
-        env_kwargs=dict(args.env_option),
-        cli_args=cli_args,
-    )
-    print(results_text(results))
+    try:
+        result = api.run(
+            args.env,
+            args.observer,
+            args.controller,
+            episodes=args.episodes,
+            seed=args.seed,
+            out_dir=args.out,
+            steps=args.steps,
+            workers=args.workers,
+            env_options=dict(args.env_option),
+            observer_options=dict(args.observer_option),
+            controller_options=dict(args.controller_option),
+            progress=not args.no_progress,
+            cli_args=recorded_args(args),
+        )
+    except EpisodeError as exc:  # an episode failed part-way: nothing written
+        print(error_line("observer-gym run", exc), file=sys.stderr)
+        return 1
+    except ValueError as exc:  # an outside observer or controller that fails its first try
+        return _error("run", exc)
+    print(result.text)
     return 0
 
 
@@ -510,8 +524,6 @@ def _train_seeds_run(args: argparse.Namespace) -> int:
 
 # --- evaluate --------------------------------------------------------------------------
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train.checks import observer_choices
-
     parser.add_argument(
         "--model",
         type=folder_path,
@@ -533,9 +545,10 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--observer",
-        choices=observer_choices(),
         default=None,
-        help="what the agent reads (default: what it was trained on)",
+        metavar="OBSERVER",
+        help="what the agent reads (default: what it was trained on): an observer of its "
+        "env (see 'observer-gym list') or " + OUTSIDE_OBSERVERS_HELP,
     )
     parser.add_argument(
         "--steps", type=positive_int, default=None, metavar="K", help="cap each episode at K steps"
@@ -551,7 +564,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         check_controller,
         check_env_options,
         check_observer,
-        names_for,
+        observer_mode,
     )
     from observer_gym.train.run_dir import is_multi_seed, read_config, seed_run_dirs
 
@@ -567,15 +580,15 @@ def _evaluate_run(args: argparse.Namespace) -> int:
             observer = args.observer or config["observer"]
             env_id = check_observer(config["env_id"], observer)
             check_controller(f"{config['algo']}:{run_dir}", env_id, observer)
-            obs_mode = names_for(env_id).observers[observer]
+            obs_mode = observer_mode(env_id, observer)
             check_env_options(env_id, obs_mode, config["env_kwargs"])
     except (ValueError, ImportError) as exc:  # no agent there, or an observer it cannot read
         return _error("evaluate", exc)
 
     # deferred: torch, PyBullet
-    from observer_gym.train.evaluate import evaluate_agent, evaluate_seeds, seeds_evaluation_text
+    from observer_gym.train import api
+    from observer_gym.train.evaluate import evaluate_seeds, seeds_evaluation_text
     from observer_gym.train.outputs import default_out_dir
-    from observer_gym.train.run import results_text
 
     options = {
         "episodes": args.episodes,
@@ -587,10 +600,14 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         "progress": not args.no_progress,
         "cli_args": recorded_args(args),
     }
-    if multi_seed:
-        print(seeds_evaluation_text(evaluate_seeds(args.model, **options)))
-    else:
-        print(results_text(evaluate_agent(args.model, **options)))
+    try:
+        if multi_seed:
+            print(seeds_evaluation_text(evaluate_seeds(args.model, **options)))
+        else:
+            print(api.evaluate(args.model, **options).text)
+    except ValueError as exc:  # an outside observer that fails its first try, or mid-episode
+        print(error_line("observer-gym evaluate", exc), file=sys.stderr)
+        return 1
     return 0
 
 
@@ -620,6 +637,38 @@ def _reproduce_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _reproduce_run(args: argparse.Namespace) -> int:
     return args.study_run(args)
+
+
+# --- list ------------------------------------------------------------------------------
+LIST_KINDS = ("system", "observer", "controller", "agent")
+
+
+def _list_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "kind",
+        nargs="?",
+        choices=LIST_KINDS,
+        default=None,
+        help="list only these (default: everything)",
+    )
+
+
+def _list_run(args: argparse.Namespace) -> int:
+    from observer_gym.train.catalogue import catalogue  # deferred: reads every layer
+
+    items = [item for item in catalogue() if args.kind in (None, item.kind)]
+    for kind in LIST_KINDS:
+        group = [item for item in items if item.kind == kind]
+        if not group:
+            continue
+        print(f"{kind}s:")
+        width = max(len(item.name) for item in group)
+        for item in group:
+            where = ", ".join(env_id.split("/", 1)[-1] for env_id in item.systems)
+            where = "" if kind == "system" else f" ({where})"
+            source = "" if item.source == "observer-gym" else f" [{item.source}]"
+            print(f"  {item.name:<{width}}  {item.summary}{where}{source}")
+    return 0
 
 
 COMMANDS: dict[str, Command] = {
@@ -715,6 +764,18 @@ COMMANDS: dict[str, Command] = {
         ),
         add_arguments=_evaluate_arguments,
         run=_evaluate_run,
+    ),
+    "list": Command(
+        help="list the systems, observers, controllers and shipped agents, one line each",
+        description=(
+            "List what the commands take by name: every system (env), observer, controller "
+            "and shipped agent, with one line each and the envs it applies to, and the "
+            "observers and controllers that installed packages add through the entry-point "
+            "groups observer_gym.observers and observer_gym.controllers. Any other observer "
+            "or controller is named by import path, package.module:factory."
+        ),
+        add_arguments=_list_arguments,
+        run=_list_run,
     ),
     "reproduce": Command(
         help="re-run a source paper's study and print its figures beside the paper's",

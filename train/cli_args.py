@@ -150,18 +150,58 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
 
 
 def controller_name(text: str) -> str:
-    """argparse type: a controller of some system or a trained agent ``ALGO:DIR``
-    (whether it fits the env is checked with the env)."""
+    """argparse type: a controller of some system, a trained agent ``ALGO:DIR``, a
+    stable-baselines3 zip ``ALGO:PATH.zip`` or an outside controller (an import path or an
+    installed entry point's name); whether it fits the env is checked with the env."""
     from observer_gym.train.checks import controller_choices
+    from observer_gym.train.entries import find_plugin
 
     controllers = controller_choices()
     algo, sep, run_dir = text.partition(":")
     if text in controllers or (sep and algo in ALGOS and run_dir):
         return text
+    if find_plugin("controller", text) is not None:
+        return text
     raise argparse.ArgumentTypeError(
-        f"{text!r} is neither a controller ({', '.join(controllers)}) nor a trained agent "
-        f"ALGO:DIR with ALGO one of {', '.join(ALGOS)}"
+        f"{text!r} is neither a controller ({', '.join(controllers)}), a trained agent "
+        f"ALGO:DIR or ALGO:PATH.zip with ALGO one of {', '.join(ALGOS)}, nor an import path "
+        "package.module:factory or an installed entry point"
     )
+
+
+def entry_option(text: str) -> tuple[str, object]:
+    """argparse type: ``KEY=VALUE`` of an observer's or controller's options, the value
+    read as :func:`env_option` reads it."""
+    return env_option(text)
+
+
+def add_entry_option_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--observer-option`` and ``--controller-option KEY=VALUE`` (repeatable): keyword
+    arguments of every observer's pipeline (or outside factory) and every controller's
+    design (or outside factory) of the command."""
+    for kind, example in (("observer", "alpha=0.5"), ("controller", "gain=0.8")):
+        parser.add_argument(
+            f"--{kind}-option",
+            type=entry_option,
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help=f"a keyword argument of every {kind}'s factory, repeatable (e.g. {example}); "
+            f"recorded in results.json",
+        )
+
+
+# What else an observer or a controller can be, for --help.
+OUTSIDE_OBSERVERS_HELP = (
+    "or an outside observer: an import path package.module:factory, or an installed "
+    "entry point of the group observer_gym.observers (see 'observer-gym list'), each "
+    "reading camera frames, or measurements with the suffix -measurements"
+)
+OUTSIDE_CONTROLLERS_HELP = (
+    "a stable-baselines3 zip as ALGO:PATH.zip (load only trusted files: it is unpickled); "
+    "or an outside controller: an import path package.module:factory or an installed "
+    "entry point of the group observer_gym.controllers"
+)
 
 
 def env_name(text: str) -> str:

@@ -24,13 +24,23 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from observer_gym.controllers import controllers_for
 from observer_gym.train.aggregate import across_seeds, check_rliable
 from observer_gym.train.checks import check_seeds
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
-from observer_gym.train.observer_env import make_env
+from observer_gym.train.entries import load_factory
+from observer_gym.train.observer_env import make_env, observer_record, observer_setup
 from observer_gym.train.outputs import VERSIONED_PACKAGES, output_folder, package_versions
-from observer_gym.train.run import EpisodeSpec, build_controller, check_controller, run_episodes
+from observer_gym.train.run import (
+    EntryOptions,
+    EpisodeSpec,
+    build_controller,
+    check_controller,
+    check_entries,
+    entry_options,
+    run_episodes,
+)
 from observer_gym.train.run_dir import SEED_PREFIX, expand_agent, parse_agent_spec
 from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
@@ -66,6 +76,8 @@ def check_comparison(
     address: str | None = None,
     steps: int | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Check a comparison's inputs; return them normalised (``env_id`` registered,
     ``observers``, ``controllers`` and ``seeds`` as lists, ``env_kwargs`` a dict). A
@@ -77,7 +89,10 @@ def check_comparison(
     The cheap checks come first and build no env (:func:`check_request`); then each
     baseline controller is designed once on the env's state version with ``env_kwargs``
     (:func:`check_designs`: a BallCatcher controller on BallTable, or a bad env option,
-    fails here rather than in every episode).
+    fails here rather than in every episode), and each pair with an outside observer or
+    controller is tried once (:func:`observer_gym.train.run.check_entries`).
+    ``observer_options`` and ``controller_options`` go to every outside observer's and
+    controller's factory (:func:`observer_gym.train.run.entry_options`).
 
     Raises:
         ValueError: naming the bad value and what is allowed.
@@ -85,7 +100,21 @@ def check_comparison(
     checked = check_request(
         env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs
     )
+    checked["observer_options"] = dict(observer_options or {})
+    checked["controller_options"] = dict(controller_options or {})
+    options = entry_options(
+        checked["env_id"], checked["observers"], checked["controllers"],
+        observer_options, controller_options,
+    )  # fmt: skip
+    checked["options"] = options
     check_designs(checked["env_id"], checked["controllers"], checked["env_kwargs"])
+    for controller in checked["controllers"]:
+        for observer in checked["observers"]:
+            check_entries(
+                checked["env_id"], observer, controller, checked["env_kwargs"],
+                options.observers[observer], options.controllers[controller],
+                checked["seeds"][0],
+            )  # fmt: skip
     return checked
 
 
@@ -114,8 +143,9 @@ def check_request(
     known = ", ".join(task.OBSERVERS)
     observers = _names("observers", observers, known)
     for observer in observers:
-        if observer not in task.OBSERVERS:
-            raise ValueError(f"unknown observer {observer!r} for {env_id}; allowed: {known}")
+        _, _, plugin = observer_setup(env_id, observer)  # ValueError naming what is allowed
+        if plugin is not None:
+            load_factory(plugin)
     named = _names("controllers", controllers, "a controller name or ALGO:DIR")
     seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}
     controllers = [agent for name in named for agent in seed_groups.get(name, [name])]
@@ -165,10 +195,11 @@ def check_request(
 
 
 def check_designs(env_id: str, controllers: Sequence[str], env_kwargs: Mapping[str, Any]) -> None:
-    """Design every baseline controller once on the state env with ``env_kwargs`` (trained
-    agents were checked against the env by check_controller); ValueError if the env or a
-    design fails."""
-    baselines = [c for c in controllers if parse_agent_spec(c) is None]
+    """Design every baseline controller of the package once on the state env with
+    ``env_kwargs`` (trained agents were checked against the env by check_controller,
+    outside ones are tried by check_entries); ValueError if the env or a design fails."""
+    own = controllers_for(env_id)
+    baselines = [c for c in controllers if parse_agent_spec(c) is None and c in own]
     if not baselines:
         return
     try:
@@ -209,6 +240,8 @@ def command_line(
     backend: str = "local",
     address: str | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> str:
     """The ``observer-gym compare`` command line that runs this comparison again (without
     ``--out``: it writes a new folder)."""
@@ -232,8 +265,13 @@ def command_line(
         words += ["--backend", backend]
     if address is not None:
         words += ["--address", address]
-    for key, value in (env_kwargs or {}).items():
-        words += ["--env-option", option_text(key, value)]
+    for flag, options in (
+        ("--env-option", env_kwargs),
+        ("--observer-option", observer_options),
+        ("--controller-option", controller_options),
+    ):
+        for key, value in (options or {}).items():
+            words += [flag, option_text(key, value)]
     return shlex.join(words)
 
 
@@ -298,13 +336,23 @@ def run_pairs(
     backend: str = "local",
     address: str | None = None,
     progress: bool = True,
+    options: EntryOptions | None = None,
 ) -> PairRuns:
     """Run episode i of every (observer, controller) pair with ``seeds[i]``, all in one
     batch: locally in ``workers`` processes or as Ray tasks (the same records). The inputs
     are those :func:`check_comparison` returns."""
     pairs = [(observer, controller) for controller in controllers for observer in observers]
     specs = [
-        EpisodeSpec(env_id, observer, controller, seed, steps, env_kwargs)
+        EpisodeSpec.of(
+            env_id,
+            observer,
+            controller,
+            seed,
+            max_steps=steps,
+            env_kwargs=env_kwargs,
+            observer_options=options.observers.get(observer, {}) if options else {},
+            controller_options=options.controllers.get(controller, {}) if options else {},
+        )
         for observer, controller in pairs
         for seed in seeds
     ]
@@ -331,6 +379,8 @@ def run_comparison(
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool = True,
     cli_args: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run every (observer, controller) pair on ``seeds``; write tables, plots, results.
 
@@ -375,7 +425,12 @@ def run_comparison(
         ValueError: a bad input (see :func:`check_comparison`).
     """
     checked = check_comparison(
-        env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs
+        env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs,
+        observer_options, controller_options,
+    )  # fmt: skip
+    observer_options, controller_options = (
+        checked["observer_options"],
+        checked["controller_options"],
     )
     env_id, observers, controllers = (checked[k] for k in ("env_id", "observers", "controllers"))
     seeds, env_kwargs = checked["seeds"], checked["env_kwargs"]
@@ -396,8 +451,14 @@ def run_comparison(
             backend,
             address,
             progress,
+            checked["options"],
         )
-        analysis = analyse_pairs(task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records)
+        observed = {
+            o: observer_record(env_id, o, checked["options"].observers[o]) for o in observers
+        }
+        analysis = analyse_pairs(
+            task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records, observed
+        )
         across = across_seed_groups(analysis.pairs, seed_groups, next(iter(metrics)))
         if not analysis.starts_match:
             warnings.warn(
@@ -442,7 +503,11 @@ def run_comparison(
                     backend,
                     address,
                     env_kwargs,
+                    observer_options,
+                    controller_options,
                 ),
+                "observer_options": observer_options,
+                "controller_options": controller_options,
                 "out_dir": str(out_dir),
                 "cli_args": cli_args,
             },

@@ -14,6 +14,9 @@ import argparse
 import sys
 
 from observer_gym.train.cli_args import (
+    OUTSIDE_CONTROLLERS_HELP,
+    OUTSIDE_OBSERVERS_HELP,
+    add_entry_option_arguments,
     add_env_option_argument,
     add_output_arguments,
     env_name,
@@ -54,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated observers: oracle (the true state), kf (Kalman filter on the "
             "camera pixels), kf-measurements (the same on perfect-detector measurements); "
-            "per env: " + per_env("observers")
+            "per env: " + per_env("observers") + "; " + OUTSIDE_OBSERVERS_HELP
         ),
     )
     parser.add_argument(
@@ -67,9 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             + per_env("controllers")
             + "; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable; a multi-seed run's "
             "DIR: every seed's agent, with the primary metric across seeds) or a shipped one "
-            "ALGO:NAME (ppo:ball_table-estimate)"
+            "ALGO:NAME (ppo:ball_table-estimate); " + OUTSIDE_CONTROLLERS_HELP
         ),
     )
+    add_entry_option_arguments(parser)
     parser.add_argument(
         "--episodes",
         type=positive_int,
@@ -147,7 +151,7 @@ def check_pairs(
         check_controller,
         check_env_options,
         check_observer,
-        names_for,
+        observer_mode,
     )
     from observer_gym.train.run_dir import expand_agent
 
@@ -158,8 +162,7 @@ def check_pairs(
     for controller in controllers:
         for observer in observers:
             check_controller(controller, env_id, observer)
-    modes = names_for(env_id).observers
-    for obs_mode in dict.fromkeys(modes[observer] for observer in observers):
+    for obs_mode in dict.fromkeys(observer_mode(env_id, observer) for observer in observers):
         check_env_options(env_id, obs_mode, env_options, decided_by="each observer")
 
 
@@ -181,9 +184,8 @@ def run(args: argparse.Namespace) -> int:
         return _error(exc)
 
     # deferred: PyBullet, the controllers, SciPy
-    from observer_gym.train.compare import check_comparison, run_comparison
-    from observer_gym.train.compare_report import comparison_text
-    from observer_gym.train.outputs import default_out_dir
+    from observer_gym.train import api
+    from observer_gym.train.compare import check_comparison
 
     options = {
         "env_id": args.env,
@@ -195,21 +197,26 @@ def run(args: argparse.Namespace) -> int:
         "address": args.address,
         "steps": args.steps,
         "env_kwargs": dict(args.env_option),
+        "observer_options": dict(args.observer_option),
+        "controller_options": dict(args.controller_option),
     }
     try:
         check_comparison(**options)
     except ValueError as exc:
         return _error(str(exc))
-    cli_args = recorded_args(args)
     try:
-        results = run_comparison(
+        result = api.compare(
+            options.pop("env_id"),
+            options.pop("observers"),
+            options.pop("controllers"),
+            env_options=options.pop("env_kwargs"),
             **options,
-            out_dir=args.out if args.out is not None else default_out_dir("compare"),
+            out_dir=args.out,
             progress=not args.no_progress,
-            cli_args=cli_args,
+            cli_args=recorded_args(args),
         )
-    except ValueError as exc:  # results that cannot be written (NaN): nothing written
+    except ValueError as exc:  # an episode failed, or results cannot be written: nothing written
         print(error_line("observer-gym compare", exc), file=sys.stderr)
         return 1
-    print(comparison_text(results))
+    print(result.text)
     return 0

@@ -16,6 +16,7 @@ import numpy as np
 from observer_gym.train.aggregate import METHOD
 from observer_gym.train.compare_stats import ORACLE, PERCENT, MetricSpec, compare_metrics
 from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
+from observer_gym.train.entries import entry_line
 from observer_gym.train.outputs import (
     format_table,
     json_text,
@@ -185,9 +186,11 @@ def write_markdown(
     command: str,
     cli_args: Mapping[str, Any] | None,
     seeds_table: str | None = None,
+    outside: Sequence[str] = (),
 ) -> None:
-    """``table.md``: the command line (when run from it), what was run, the table, a key
-    and, with multi-seed agents, their table across seeds (``seeds_table``)."""
+    """``table.md``: the command line (when run from it), what was run (with the
+    ``outside`` entries' lines, :func:`outside_entries`), the table, a key and, with
+    multi-seed agents, their table across seeds (``seeds_table``)."""
     primary_label = next(iter(metrics.values()))[0]
     lines = [f"`{command}`", ""] if cli_args is not None else []
     lines += [
@@ -195,6 +198,8 @@ def write_markdown(
         f"(episode i of every pair has the same seed), "
         + (f"at most {steps} steps each." if steps else "each to the env's end."),
         "",
+        *[f"- {line}" for line in outside],
+        *([""] if outside else []),
         table,
         "",
         f"Cells: mean ± {PERCENT} half-width (Student t) over the episodes with a "
@@ -361,12 +366,27 @@ def write_comparison(
             config["command"],
             config["cli_args"],
             seeds_table,
+            outside_entries(pairs),
         )
         write_csv(staging / "table.csv", pairs, metrics)
         files += ["table.md", "table.csv", "results.json"]
         written = to_jsonable({**results, "files": files})
         write_json_atomic(staging / "results.json", written)
     return written
+
+
+def outside_entries(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One line per outside observer and controller among ``rows`` (pairs or sweep
+    cells, each once): its import path, package, version and options."""
+    lines = []
+    for row in rows:
+        for kind, entry in (
+            ("observer", row.get("entry")),
+            ("controller", (row.get("controller_config") or {}).get("entry")),
+        ):
+            if entry:
+                lines.append(entry_line(kind, entry))
+    return list(dict.fromkeys(lines))
 
 
 def comparison_text(results: Mapping[str, Any]) -> str:
@@ -383,6 +403,7 @@ def comparison_text(results: Mapping[str, Any]) -> str:
             f"x {len(config['controllers'])} controller(s), {n} episode(s) each (seeds "
             f"{format_seeds(config['seeds'])}), {config['backend']} backend, "
             f"{results['wall_time_s']:.1f} s",
+            *outside_entries(results["pairs"]),
             comparison_table(results["pairs"], metrics, n),
             *(
                 ["across seeds:", across_seeds_table(across, next(iter(metrics.values())))]

@@ -167,6 +167,7 @@ def analyse_pairs(
     folders: Sequence[str],
     seeds: Sequence[int],
     records: Sequence[Mapping[str, Any]],
+    observed: Mapping[str, Mapping[str, Any]],
 ) -> Analysis:
     """Per pair (``records`` holds the episodes of ``pairs[0]`` on ``seeds``, then those of
     ``pairs[1]``, ...): each episode's metrics (the task's ``episode_metrics`` and, if it
@@ -174,7 +175,9 @@ def analyse_pairs(
     :func:`~observer_gym.train.consistency.episode_consistency`), the task's summary,
     the statistics of every metric of :func:`compare_metrics` and, with "oracle" among
     the observers, the paired difference of the primary metric from the oracle with the
-    same controller."""
+    same controller; each pair also carries ``observed[observer]``
+    (:func:`observer_gym.train.observer_env.observer_record`: obs_mode, pipeline options,
+    an outside observer's entry)."""
     metrics = compare_metrics(task)
     primary = next(iter(metrics))
     n = len(seeds)
@@ -191,8 +194,7 @@ def analyse_pairs(
                 "observer": observer,
                 "controller": controller,
                 "folder": folder,
-                "obs_mode": task.OBSERVERS[observer][0],
-                "pipeline_options": task.OBSERVERS[observer][1],
+                **observed[observer],
                 "controller_config": by_pair[observer, controller][0]["controller"],
                 "episodes": episodes,
                 "summary": task.summarize(episodes),

@@ -83,6 +83,23 @@ def _connect(ray: Any, address: str) -> None:
         held.close()
 
 
+def local_runtime_env() -> dict[str, Any]:
+    """The runtime environment of a private local instance: this process's import path
+    (outside the Python installation) as the workers' PYTHONPATH, so an outside observer
+    or controller named by import path imports in every task as it does here. On a
+    cluster, install such a package on every node instead."""
+    installed = {os.path.realpath(p) for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    own = [
+        os.path.abspath(path)
+        for path in sys.path
+        if path and not any(os.path.realpath(path).startswith(prefix) for prefix in installed)
+    ]
+    paths = list(
+        dict.fromkeys([*own, *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))])
+    )
+    return {"env_vars": {"PYTHONPATH": os.pathsep.join(paths)}} if paths else {}
+
+
 def iter_tasks_ray(
     function: Callable[..., Any],
     arguments: Sequence[tuple[Any, ...]],
@@ -115,6 +132,7 @@ def iter_tasks_ray(
                 include_dashboard=False,
                 log_to_driver=False,
                 logging_level=logging.ERROR,
+                runtime_env=local_runtime_env(),
             )
         else:  # a shared cluster: its warnings may concern this run
             _connect(ray, address)

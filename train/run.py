@@ -17,16 +17,22 @@ import multiprocessing
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from observer_gym.controllers import check_controller_fits, make_controller
-from observer_gym.envs import system_for_id
+from observer_gym.controllers import (
+    check_controller_fits,
+    controllers_for,
+    controllers_of,
+    make_controller,
+)
+from observer_gym.envs import system_for_id, system_of
+from observer_gym.train import entries
 from observer_gym.train.agent import Agent
-from observer_gym.train.checks import AGENT_FORMS, check_agent, frames_message
+from observer_gym.train.checks import AGENT_FORMS, OUTSIDE_FORMS, check_agent, frames_message
 from observer_gym.train.consistency import (
     NEES_COLUMN,
     consistency_text,
@@ -34,7 +40,13 @@ from observer_gym.train.consistency import (
     nees_flag,
     nees_per_step,
 )
-from observer_gym.train.observer_env import make_env
+from observer_gym.train.controller_entries import (
+    CheckedController,
+    PolicyFile,
+    check_policy_file,
+    is_policy_file,
+)
+from observer_gym.train.observer_env import make_env, observer_record, observer_setup
 from observer_gym.train.outputs import (
     format_table,
     json_text,
@@ -70,6 +82,7 @@ CONTROLLER_ATTRIBUTES = (
     "run_dir",
     "obs",
     "timesteps",
+    "entry",
 )
 
 
@@ -85,20 +98,136 @@ class EpisodeSpec:
     env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     reset_options: Mapping[str, Any] | None = None
     observer_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    controller_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    # the observer and controller if given as Python objects (entries.as_name), by name:
+    # they travel with the spec to a worker
+    objects: Mapping[tuple[str, str], Any] = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def of(
+        cls, env_id: str, observer: str, controller: str, seed: int, **fields: Any
+    ) -> EpisodeSpec:
+        """The spec with the objects the observer and controller names stand for, if any."""
+        return cls(
+            env_id, observer, controller, seed, **fields,
+            objects=entries.objects_for(observer, controller),
+        )  # fmt: skip
+
+
+class EpisodeError(ValueError):
+    """An episode that failed part-way (an observer's or a controller's fault): the
+    message names it, the episode's seed and the step."""
+
+
+def is_outside(env_id: str, observer: str, controller: str) -> bool:
+    """Whether the pair has an outside observer or controller (an import path, an entry
+    point, or a stable-baselines3 zip): what :func:`check_entries` tries."""
+    agent_spec = parse_agent_spec(controller)
+    outside_controller = (
+        is_policy_file(agent_spec[1])
+        if agent_spec is not None
+        else controller not in controllers_for(env_id)
+    )
+    return observer_setup(env_id, observer)[2] is not None or outside_controller
+
+
+class EntryOptions(NamedTuple):
+    """The options of each observer and controller of a request, by name: the options
+    given go to every outside entry of their kind, none to the package's own."""
+
+    observers: dict[str, dict[str, Any]]
+    controllers: dict[str, dict[str, Any]]
+
+
+def entry_options(
+    env_id: str,
+    observers: Sequence[str],
+    controllers: Sequence[str],
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+) -> EntryOptions:
+    """Each entry's options (:class:`EntryOptions`); ValueError for options of a kind
+    with no outside entry to take them."""
+
+    def outside_observer(name: str) -> bool:
+        return observer_setup(env_id, name)[2] is not None
+
+    def outside_controller(name: str) -> bool:
+        return parse_agent_spec(name) is None and name not in controllers_for(env_id)
+
+    per_kind = []
+    for kind, names, options, outside in (
+        ("observer", observers, observer_options, outside_observer),
+        ("controller", controllers, controller_options, outside_controller),
+    ):
+        options = dict(options or {})
+        if options and not any(outside(name) for name in names):
+            raise ValueError(
+                f"{kind} options {options} apply to outside {kind}s (an import path or an "
+                f"entry point) only; none is among {', '.join(names)}"
+            )
+        per_kind.append({name: options if outside(name) else {} for name in names})
+    return EntryOptions(*per_kind)
+
+
+def check_entries(
+    env_id: str,
+    observer: str,
+    controller: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> None:
+    """Try an outside observer or controller once before anything runs: build the env,
+    the pipeline and the controller, reset with ``seed``, and ask for one action (the
+    estimate's layout and the action are checked as in every step). ValueError naming the
+    entry and what is wrong; nothing for a pair of the package's own (tested) entries."""
+    if not is_outside(env_id, observer, controller):
+        return
+    env = make_env(env_id, observer, env_kwargs, observer_options)
+    try:
+        built = build_controller(controller, env, controller_options)
+        env = getattr(built, "wrap_env", lambda env: env)(env)
+        getattr(built, "reset", lambda: None)()
+        obs, info = env.reset(seed=seed)
+        getattr(built, "observe_info", lambda info: None)(info)
+        action, _ = built.predict(obs)
+        env.step(action)
+    finally:
+        env.close()
 
 
 def check_controller(controller: str, env_id: str, observer: str) -> None:
     """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
     ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
-    system's is refused naming those that fit) or a trained agent ``ALGO:DIR`` whose
+    system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
     folder holds a run of ``env_id`` with a model to load
-    (:func:`observer_gym.train.checks.check_agent`). Controllers and agents trained on
-    the state or an estimate read the state layout (any observer but "pixels"); an agent
-    trained on rgb reads only "pixels"."""
-    obs_mode, pipeline = task_for(env_id).OBSERVERS[observer]
-    reads_pixels = pipeline is None and obs_mode != "state"
-    if parse_agent_spec(controller) is None:
-        check_controller_fits(controller, system_for_id(env_id), others=f", {AGENT_FORMS}")
+    (:func:`observer_gym.train.checks.check_agent`), a stable-baselines3 zip
+    ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
+    :mod:`observer_gym.train.entries`; its factory is imported). Controllers, outside
+    ones and agents trained on the state or an estimate read the state layout (any
+    observer but "pixels"); an agent trained on rgb reads only "pixels"."""
+    obs_mode, pipeline, plugin = observer_setup(env_id, observer)
+    reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
+    agent_spec = parse_agent_spec(controller)
+    if agent_spec is None:
+        controller_plugin = None
+        if controller not in controllers_for(env_id):
+            controller_plugin = entries.find_plugin("controller", controller)
+        if controller_plugin is not None:
+            entries.load_factory(controller_plugin)
+        else:
+            check_controller_fits(
+                controller,
+                system_for_id(env_id),
+                others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}",
+            )
+        if reads_pixels:
+            raise ValueError(frames_message(controller, observer))
+        return
+    if is_policy_file(agent_spec[1]):
+        check_policy_file(controller, agent_spec[1])
         if reads_pixels:
             raise ValueError(frames_message(controller, observer))
         return
@@ -107,25 +236,36 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
 
 def check_pair(env_id: str, observer: str, controller: str) -> str:
     """The registered id of ``env_id`` after checking that ``observer`` is one of its
-    task's ``OBSERVERS`` and ``controller`` acts on it (:func:`check_controller`);
-    ValueError naming what is allowed otherwise. Builds no env."""
+    task's ``OBSERVERS`` or an outside observer whose factory imports, and ``controller``
+    acts on it (:func:`check_controller`); ValueError naming what is allowed otherwise.
+    Builds no env."""
     env_id = resolve_env_id(env_id)
-    observers = task_for(env_id).OBSERVERS
-    if observer not in observers:
-        raise ValueError(
-            f"unknown observer {observer!r} for {env_id}; allowed: {', '.join(observers)}"
-        )
+    _, _, plugin = observer_setup(env_id, observer)
+    if plugin is not None:
+        entries.load_factory(plugin)
     check_controller(controller, env_id, observer)
     return env_id
 
 
-def build_controller(controller: str, env: gym.Env) -> Any:
+def build_controller(
+    controller: str, env: gym.Env, options: Mapping[str, Any] | None = None
+) -> Any:
     """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
-    else ``make_controller(controller, env)``."""
+    a :class:`~observer_gym.train.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
+    the :class:`~observer_gym.train.controller_entries.CheckedController` of an outside
+    factory called with ``options``, else ``make_controller(controller, env, **options)``."""
     agent_spec = parse_agent_spec(controller)
-    if agent_spec is None:
-        return make_controller(controller, env)
-    return Agent.load(agent_spec[1], algo=agent_spec[0])
+    if agent_spec is not None:
+        if options:
+            raise ValueError(f"controller {controller!r} takes no options, got {dict(options)}")
+        if is_policy_file(agent_spec[1]):
+            return PolicyFile(agent_spec[0], agent_spec[1], env)
+        return Agent.load(agent_spec[1], algo=agent_spec[0])
+    if controller not in controllers_of(system_of(env)):
+        plugin = entries.find_plugin("controller", controller)
+        if plugin is not None:
+            return CheckedController(plugin, env, options or {})
+    return make_controller(controller, env, **dict(options or {}))
 
 
 def describe_controller(controller: Any) -> dict[str, Any]:
@@ -141,6 +281,12 @@ def describe_controller(controller: Any) -> dict[str, Any]:
 
 
 def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """:func:`run_episode_here` with the spec's entries given as objects findable."""
+    with entries.objects_in_use(spec.objects):
+        return run_episode_here(spec)
+
+
+def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
     """Run one episode; its record (arrays, T steps).
 
     Returns ``time_s`` (T + 1,), ``state`` (T + 1, n) ground truth, ``estimate`` and
@@ -155,7 +301,7 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """
     env = make_env(spec.env_id, spec.observer, spec.env_kwargs, spec.observer_options)
     try:
-        controller = build_controller(spec.controller, env)
+        controller = build_controller(spec.controller, env, spec.controller_options)
         # An agent sees the env through the wrappers it was trained with (image resizing
         # and frame stacking for rgb); info, with the ground truth, passes through them.
         env = getattr(controller, "wrap_env", lambda env: env)(env)
@@ -164,20 +310,26 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
         # A controller that uses more than the observation (the intercept planner reads
         # the estimate's covariance) gets every info through observe_info.
         observe_info = getattr(controller, "observe_info", lambda info: None)
-        obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
-        observe_info(info)
-        samples = [info]
-        actions, rewards = [], []
+        actions: list[np.ndarray] = []
+        rewards: list[float] = []
         terminated = truncated = False
-        while not (terminated or truncated) and (
-            spec.max_steps is None or len(actions) < spec.max_steps
-        ):
-            action, _ = controller.predict(obs)
-            obs, reward, terminated, truncated, info = env.step(action)
+        try:
+            obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
             observe_info(info)
-            actions.append(np.asarray(action, dtype=float))
-            rewards.append(float(reward))
-            samples.append(info)
+            samples = [info]
+            while not (terminated or truncated) and (
+                spec.max_steps is None or len(actions) < spec.max_steps
+            ):
+                action, _ = controller.predict(obs)
+                obs, reward, terminated, truncated, info = env.step(action)
+                observe_info(info)
+                actions.append(np.asarray(action, dtype=float))
+                rewards.append(float(reward))
+                samples.append(info)
+        except ValueError as exc:  # an observer's or controller's fault: which episode, when
+            raise EpisodeError(
+                f"{exc} (episode seed {spec.seed}, after {len(actions)} steps)"
+            ) from None
         record: dict[str, Any] = {
             # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
             "time_s": np.round([s["time_s"] for s in samples], 9),
@@ -240,6 +392,8 @@ def run_experiment(
     env_kwargs: Mapping[str, Any] | None = None,
     reset_options: Mapping[str, Any] | None = None,
     cli_args: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` closed-loop episodes; write results and plots.
 
@@ -259,9 +413,11 @@ def run_experiment(
     Args:
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
         observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-latency, ekf,
-            raw, oracle-visible, each but oracle also as NAME-measurements, and pixels).
-        controller: one of the env's ``observer_gym.controllers.controllers_for(env_id)``
-            or a trained agent ``ALGO:DIR`` (``ppo:runs/ppo-balltable``).
+            raw, oracle-visible, each but oracle also as NAME-measurements, and pixels), or
+            an outside observer (:mod:`observer_gym.train.entries`).
+        controller: one of the env's ``observer_gym.controllers.controllers_for(env_id)``,
+            a trained agent ``ALGO:DIR`` (``ppo:runs/ppo-balltable``), a stable-baselines3
+            zip ``ALGO:PATH.zip`` or an outside controller.
         episodes: number of episodes (>= 1).
         seed: seed of episode 0.
         out_dir: the output folder.
@@ -271,6 +427,8 @@ def run_experiment(
         env_kwargs: extra ``gym.make`` options (the observer sets ``obs_mode``).
         reset_options: options for every ``env.reset``.
         cli_args: the command line's arguments, recorded in the config.
+        observer_options, controller_options: keyword arguments of the observer's pipeline
+            and of the controller's factory (or design), recorded in the config.
 
     Returns:
         What ``results.json`` holds (JSON types).
@@ -288,11 +446,19 @@ def run_experiment(
     env_kwargs = dict(env_kwargs or {})
     if "obs_mode" in env_kwargs:
         raise ValueError("env_kwargs must not set obs_mode: the observer decides it")
+    options = entry_options(env_id, [observer], [controller], observer_options, controller_options)
+    observer_options, controller_options = (
+        options.observers[observer],
+        options.controllers[controller],
+    )
+    check_entries(
+        env_id, observer, controller, env_kwargs, observer_options, controller_options, seed
+    )
     out_dir = Path(out_dir)
     with output_folder(out_dir, "run"):
         return _run_into(
             out_dir, task, env_id, observer, controller, episodes, seed, steps, workers,
-            progress, env_kwargs, reset_options, cli_args,
+            progress, env_kwargs, reset_options, cli_args, observer_options, controller_options,
         )  # fmt: skip
 
 
@@ -310,10 +476,22 @@ def _run_into(
     env_kwargs: dict[str, Any],
     reset_options: Mapping[str, Any] | None,
     cli_args: Mapping[str, Any] | None,
+    observer_options: dict[str, Any],
+    controller_options: dict[str, Any],
 ) -> dict[str, Any]:
     """:func:`run_experiment`'s episodes and outputs, its arguments checked."""
     specs = [
-        EpisodeSpec(env_id, observer, controller, seed + i, steps, env_kwargs, reset_options)
+        EpisodeSpec.of(
+            env_id,
+            observer,
+            controller,
+            seed + i,
+            max_steps=steps,
+            env_kwargs=env_kwargs,
+            reset_options=reset_options,
+            observer_options=observer_options,
+            controller_options=controller_options,
+        )
         for i in range(episodes)
     ]
     tic_s = time.perf_counter()
@@ -331,13 +509,15 @@ def _run_into(
     ]
     summary = task.summarize(per_episode)
     consistency = nees_flag(per_episode)._asdict()
+    observed = observer_record(env_id, observer, observer_options)
 
     results = to_jsonable(
         {
             "config": {
                 "env_id": env_id,
-                "env_kwargs": {"obs_mode": task.OBSERVERS[observer][0], **env_kwargs},
-                "pipeline_options": task.OBSERVERS[observer][1],
+                "env_kwargs": {"obs_mode": observed["obs_mode"], **env_kwargs},
+                **{k: v for k, v in observed.items() if k != "obs_mode"},
+                "controller_options": controller_options,
                 "env_config": records[0]["env_config"],
                 "observer": observer,
                 "controller": controller,
@@ -379,12 +559,19 @@ def results_text(results: Mapping[str, Any]) -> str:
         f"observer-gym run: {config['env_id']}, observer {config['observer']}, controller "
         f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
         f"{results['wall_time_s']:.1f} s",
+        *entry_lines(config.get("entry"), config["controller_config"].get("entry")),
         summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
     ]
     consistency = results.get("consistency")
     if consistency and consistency.get("nees_ratio") is not None:
         lines.append(f"{NEES_COLUMN}: {consistency_text(consistency)}")
     return "\n".join([*lines, f"output: {config['out_dir']}"])
+
+
+def entry_lines(observer: Mapping | None, controller: Mapping | None) -> list[str]:
+    """The header lines naming an outside observer's and controller's entries."""
+    pairs = (("observer", observer), ("controller", controller))
+    return [entries.entry_line(kind, entry) for kind, entry in pairs if entry]
 
 
 def iter_episodes(

@@ -41,6 +41,7 @@ from observer_gym.train.compare_stats import (
     paired_difference,
 )
 from observer_gym.train.consistency import nees_flag
+from observer_gym.train.observer_env import observer_record
 from observer_gym.train.outputs import (
     VERSIONED_PACKAGES,
     OneLineWarning,
@@ -222,8 +223,9 @@ def assemble_results(
                 "point": dict(cell.point),
                 "observer": cell.observer,
                 "controller": cell.controller,
-                "obs_mode": task.OBSERVERS[cell.observer][0],
-                "pipeline_options": task.OBSERVERS[cell.observer][1],
+                **observer_record(
+                    plan.env_id, cell.observer, plan.options.observers[cell.observer]
+                ),
                 "controller_config": data["controller_config"],
                 "statistics": metrics_statistics(episodes, metrics),
                 "consistency": nees_flag(episodes)._asdict(),
@@ -316,6 +318,8 @@ def run_sweep(
     second_metric: str | None = None,
     progress: bool = True,
     cli_args: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> SweepResult:
     """Run every cell (grid point x observer x controller) of a sweep on the same seeds,
     resuming from the cells ``out_dir`` already holds; write its outputs.
@@ -347,6 +351,8 @@ def run_sweep(
         steps: cap on each episode's steps (None: the env's time limit).
         env_kwargs: fixed ``gym.make`` options for every cell (not a varied key).
         second_metric: the metric shown beside the primary one in the table and plots.
+        observer_options, controller_options: keyword arguments of every outside observer's
+            and controller's factory (:func:`~observer_gym.train.run.entry_options`).
         progress: a progress bar over the episodes to run.
         cli_args: the command line's arguments, recorded in timing.json.
 
@@ -360,7 +366,7 @@ def run_sweep(
     tic_s = time.perf_counter()
     plan = check_sweep(
         env_id, vary, observers, controllers, episodes, seed, out_dir, workers, backend,
-        address, steps, env_kwargs, second_metric,
+        address, steps, env_kwargs, second_metric, observer_options, controller_options,
     )  # fmt: skip
     for note in world_draw_notes(plan.env_id, plan.grid):
         warnings.warn(note, SweepWarning, stacklevel=2)

@@ -15,6 +15,9 @@ import argparse
 import sys
 
 from observer_gym.train.cli_args import (
+    OUTSIDE_CONTROLLERS_HELP,
+    OUTSIDE_OBSERVERS_HELP,
+    add_entry_option_arguments,
     add_env_option_argument,
     env_name,
     error_line,
@@ -54,7 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=name_list,
         required=True,
         metavar="LIST",
-        help="comma-separated observers, per env: " + per_env("observers"),
+        help="comma-separated observers, per env: "
+        + per_env("observers")
+        + "; "
+        + OUTSIDE_OBSERVERS_HELP,
     )
     parser.add_argument(
         "--controllers",
@@ -64,9 +70,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated controllers, per env: "
             + per_env("controllers")
-            + "; or a trained agent ALGO:DIR"
+            + "; or a trained agent ALGO:DIR; "
+            + OUTSIDE_CONTROLLERS_HELP
         ),
     )
+    add_entry_option_arguments(parser)
     parser.add_argument(
         "--episodes",
         type=positive_int,
@@ -136,21 +144,20 @@ def run(args: argparse.Namespace) -> int:
     an input rejected before anything runs, 1 for cells that cannot be summarised (no
     output written), 130 for Ctrl-C or SIGTERM (the cells written are kept, each whole).
     The progress bar shows only on a terminal."""
-    from observer_gym.train.checks import names_for
+    from observer_gym.train.checks import observer_mode
     from observer_gym.train.sweep_grid import check_grid
 
     env_options = dict(args.env_option)
     try:
         check_pairs(args.env, args.observers, args.controllers, env_options)
-        modes = names_for(args.env).observers
-        check_grid(args.env, args.vary, env_options, [modes[o] for o in args.observers])
+        modes = [observer_mode(args.env, o) for o in args.observers]
+        check_grid(args.env, args.vary, env_options, modes)
     except ValueError as exc:
         return _error(exc)
 
     # deferred: PyBullet's worlds, the controllers, SciPy, matplotlib
-    from observer_gym.train.sweep import run_sweep
+    from observer_gym.train import api
     from observer_gym.train.sweep_plan import check_sweep
-    from observer_gym.train.sweep_report import sweep_text
 
     options = {
         "env_id": args.env,
@@ -165,13 +172,20 @@ def run(args: argparse.Namespace) -> int:
         "steps": args.steps,
         "env_kwargs": env_options,
         "second_metric": args.second_metric,
+        "observer_options": dict(args.observer_option),
+        "controller_options": dict(args.controller_option),
     }
     try:
         check_sweep(**options, out_dir=args.out)
     except ValueError as exc:
         return _error(exc)
     try:
-        result = run_sweep(
+        result = api.sweep(
+            options.pop("env_id"),
+            options.pop("vary"),
+            options.pop("observers"),
+            options.pop("controllers"),
+            env_options=options.pop("env_kwargs"),
             **options,
             out_dir=args.out,
             progress=not args.no_progress and sys.stderr.isatty(),
@@ -184,16 +198,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return INTERRUPTED_EXIT_CODE
-    except ValueError as exc:  # cells that cannot be summarised: nothing written
+    except ValueError as exc:  # a failed episode, or cells that cannot be summarised
         print(error_line("observer-gym sweep", exc), file=sys.stderr)
         return 1
-    print(
-        sweep_text(
-            result.results,
-            result.out_dir,
-            result.cells_run,
-            result.cells_reused,
-            result.wall_time_s,
-        )
-    )
+    print(result.text)
     return 0

@@ -15,15 +15,16 @@ import hashlib
 import json
 import shlex
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from observer_gym.train.compare import check_designs, check_request, option_text
 from observer_gym.train.compare_report import safe_name
 from observer_gym.train.compare_stats import compare_metrics
+from observer_gym.train.observer_env import observer_setup
 from observer_gym.train.outputs import to_jsonable
-from observer_gym.train.run import EpisodeSpec
+from observer_gym.train.run import EntryOptions, EpisodeSpec, check_entries, entry_options
 from observer_gym.train.sweep_grid import Grid, VaryInput, check_grid, value_text
 from observer_gym.train.sweep_report import ROW_COLUMNS
 from observer_gym.train.tasks import task_for
@@ -70,6 +71,17 @@ class SweepPlan:
     workers: int = 1
     backend: str = "local"
     address: str | None = None
+    # the options given for the outside observers and controllers (entry_options)
+    observer_options: Mapping[str, Any] = field(default_factory=dict)
+    controller_options: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def options(self) -> EntryOptions:
+        """Each observer's and controller's options: the given ones for outside entries."""
+        return entry_options(
+            self.env_id, self.observers, self.controllers,
+            self.observer_options, self.controller_options,
+        )  # fmt: skip
 
     @property
     def cells(self) -> list[Cell]:
@@ -98,6 +110,17 @@ class SweepPlan:
                         "seed": self.seeds[0],
                         "steps": self.steps,
                         "env_kwargs": dict(self.env_kwargs),
+                        # only when given: the folders of sweeps without them stay valid
+                        **(
+                            {"observer_options": dict(self.observer_options)}
+                            if self.observer_options
+                            else {}
+                        ),
+                        **(
+                            {"controller_options": dict(self.controller_options)}
+                            if self.controller_options
+                            else {}
+                        ),
                     }
                 )
             )
@@ -111,8 +134,18 @@ class SweepPlan:
     def specs(self, cell: Cell) -> list[EpisodeSpec]:
         """The cell's episodes: episode i resets with ``seeds[i]``."""
         env_kwargs = {**self.env_kwargs, **cell.point}
+        options = self.options
         return [
-            EpisodeSpec(self.env_id, cell.observer, cell.controller, seed, self.steps, env_kwargs)
+            EpisodeSpec.of(
+                self.env_id,
+                cell.observer,
+                cell.controller,
+                seed,
+                max_steps=self.steps,
+                env_kwargs=env_kwargs,
+                observer_options=options.observers[cell.observer],
+                controller_options=options.controllers[cell.controller],
+            )
             for seed in self.seeds
         ]
 
@@ -127,8 +160,13 @@ class SweepPlan:
         words += ["--episodes", str(len(self.seeds)), "--seed", str(self.seeds[0])]
         if self.steps is not None:
             words += ["--steps", str(self.steps)]
-        for key, value in self.env_kwargs.items():
-            words += ["--env-option", option_text(key, value)]
+        for flag, options in (
+            ("--env-option", self.env_kwargs),
+            ("--observer-option", self.observer_options),
+            ("--controller-option", self.controller_options),
+        ):
+            for key, value in options.items():
+                words += [flag, option_text(key, value)]
         words += ["--second-metric", self.second_metric]
         return shlex.join(words)
 
@@ -154,6 +192,8 @@ def check_sweep(
     steps: int | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
     second_metric: str | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
 ) -> SweepPlan:
     """Check a sweep's inputs before anything runs; return its :class:`SweepPlan`.
 
@@ -164,8 +204,9 @@ def check_sweep(
     every value of its type and range, the configuration of every grid point valid with
     every observer's obs_mode); ``second_metric`` one of the task's ``COMPARE_METRICS``
     (default: its second); every baseline controller designed once at the first grid
-    point; and, with ``out_dir``, that the folder holds no other sweep
-    (:func:`check_out_dir`).
+    point, and each pair with an outside observer or controller tried once there with its
+    options (:func:`~observer_gym.train.run.check_entries`); and, with ``out_dir``, that
+    the folder holds no other sweep (:func:`check_out_dir`).
 
     Raises:
         ValueError: one line naming the bad value and what is allowed.
@@ -185,7 +226,7 @@ def check_sweep(
     )
     env_id, env_kwargs = checked["env_id"], checked["env_kwargs"]
     task = task_for(env_id)
-    obs_modes = [task.OBSERVERS[observer][0] for observer in checked["observers"]]
+    obs_modes = [observer_setup(env_id, observer)[0] for observer in checked["observers"]]
     grid = check_grid(env_id, vary, env_kwargs, obs_modes)
     metrics = list(compare_metrics(task))
     if second_metric is None:
@@ -211,7 +252,15 @@ def check_sweep(
         workers,
         backend,
         address,
+        dict(observer_options or {}),
+        dict(controller_options or {}),
     )
+    options = plan.options  # ValueError for options no outside entry takes
+    for cell in plan.cells[: len(plan.observers) * len(plan.controllers)]:  # the first point
+        check_entries(
+            env_id, cell.observer, cell.controller, {**env_kwargs, **cell.point},
+            options.observers[cell.observer], options.controllers[cell.controller], seed,
+        )  # fmt: skip
     if out_dir is not None:
         check_out_dir(out_dir, plan)
     return plan

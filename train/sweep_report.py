@@ -22,6 +22,7 @@ from observer_gym.train.compare_report import (
     format_difference,
     format_seeds,
     format_statistic,
+    outside_entries,
 )
 from observer_gym.train.compare_stats import PERCENT, MetricSpec
 from observer_gym.train.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
@@ -98,6 +99,8 @@ def write_markdown(path: Path, results: Mapping[str, Any]) -> None:
         + (f"at most {steps} steps each." if steps else "each to the env's end.")
         + (f" Fixed env options: {point_text(fixed)}." if fixed else ""),
         "",
+        *[f"- {line}" for line in outside_entries(results["cells"])],
+        *([""] if outside_entries(results["cells"]) else []),
         sweep_table(results),
         "",
         f"Cells: mean ± {PERCENT} half-width (Student t) over the episodes with a value, "
@@ -237,6 +240,7 @@ def sweep_text(
             f"({config['grid_points']} grid point(s) x {len(config['observers'])} observer(s) "
             f"x {len(config['controllers'])} controller(s)), {config['episodes']} episode(s) "
             f"each; {ran} cell(s) run, {reused} reused from the folder; {seconds:.1f} s",
+            *outside_entries(results["cells"]),
             sweep_table(results),
             f"table: {out_dir / 'table.md'}",
             "plots: " + ", ".join(str(out_dir / f) for f in results["files"] if f.endswith(".png")),

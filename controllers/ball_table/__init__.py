@@ -12,9 +12,19 @@ from observer_gym.controllers.pid import PIDController
 from observer_gym.controllers.registry import ControllerDesign
 
 CONTROLLERS = {
-    "lqr": ControllerDesign(LQRController, BallTablePlant.from_env),
-    "mpc": ControllerDesign(MPCController, BallTablePlant.from_env),
-    "pid": ControllerDesign(PIDController, BallTablePlant.from_env),
+    "lqr": ControllerDesign(
+        LQRController,
+        BallTablePlant.from_env,
+        "LQR on the linearised ball-and-tilt model (python-control dlqr), tilt saturated",
+    ),
+    "mpc": ControllerDesign(
+        MPCController,
+        BallTablePlant.from_env,
+        "MPC with tilt, tilt-rate and ball bounds (sparse QP, OSQP); the LQR as terminal cost",
+    ),
+    "pid": ControllerDesign(
+        PIDController, BallTablePlant.from_env, "PID per axis from the ball's position"
+    ),
 }
 
 __all__ = ["CONTROLLERS", "BallTablePlant", "ball_table_weights"]

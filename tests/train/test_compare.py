@@ -10,6 +10,7 @@ import math
 import shlex
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import gymnasium
@@ -379,10 +380,8 @@ def test_cli_refuses_conflicting_options(argv, message, tmp_path, capsys):
 def test_cli_episodes_and_seed_make_consecutive_seeds(tmp_path, monkeypatch):
     seen = {}
     monkeypatch.setattr(
-        "observer_gym.train.compare.run_comparison", lambda **kwargs: seen.update(kwargs)
-    )
-    monkeypatch.setattr(
-        "observer_gym.train.compare_report.comparison_text", lambda results: "(not run)"
+        "observer_gym.train.api.compare",
+        lambda *args, **kwargs: seen.update(kwargs) or SimpleNamespace(text="(not run)"),
     )
     argv = ["--observers", "oracle", "--controllers", "pid", "--episodes", "3", "--seed", "7"]
     assert compare_cli.run(parser().parse_args([*argv, "--out", str(tmp_path)])) == 0

@@ -237,10 +237,16 @@ def test_a_controller_made_for_another_env_raises(tmp_path):
         run_experiment("BallCatcher-v0", "oracle", "lqr", 1, 0, tmp_path, progress=False)
 
 
+def test_cli_names_what_an_observer_can_be(capsys):
+    assert main(["run", "--observer", "no-such-observer", "--controller", "lqr"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown observer 'no-such-observer'" in err
+    assert "raw-measurements" in err and "an import path package.module:factory" in err
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--observer", "no-such-observer", "--controller", "lqr"], "invalid choice"),
         (["--observer", "oracle", "--controller", "rl"], "neither a controller"),
         (["--observer", "oracle", "--controller", "a2c:runs/x"], "neither a controller"),
         (["--observer", "oracle", "--controller", "lqr", "--episodes", "0"], "must be an"),
