@@ -10,6 +10,12 @@ and the wall clock slow alike, the ratio is what to read.
 
 With ``--workers W`` > 1 the running phase is compared as wall x W against the sum (the
 workers' start-up then counts as overhead).
+
+Then what an outside observer and controller cost (docs/your_method.md): a sweep of
+kf-measurements and lqr against the same two named by import path
+(benchmarks/outside_entries.py passes them through, so every cell does the same work),
+in one run: each cell's median episode time against the built-in cell's (target: <= 1.05),
+and the checks before running (the outside entries are tried once on a built world).
 """
 
 from __future__ import annotations
@@ -17,13 +23,21 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
 import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from observer_gym.train.outputs import format_table, write_json_atomic
 from observer_gym.train.sweep import run_sweep
+
+sys.path.insert(0, str(Path(__file__).parent))  # outside_entries, as a user's package
+OUTSIDE_TARGET = 1.05  # an outside cell's median episode time over the built-in cell's
+KF, LQR = "kf-measurements", "lqr"
+OUTSIDE_KF, OUTSIDE_LQR = "outside_entries:kf_delegate-measurements", "outside_entries:lqr_delegate"
 
 TARGET = 0.05  # the machinery's share of the running phase
 SWEEP = {
@@ -103,6 +117,58 @@ def main() -> None:
     ]
     print(f"observer-gym sweep machinery, {os.cpu_count()} CPU(s)")
     print(format_table(["measure", "value"], rows))
+    print()
+    print(outside_table(args.episodes, args.steps))
+
+
+def outside_table(episodes: int, steps: int) -> str:
+    """The built-in and outside cells of one sweep, their median episode times and ratios."""
+    load_start = _load()
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        common = {**SWEEP, "episodes": episodes, "steps": steps, "vary": {"latency_s": [0.0]}}
+        builtin = run_sweep(
+            **{**common, "observers": [KF], "controllers": [LQR]}, out_dir=Path(tmp) / "builtin"
+        )
+        mixed = run_sweep(
+            **{**common, "observers": [KF, OUTSIDE_KF], "controllers": [LQR, OUTSIDE_LQR]},
+            out_dir=Path(tmp) / "mixed",
+        )
+        timing = json.loads((Path(tmp) / "mixed" / "timing.json").read_text())
+        checks = [
+            json.loads((Path(tmp) / name / "timing.json").read_text())["check_s"]
+            for name in ("builtin", "mixed")
+        ]
+    medians = {
+        (cell["observer"], cell["controller"]): float(
+            np.median(timing["cells"][cell["id"]]["episode_s"])
+        )
+        for cell in mixed.results["cells"]
+    }
+    reference = medians[KF, LQR]
+    rows = [
+        [
+            observer,
+            controller,
+            f"{1e3 * median:.1f}",
+            f"{median / reference:.3f}"
+            + (
+                ""
+                if (observer, controller) == (KF, LQR)
+                else (" (within)" if median / reference <= OUTSIDE_TARGET else " (over)")
+            ),
+        ]
+        for (observer, controller), median in medians.items()
+    ]
+    del builtin
+    rows.append(["checks before running, built-ins only (s)", "", f"{checks[0]:.2f}", ""])
+    rows.append(["checks before running, with the outside entries (s)", "", f"{checks[1]:.2f}", ""])
+    rows.append(["load average before / after", "", load_start, _load()])
+    return (
+        f"outside entries against built-ins ({episodes} episodes x {steps} steps per cell, "
+        f"target <= {OUTSIDE_TARGET})\n"
+        + format_table(["observer", "controller", "median episode (ms)", "x built-in"], rows)
+    )
 
 
 if __name__ == "__main__":

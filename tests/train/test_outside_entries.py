@@ -5,6 +5,10 @@ anything is written; a fault part-way names the episode and keeps finished cells
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -312,3 +316,54 @@ def test_list_has_one_line_for_every_system_observer_controller_and_shipped_agen
     for name in shipped_names():
         assert any(key.endswith(f":{name}") for key in named)
     assert observer_gym.compare is observer_gym.train.api.compare
+
+
+# --- the tutorial's package (docs/your_method.md) ------------------------------------------
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "your_method"
+
+
+def test_the_tutorials_alpha_beta_covariance_is_the_closed_form(monkeypatch):
+    # Benedict-Bordner: a fixed-gain alpha-beta filter's steady-state error variances under
+    # white measurement noise sigma^2 are sigma^2 (2 a^2 + 2 b - 3 a b) / (a (4 - 2 a - b))
+    # for the position and sigma^2 2 b^2 / (T^2 a (4 - 2 a - b)) for the velocity.
+    import gymnasium as gym
+
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    from mylab.filters import make_observer
+
+    env = gym.make("observer_gym/BallTable-v0", obs_mode="measurements", measurement_noise_px=1.0)
+    alpha, beta = 0.6, 0.25
+    pipeline = make_observer(env.unwrapped, alpha=alpha, beta=beta)
+    pipeline.reset()
+    obs, info = env.reset(seed=0)
+    estimate = pipeline.observe(obs, info, None)
+    obs, *_, info = env.step(np.zeros(2))
+    detection_var = pipeline.detector.observe(obs, info, np.zeros(2)).covariance[0, 0]
+    estimate = pipeline.observe(obs, info, np.zeros(2))
+    env.close()
+    dt = env.unwrapped.dt_s
+    denominator = alpha * (4 - 2 * alpha - beta)
+    position = detection_var * (2 * alpha**2 + 2 * beta - 3 * alpha * beta) / denominator
+    velocity = detection_var * 2 * beta**2 / (dt**2 * denominator)
+    np.testing.assert_allclose(estimate.covariance[0, 0], position, rtol=1e-9)
+    np.testing.assert_allclose(estimate.covariance[2, 2], velocity, rtol=1e-9)
+
+
+def test_the_tutorials_sweep_runs_from_python(tmp_path):
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(EXAMPLE), os.environ.get("PYTHONPATH", "")]),
+    }
+    argv = ["--out", str(tmp_path / "s"), "--episodes", "1", "--steps", "5", "--workers", "1"]
+    done = subprocess.run(
+        [sys.executable, str(EXAMPLE / "sweep.py"), *argv], env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    results = json.loads((tmp_path / "s" / "results.json").read_text())
+    observers = {cell["observer"] for cell in results["cells"]}
+    assert observers == {
+        "kf-measurements",
+        "ekf-measurements",
+        "mylab.filters:make_observer-measurements",
+    }
+    assert len(results["cells"]) == 24
