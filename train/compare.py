@@ -16,7 +16,6 @@ results), analyses them (:mod:`observer_gym.train.compare_stats`) and writes the
 from __future__ import annotations
 
 import ast
-import importlib.util
 import shlex
 import time
 import warnings
@@ -24,46 +23,19 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from observer_gym.controllers import controllers_for
-from observer_gym.train.aggregate import across_seeds, check_rliable
-from observer_gym.train.checks import check_seeds
+from observer_gym.train.aggregate import across_seeds
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
-from observer_gym.train.entries import load_factory
-from observer_gym.train.observer_env import make_env, observer_record, observer_setup
+from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import VERSIONED_PACKAGES, output_folder, package_versions
+from observer_gym.train.request import Request, resolve_request
 from observer_gym.train.run import (
-    EntryOptions,
     EpisodeSpec,
     build_controller,
-    check_controller,
     check_entries,
-    entry_options,
     run_episodes,
 )
-from observer_gym.train.run_dir import SEED_PREFIX, expand_agent, parse_agent_spec
-from observer_gym.train.systems import resolve_env_id
-from observer_gym.train.tasks import task_for
-
-BACKENDS = ("local", "ray")
-RAY_INSTALL_HINT = "pip install 'observer-gym[distributed]'"
-
-
-# --- validation ------------------------------------------------------------------------
-def _names(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
-    """``names`` as a list (a string is split at commas); ValueError if it is empty, has
-    an empty name or names one twice."""
-    if isinstance(names, str):
-        names = names.split(",")
-    names = [str(name).strip() for name in names]
-    if not names:
-        raise ValueError(f"{kind} must name at least one; allowed: {allowed}")
-    if "" in names:
-        raise ValueError(f"{kind} has an empty name in {names}; allowed: {allowed}")
-    duplicates = sorted({name for name in names if names.count(name) > 1})
-    if duplicates:
-        raise ValueError(f"{kind} lists {', '.join(map(repr, duplicates))} more than once")
-    return names
+from observer_gym.train.run_dir import SEED_PREFIX
 
 
 def check_comparison(
@@ -78,128 +50,54 @@ def check_comparison(
     env_kwargs: Mapping[str, Any] | None = None,
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Check a comparison's inputs; return them normalised (``env_id`` registered,
-    ``observers``, ``controllers`` and ``seeds`` as lists, ``env_kwargs`` a dict). A
-    trained agent naming a multi-seed run (``ALGO:DIR`` with ``DIR/seed_<s>/``) stands
-    for one agent per seed: ``controllers`` lists those, ``named_controllers`` the names
-    as given and ``seed_groups`` each multi-seed name's agents (scores across seeds need
-    rliable).
+) -> Request:
+    """Check a comparison's inputs; return its :class:`~observer_gym.train.request.Request`.
+    A trained agent naming a multi-seed run (``ALGO:DIR`` with ``DIR/seed_<s>/``) stands
+    for one agent per seed (the request's ``controllers``; ``named_controllers`` are the
+    names as given and ``seed_groups`` each multi-seed name's agents; scores across seeds
+    need rliable).
 
-    The cheap checks come first and build no env (:func:`check_request`); then each
-    baseline controller is designed once on the env's state version with ``env_kwargs``
+    The cheap checks come first and build no env
+    (:func:`~observer_gym.train.request.resolve_request`); then each baseline controller
+    is designed once on the env's state version with ``env_kwargs``
     (:func:`check_designs`: a BallCatcher controller on BallTable, or a bad env option,
     fails here rather than in every episode), and each pair with an outside observer or
     controller is tried once (:func:`observer_gym.train.run.check_entries`).
     ``observer_options`` and ``controller_options`` go to every outside observer's and
-    controller's factory (:func:`observer_gym.train.run.entry_options`).
+    controller's factory.
 
     Raises:
         ValueError: naming the bad value and what is allowed.
     """
-    checked = check_request(
-        env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs
-    )
-    checked["observer_options"] = dict(observer_options or {})
-    checked["controller_options"] = dict(controller_options or {})
-    options = entry_options(
-        checked["env_id"], checked["observers"], checked["controllers"],
+    request = resolve_request(
+        env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs,
         observer_options, controller_options,
     )  # fmt: skip
-    checked["options"] = options
-    check_designs(checked["env_id"], checked["controllers"], checked["env_kwargs"])
-    for controller in checked["controllers"]:
-        for observer in checked["observers"]:
+    check_designs(request, request.env_kwargs)
+    check_pairs_once(request, request.env_kwargs)
+    return request
+
+
+def check_pairs_once(request: Request, env_kwargs: Mapping[str, Any]) -> None:
+    """Try every pair with an outside observer or controller once with ``env_kwargs``
+    (:func:`observer_gym.train.run.check_entries`)."""
+    for controller in request.controllers:
+        for observer in request.observers:
+            if observer.plugin is None and controller.kind in ("design", "agent"):
+                continue
             check_entries(
-                checked["env_id"], observer, controller, checked["env_kwargs"],
-                options.observers[observer], options.controllers[controller],
-                checked["seeds"][0],
+                request.env_id, observer.name, controller.name, env_kwargs, observer.options,
+                controller.options, request.seeds[0],
             )  # fmt: skip
-    return checked
 
 
-def check_request(
-    env_id: str,
-    observers: Sequence[str] | str,
-    controllers: Sequence[str] | str,
-    seeds: Sequence[int],
-    workers: int = 1,
-    backend: str = "local",
-    address: str | None = None,
-    steps: int | None = None,
-    env_kwargs: Mapping[str, Any] | None = None,
-) -> dict[str, Any]:
-    """:func:`check_comparison`'s checks that build no env: the env, the observers (the
-    task's ``OBSERVERS``), the controllers (:func:`observer_gym.train.run.check_controller`
-    for every pair), non-empty lists without duplicates, seeds, ``workers``, ``steps``,
-    ``backend``, ``address`` and no ``obs_mode`` in ``env_kwargs``. Returns the inputs
-    normalised as :func:`check_comparison` does.
-
-    Raises:
-        ValueError: naming the bad value and what is allowed.
-    """
-    env_id = resolve_env_id(env_id)
-    task = task_for(env_id)
-    known = ", ".join(task.OBSERVERS)
-    observers = _names("observers", observers, known)
-    for observer in observers:
-        _, _, plugin = observer_setup(env_id, observer)  # ValueError naming what is allowed
-        if plugin is not None:
-            load_factory(plugin)
-    named = _names("controllers", controllers, "a controller name or ALGO:DIR")
-    seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}
-    controllers = [agent for name in named for agent in seed_groups.get(name, [name])]
-    duplicates = sorted({c for c in controllers if controllers.count(c) > 1})
-    if duplicates:
-        raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
-    if seed_groups:
-        try:
-            check_rliable()
-        except ImportError as exc:
-            raise ValueError(str(exc)) from None
-    for controller in controllers:
-        for observer in observers:
-            check_controller(controller, env_id, observer)
-    seeds = list(check_seeds(seeds))
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-        raise ValueError(f"steps must be an integer >= 1 or None, got {steps!r}")
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
-    if address is not None and backend != "ray":
-        raise ValueError(
-            f"address {address!r} is a Ray cluster's address: it needs backend 'ray', "
-            f"got {backend!r}"
-        )
-    if backend == "ray":
-        if workers != 1:
-            raise ValueError(
-                f"workers={workers} applies to the local backend only; with backend 'ray' "
-                "the cluster's CPUs decide how many episodes run at once"
-            )
-        if importlib.util.find_spec("ray") is None:
-            raise ValueError(f"backend 'ray' needs Ray, which is not installed: {RAY_INSTALL_HINT}")
-    env_kwargs = dict(env_kwargs or {})
-    if "obs_mode" in env_kwargs:
-        raise ValueError("env_kwargs must not set obs_mode: each observer decides it")
-    return {
-        "env_id": env_id,
-        "observers": observers,
-        "controllers": controllers,
-        "named_controllers": named,
-        "seed_groups": seed_groups,
-        "seeds": seeds,
-        "env_kwargs": env_kwargs,
-    }
-
-
-def check_designs(env_id: str, controllers: Sequence[str], env_kwargs: Mapping[str, Any]) -> None:
+def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     """Design every baseline controller of the package once on the state env with
     ``env_kwargs`` (trained agents were checked against the env by check_controller,
-    outside ones are tried by check_entries); ValueError if the env or a design fails."""
-    own = controllers_for(env_id)
-    baselines = [c for c in controllers if parse_agent_spec(c) is None and c in own]
+    outside ones are tried by :func:`check_pairs_once`); ValueError if the env or a
+    design fails."""
+    env_id = request.env_id
+    baselines = [c.name for c in request.controllers if c.kind == "design"]
     if not baselines:
         return
     try:
@@ -325,45 +223,34 @@ class PairRuns(NamedTuple):
         return {pair: self.records[k * n : (k + 1) * n] for k, pair in enumerate(self.pairs)}
 
 
-def run_pairs(
-    env_id: str,
-    observers: Sequence[str],
-    controllers: Sequence[str],
-    seeds: Sequence[int],
-    steps: int | None,
-    env_kwargs: Mapping[str, Any],
-    workers: int = 1,
-    backend: str = "local",
-    address: str | None = None,
-    progress: bool = True,
-    options: EntryOptions | None = None,
-) -> PairRuns:
-    """Run episode i of every (observer, controller) pair with ``seeds[i]``, all in one
-    batch: locally in ``workers`` processes or as Ray tasks (the same records). The inputs
-    are those :func:`check_comparison` returns."""
-    pairs = [(observer, controller) for controller in controllers for observer in observers]
+def run_pairs(request: Request, progress: bool = True) -> PairRuns:
+    """Run episode i of every (observer, controller) pair of ``request`` with
+    ``seeds[i]``, all in one batch: locally in ``workers`` processes or as Ray tasks (the
+    same records)."""
+    pairs = [(o, c) for c in request.controllers for o in request.observers]
     specs = [
         EpisodeSpec.of(
-            env_id,
-            observer,
-            controller,
+            request.env_id,
+            observer.name,
+            controller.name,
             seed,
-            max_steps=steps,
-            env_kwargs=env_kwargs,
-            observer_options=options.observers.get(observer, {}) if options else {},
-            controller_options=options.controllers.get(controller, {}) if options else {},
+            max_steps=request.steps,
+            env_kwargs=request.env_kwargs,
+            observer_options=observer.options,
+            controller_options=controller.options,
         )
         for observer, controller in pairs
-        for seed in seeds
+        for seed in request.seeds
     ]
     tic_s = time.perf_counter()
-    if backend == "ray":
+    if request.backend == "ray":
         from observer_gym.train.ray_backend import run_episodes_ray  # deferred: imports Ray
 
-        records = run_episodes_ray(specs, address=address, progress=progress)
+        records = run_episodes_ray(specs, address=request.address, progress=progress)
     else:
-        records = run_episodes(specs, workers, progress, desc="compare")
-    return PairRuns(pairs, records, time.perf_counter() - tic_s)
+        records = run_episodes(specs, request.workers, progress, desc="compare")
+    names = [(o.name, c.name) for o, c in pairs]
+    return PairRuns(names, records, time.perf_counter() - tic_s)
 
 
 def run_comparison(
@@ -424,42 +311,21 @@ def run_comparison(
     Raises:
         ValueError: a bad input (see :func:`check_comparison`).
     """
-    checked = check_comparison(
+    request = check_comparison(
         env_id, observers, controllers, seeds, workers, backend, address, steps, env_kwargs,
         observer_options, controller_options,
     )  # fmt: skip
-    observer_options, controller_options = (
-        checked["observer_options"],
-        checked["controller_options"],
-    )
-    env_id, observers, controllers = (checked[k] for k in ("env_id", "observers", "controllers"))
-    seeds, env_kwargs = checked["seeds"], checked["env_kwargs"]
-    named, seed_groups = checked["named_controllers"], checked["seed_groups"]
-    task = task_for(env_id)
+    task, seeds = request.task, list(request.seeds)
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
 
     with output_folder(out_dir, "compare"):
-        runs = run_pairs(
-            env_id,
-            observers,
-            controllers,
-            seeds,
-            steps,
-            env_kwargs,
-            workers,
-            backend,
-            address,
-            progress,
-            checked["options"],
-        )
-        observed = {
-            o: observer_record(env_id, o, checked["options"].observers[o]) for o in observers
-        }
+        runs = run_pairs(request, progress)
+        observed = {entry.name: entry.record() for entry in request.observers}
         analysis = analyse_pairs(
             task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records, observed
         )
-        across = across_seed_groups(analysis.pairs, seed_groups, next(iter(metrics)))
+        across = across_seed_groups(analysis.pairs, request.seed_groups, next(iter(metrics)))
         if not analysis.starts_match:
             warnings.warn(
                 "observer-gym compare: the pairs' episodes do not all start from the same state "
@@ -469,21 +335,22 @@ def run_comparison(
 
         env_config = dict(runs.records[0]["env_config"])
         env_config.pop("obs_mode", None)  # each pair's is its observer's (pairs[].obs_mode)
-        versions = VERSIONED_PACKAGES + ("scipy",) + (("ray",) if backend == "ray" else ())
+        ray = ("ray",) if request.backend == "ray" else ()
+        versions = (*VERSIONED_PACKAGES, "scipy", *ray)
         results = {
             "config": {
-                "env_id": env_id,
-                "observers": observers,
-                "controllers": controllers,
-                "seed_groups": seed_groups,
+                "env_id": request.env_id,
+                "observers": request.observer_names,
+                "controllers": request.controller_names,
+                "seed_groups": request.seed_groups,
                 "seeds": seeds,
                 "episodes": len(seeds),
-                "steps": steps,
-                "env_kwargs": env_kwargs,
+                "steps": request.steps,
+                "env_kwargs": request.env_kwargs,
                 "env_config": env_config,
-                "workers": workers,
-                "backend": backend,
-                "address": address,
+                "workers": request.workers,
+                "backend": request.backend,
+                "address": request.address,
                 "confidence": CONFIDENCE,
                 "primary_metric": next(iter(metrics)),
                 "metrics": {
@@ -494,20 +361,20 @@ def run_comparison(
                 },
                 **task.CONFIG,
                 "command": command_line(
-                    env_id,
-                    observers,
-                    named,
+                    request.env_id,
+                    request.observer_names,
+                    request.named_controllers,
                     seeds,
-                    steps,
-                    workers,
-                    backend,
-                    address,
-                    env_kwargs,
-                    observer_options,
-                    controller_options,
+                    request.steps,
+                    request.workers,
+                    request.backend,
+                    request.address,
+                    request.env_kwargs,
+                    request.observer_options,
+                    request.controller_options,
                 ),
-                "observer_options": observer_options,
-                "controller_options": controller_options,
+                "observer_options": request.observer_options,
+                "controller_options": request.controller_options,
                 "out_dir": str(out_dir),
                 "cli_args": cli_args,
             },

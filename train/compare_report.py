@@ -290,13 +290,13 @@ def plot_bars(
             yerr=[below, above],
             capsize=3,
             color=f"C{j % 10}",
-            label=observer,
+            label=short_label(observer),
         )
         ax.bar_label(bars, labels=counts, label_type="center", fontsize=7)
         for position, height in zip(positions, heights, strict=True):
             if np.isnan(height):
                 ax.text(position, 0.0, "n/a", ha="center", va="bottom", fontsize=7)
-    ax.set_xticks(x, controllers)
+    ax.set_xticks(x, [short_label(c) for c in controllers])
     ax.set_xlim(-0.5, len(controllers) - 0.5)
     ax.set_xlabel("controller")
     ax.set_ylabel(f"{label} ({unit})" if unit else label)
@@ -373,6 +373,15 @@ def write_comparison(
         written = to_jsonable({**results, "files": files})
         write_json_atomic(staging / "results.json", written)
     return written
+
+
+def short_label(name: str, width: int = 32) -> str:
+    """``name`` for a plot's tick or legend: a long one (a path, an import path) keeps its
+    start and end around an ellipsis."""
+    if len(name) <= width:
+        return name
+    keep = (width - 1) // 2
+    return f"{name[:keep]}…{name[-keep:]}"
 
 
 def outside_entries(rows: Sequence[Mapping[str, Any]]) -> list[str]:

@@ -17,22 +17,20 @@ import multiprocessing
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
 from observer_gym.controllers import (
-    check_controller_fits,
     controllers_for,
     controllers_of,
     make_controller,
 )
-from observer_gym.envs import system_for_id, system_of
+from observer_gym.envs import system_of
 from observer_gym.train import entries
 from observer_gym.train.agent import Agent
-from observer_gym.train.checks import AGENT_FORMS, OUTSIDE_FORMS, check_agent, frames_message
 from observer_gym.train.consistency import (
     NEES_COLUMN,
     consistency_text,
@@ -43,10 +41,9 @@ from observer_gym.train.consistency import (
 from observer_gym.train.controller_entries import (
     CheckedController,
     PolicyFile,
-    check_policy_file,
     is_policy_file,
 )
-from observer_gym.train.observer_env import make_env, observer_record, observer_setup
+from observer_gym.train.observer_env import make_env, observer_setup
 from observer_gym.train.outputs import (
     format_table,
     json_text,
@@ -56,8 +53,8 @@ from observer_gym.train.outputs import (
     to_jsonable,
     write_json_atomic,
 )
+from observer_gym.train.request import Request, check_pair, resolve_request
 from observer_gym.train.run_dir import parse_agent_spec
-from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks import task_for
 
 # Controller attributes recorded in results.json when present (the MPC's Q, R, K are its
@@ -131,45 +128,6 @@ def is_outside(env_id: str, observer: str, controller: str) -> bool:
     return observer_setup(env_id, observer)[2] is not None or outside_controller
 
 
-class EntryOptions(NamedTuple):
-    """The options of each observer and controller of a request, by name: the options
-    given go to every outside entry of their kind, none to the package's own."""
-
-    observers: dict[str, dict[str, Any]]
-    controllers: dict[str, dict[str, Any]]
-
-
-def entry_options(
-    env_id: str,
-    observers: Sequence[str],
-    controllers: Sequence[str],
-    observer_options: Mapping[str, Any] | None = None,
-    controller_options: Mapping[str, Any] | None = None,
-) -> EntryOptions:
-    """Each entry's options (:class:`EntryOptions`); ValueError for options of a kind
-    with no outside entry to take them."""
-
-    def outside_observer(name: str) -> bool:
-        return observer_setup(env_id, name)[2] is not None
-
-    def outside_controller(name: str) -> bool:
-        return parse_agent_spec(name) is None and name not in controllers_for(env_id)
-
-    per_kind = []
-    for kind, names, options, outside in (
-        ("observer", observers, observer_options, outside_observer),
-        ("controller", controllers, controller_options, outside_controller),
-    ):
-        options = dict(options or {})
-        if options and not any(outside(name) for name in names):
-            raise ValueError(
-                f"{kind} options {options} apply to outside {kind}s (an import path or an "
-                f"entry point) only; none is among {', '.join(names)}"
-            )
-        per_kind.append({name: options if outside(name) else {} for name in names})
-    return EntryOptions(*per_kind)
-
-
 def check_entries(
     env_id: str,
     observer: str,
@@ -196,55 +154,6 @@ def check_entries(
         env.step(action)
     finally:
         env.close()
-
-
-def check_controller(controller: str, env_id: str, observer: str) -> None:
-    """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
-    ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
-    system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
-    folder holds a run of ``env_id`` with a model to load
-    (:func:`observer_gym.train.checks.check_agent`), a stable-baselines3 zip
-    ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
-    :mod:`observer_gym.train.entries`; its factory is imported). Controllers, outside
-    ones and agents trained on the state or an estimate read the state layout (any
-    observer but "pixels"); an agent trained on rgb reads only "pixels"."""
-    obs_mode, pipeline, plugin = observer_setup(env_id, observer)
-    reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
-    agent_spec = parse_agent_spec(controller)
-    if agent_spec is None:
-        controller_plugin = None
-        if controller not in controllers_for(env_id):
-            controller_plugin = entries.find_plugin("controller", controller)
-        if controller_plugin is not None:
-            entries.load_factory(controller_plugin)
-        else:
-            check_controller_fits(
-                controller,
-                system_for_id(env_id),
-                others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}",
-            )
-        if reads_pixels:
-            raise ValueError(frames_message(controller, observer))
-        return
-    if is_policy_file(agent_spec[1]):
-        check_policy_file(controller, agent_spec[1])
-        if reads_pixels:
-            raise ValueError(frames_message(controller, observer))
-        return
-    check_agent(controller, resolve_env_id(env_id), reads_pixels, observer)
-
-
-def check_pair(env_id: str, observer: str, controller: str) -> str:
-    """The registered id of ``env_id`` after checking that ``observer`` is one of its
-    task's ``OBSERVERS`` or an outside observer whose factory imports, and ``controller``
-    acts on it (:func:`check_controller`); ValueError naming what is allowed otherwise.
-    Builds no env."""
-    env_id = resolve_env_id(env_id)
-    _, _, plugin = observer_setup(env_id, observer)
-    if plugin is not None:
-        entries.load_factory(plugin)
-    check_controller(controller, env_id, observer)
-    return env_id
 
 
 def build_controller(
@@ -436,8 +345,7 @@ def run_experiment(
     Raises:
         ValueError: an unknown env, observer or controller, a count < 1 or a negative seed.
     """
-    env_id = check_pair(env_id, observer, controller)
-    task = task_for(env_id)
+    env_id = check_pair(env_id, observer, controller)  # the messages of the command's checks
     for name, value in (("episodes", episodes), ("workers", workers), ("steps", steps)):
         if value is not None and (int(value) != value or value < 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -446,56 +354,48 @@ def run_experiment(
     env_kwargs = dict(env_kwargs or {})
     if "obs_mode" in env_kwargs:
         raise ValueError("env_kwargs must not set obs_mode: the observer decides it")
-    options = entry_options(env_id, [observer], [controller], observer_options, controller_options)
-    observer_options, controller_options = (
-        options.observers[observer],
-        options.controllers[controller],
-    )
+    request = resolve_request(
+        env_id, [observer], [controller], range(seed, seed + episodes), workers, "local", None,
+        steps, env_kwargs, observer_options, controller_options,
+    )  # fmt: skip
+    observer_entry, controller_entry = request.observers[0], request.controllers[0]
     check_entries(
-        env_id, observer, controller, env_kwargs, observer_options, controller_options, seed
-    )
+        env_id, observer, controller, env_kwargs, observer_entry.options,
+        controller_entry.options, seed,
+    )  # fmt: skip
     out_dir = Path(out_dir)
     with output_folder(out_dir, "run"):
         return _run_into(
-            out_dir, task, env_id, observer, controller, episodes, seed, steps, workers,
-            progress, env_kwargs, reset_options, cli_args, observer_options, controller_options,
+            out_dir, request, reset_options, cli_args, progress,
         )  # fmt: skip
 
 
 def _run_into(
     out_dir: Path,
-    task: Any,
-    env_id: str,
-    observer: str,
-    controller: str,
-    episodes: int,
-    seed: int,
-    steps: int | None,
-    workers: int,
-    progress: bool,
-    env_kwargs: dict[str, Any],
+    request: Request,
     reset_options: Mapping[str, Any] | None,
     cli_args: Mapping[str, Any] | None,
-    observer_options: dict[str, Any],
-    controller_options: dict[str, Any],
+    progress: bool,
 ) -> dict[str, Any]:
-    """:func:`run_experiment`'s episodes and outputs, its arguments checked."""
+    """:func:`run_experiment`'s episodes and outputs, its request checked."""
+    observer, controller = request.observers[0], request.controllers[0]
+    task, env_kwargs, seeds = request.task, request.env_kwargs, request.seeds
     specs = [
         EpisodeSpec.of(
-            env_id,
-            observer,
-            controller,
-            seed + i,
-            max_steps=steps,
+            request.env_id,
+            observer.name,
+            controller.name,
+            seed,
+            max_steps=request.steps,
             env_kwargs=env_kwargs,
             reset_options=reset_options,
-            observer_options=observer_options,
-            controller_options=controller_options,
+            observer_options=observer.options,
+            controller_options=controller.options,
         )
-        for i in range(episodes)
+        for seed in seeds
     ]
     tic_s = time.perf_counter()
-    records = run_episodes(specs, workers, progress)
+    records = run_episodes(specs, request.workers, progress)
     wall_time_s = time.perf_counter() - tic_s
 
     per_episode = [
@@ -509,29 +409,29 @@ def _run_into(
     ]
     summary = task.summarize(per_episode)
     consistency = nees_flag(per_episode)._asdict()
-    observed = observer_record(env_id, observer, observer_options)
+    observed = observer.record()
 
     results = to_jsonable(
         {
             "config": {
-                "env_id": env_id,
+                "env_id": request.env_id,
                 "env_kwargs": {"obs_mode": observed["obs_mode"], **env_kwargs},
                 **{k: v for k, v in observed.items() if k != "obs_mode"},
-                "controller_options": controller_options,
+                "controller_options": controller.options,
                 "env_config": records[0]["env_config"],
-                "observer": observer,
-                "controller": controller,
+                "observer": observer.name,
+                "controller": controller.name,
                 "controller_config": records[0]["controller"],
-                "episodes": episodes,
-                "seed": seed,
-                "steps": steps,
-                "workers": workers,
+                "episodes": len(seeds),
+                "seed": seeds[0],
+                "steps": request.steps,
+                "workers": request.workers,
                 "reset_options": reset_options,
                 **task.CONFIG,
                 "out_dir": str(out_dir),
                 "cli_args": cli_args,
             },
-            "seed": seed,
+            "seed": seeds[0],
             "versions": package_versions(),
             "wall_time_s": wall_time_s,
             "episodes": per_episode,
@@ -544,7 +444,7 @@ def _run_into(
     except ValueError as exc:
         raise ValueError(f"results.json cannot be written: {exc}") from None
     with output_set(out_dir) as staging:  # the plots and results.json, all or none
-        results["files"] = [*task.plot(records, observer, staging), "results.json"]
+        results["files"] = [*task.plot(records, observer.name, staging), "results.json"]
         write_json_atomic(staging / "results.json", results)
     return results
 

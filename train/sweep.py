@@ -41,7 +41,6 @@ from observer_gym.train.compare_stats import (
     paired_difference,
 )
 from observer_gym.train.consistency import nees_flag
-from observer_gym.train.observer_env import observer_record
 from observer_gym.train.outputs import (
     VERSIONED_PACKAGES,
     OneLineWarning,
@@ -205,7 +204,7 @@ def assemble_results(
     ``vs_reference``, the paired difference of the primary metric from the cell with the
     same observer and controller at the first grid point) and ``episodes`` (one row per
     episode: cell id, the point's values, observer, controller, episode, seed, metrics)."""
-    task = task_for(plan.env_id)
+    task = plan.request.task
     metrics = compare_metrics(task)
     primary = plan.primary_metric
     first = plan.grid.first()
@@ -223,9 +222,7 @@ def assemble_results(
                 "point": dict(cell.point),
                 "observer": cell.observer,
                 "controller": cell.controller,
-                **observer_record(
-                    plan.env_id, cell.observer, plan.options.observers[cell.observer]
-                ),
+                **plan.request.observer(cell.observer).record(),
                 "controller_config": data["controller_config"],
                 "statistics": metrics_statistics(episodes, metrics),
                 "consistency": nees_flag(episodes)._asdict(),
@@ -352,7 +349,7 @@ def run_sweep(
         env_kwargs: fixed ``gym.make`` options for every cell (not a varied key).
         second_metric: the metric shown beside the primary one in the table and plots.
         observer_options, controller_options: keyword arguments of every outside observer's
-            and controller's factory (:func:`~observer_gym.train.run.entry_options`).
+            and controller's factory.
         progress: a progress bar over the episodes to run.
         cli_args: the command line's arguments, recorded in timing.json.
 

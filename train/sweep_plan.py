@@ -15,19 +15,18 @@ import hashlib
 import json
 import shlex
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.compare import check_designs, check_request, option_text
+from observer_gym.train.compare import check_designs, check_pairs_once, option_text
 from observer_gym.train.compare_report import safe_name
 from observer_gym.train.compare_stats import compare_metrics
-from observer_gym.train.observer_env import observer_setup
 from observer_gym.train.outputs import to_jsonable
-from observer_gym.train.run import EntryOptions, EpisodeSpec, check_entries, entry_options
+from observer_gym.train.request import Request, resolve_request
+from observer_gym.train.run import EpisodeSpec
 from observer_gym.train.sweep_grid import Grid, VaryInput, check_grid, value_text
 from observer_gym.train.sweep_report import ROW_COLUMNS
-from observer_gym.train.tasks import task_for
 
 # The output folder: the arguments (written once), a file per finished cell.
 ARGUMENTS_FILE = "sweep.json"
@@ -59,29 +58,54 @@ class SweepPlan:
     """A checked sweep: what :func:`check_sweep` returns and
     :func:`observer_gym.train.sweep.run_sweep` runs."""
 
-    env_id: str
+    request: Request  # the env, observers, controllers, seeds, options: resolved once
     grid: Grid
-    observers: tuple[str, ...]
-    controllers: tuple[str, ...]
-    seeds: tuple[int, ...]
-    steps: int | None
-    env_kwargs: Mapping[str, Any]
     primary_metric: str
     second_metric: str
-    workers: int = 1
-    backend: str = "local"
-    address: str | None = None
-    # the options given for the outside observers and controllers (entry_options)
-    observer_options: Mapping[str, Any] = field(default_factory=dict)
-    controller_options: Mapping[str, Any] = field(default_factory=dict)
 
     @property
-    def options(self) -> EntryOptions:
-        """Each observer's and controller's options: the given ones for outside entries."""
-        return entry_options(
-            self.env_id, self.observers, self.controllers,
-            self.observer_options, self.controller_options,
-        )  # fmt: skip
+    def env_id(self) -> str:
+        return self.request.env_id
+
+    @property
+    def observers(self) -> tuple[str, ...]:
+        return tuple(self.request.observer_names)
+
+    @property
+    def controllers(self) -> tuple[str, ...]:
+        return tuple(self.request.controller_names)
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        return self.request.seeds
+
+    @property
+    def steps(self) -> int | None:
+        return self.request.steps
+
+    @property
+    def env_kwargs(self) -> Mapping[str, Any]:
+        return self.request.env_kwargs
+
+    @property
+    def workers(self) -> int:
+        return self.request.workers
+
+    @property
+    def backend(self) -> str:
+        return self.request.backend
+
+    @property
+    def address(self) -> str | None:
+        return self.request.address
+
+    @property
+    def observer_options(self) -> Mapping[str, Any]:
+        return self.request.observer_options
+
+    @property
+    def controller_options(self) -> Mapping[str, Any]:
+        return self.request.controller_options
 
     @property
     def cells(self) -> list[Cell]:
@@ -134,7 +158,8 @@ class SweepPlan:
     def specs(self, cell: Cell) -> list[EpisodeSpec]:
         """The cell's episodes: episode i resets with ``seeds[i]``."""
         env_kwargs = {**self.env_kwargs, **cell.point}
-        options = self.options
+        observer = self.request.observer(cell.observer)
+        controller = self.request.controller(cell.controller)
         return [
             EpisodeSpec.of(
                 self.env_id,
@@ -143,8 +168,8 @@ class SweepPlan:
                 seed,
                 max_steps=self.steps,
                 env_kwargs=env_kwargs,
-                observer_options=options.observers[cell.observer],
-                controller_options=options.controllers[cell.controller],
+                observer_options=observer.options,
+                controller_options=controller.options,
             )
             for seed in self.seeds
         ]
@@ -199,7 +224,7 @@ def check_sweep(
 
     In order: ``episodes`` >= 1 and ``seed`` >= 0; the env, observers, controllers,
     ``workers``, ``backend``, ``address``, ``steps`` and ``env_kwargs`` as compare checks
-    them (:func:`~observer_gym.train.compare.check_request`); the grid
+    them (:func:`~observer_gym.train.request.resolve_request`); the grid
     (:func:`~observer_gym.train.sweep_grid.check_grid`: every key an option of the env,
     every value of its type and range, the configuration of every grid point valid with
     every observer's obs_mode); ``second_metric`` one of the task's ``COMPARE_METRICS``
@@ -213,21 +238,12 @@ def check_sweep(
     """
     episodes = _count("episodes", episodes, 1)
     seed = _count("seed", seed, 0)
-    checked = check_request(
-        env_id,
-        observers,
-        controllers,
-        list(range(seed, seed + episodes)),
-        workers,
-        backend,
-        address,
-        steps,
-        env_kwargs,
-    )
-    env_id, env_kwargs = checked["env_id"], checked["env_kwargs"]
-    task = task_for(env_id)
-    obs_modes = [observer_setup(env_id, observer)[0] for observer in checked["observers"]]
-    grid = check_grid(env_id, vary, env_kwargs, obs_modes)
+    request = resolve_request(
+        env_id, observers, controllers, list(range(seed, seed + episodes)), workers, backend,
+        address, steps, env_kwargs, observer_options, controller_options,
+    )  # fmt: skip
+    env_id, env_kwargs, task = request.env_id, request.env_kwargs, request.task
+    grid = check_grid(env_id, vary, env_kwargs, [entry.obs_mode for entry in request.observers])
     metrics = list(compare_metrics(task))
     if second_metric is None:
         second_metric = metrics[1] if len(metrics) > 1 else metrics[0]
@@ -238,29 +254,10 @@ def check_sweep(
     taken = sorted(set(grid.keys) & {"cell", *ROW_COLUMNS, *metrics})
     if taken:
         raise ValueError(f"vary: {', '.join(taken)} would name a column of the results twice")
-    check_designs(env_id, checked["controllers"], {**env_kwargs, **grid.first()})
-    plan = SweepPlan(
-        env_id,
-        grid,
-        tuple(checked["observers"]),
-        tuple(checked["controllers"]),
-        tuple(checked["seeds"]),
-        steps,
-        env_kwargs,
-        metrics[0],
-        second_metric,
-        workers,
-        backend,
-        address,
-        dict(observer_options or {}),
-        dict(controller_options or {}),
-    )
-    options = plan.options  # ValueError for options no outside entry takes
-    for cell in plan.cells[: len(plan.observers) * len(plan.controllers)]:  # the first point
-        check_entries(
-            env_id, cell.observer, cell.controller, {**env_kwargs, **cell.point},
-            options.observers[cell.observer], options.controllers[cell.controller], seed,
-        )  # fmt: skip
+    first_point = {**env_kwargs, **grid.first()}
+    check_designs(request, first_point)
+    check_pairs_once(request, first_point)
+    plan = SweepPlan(request, grid, metrics[0], second_metric)
     if out_dir is not None:
         check_out_dir(out_dir, plan)
     return plan

@@ -20,7 +20,7 @@ from observer_gym.train import checks
 from observer_gym.train.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.cli import build_parser
 from observer_gym.train.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
-from observer_gym.train.run import check_pair
+from observer_gym.train.request import check_pair
 from observer_gym.train.systems import system_entries
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]

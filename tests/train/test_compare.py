@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from observer_gym.train import cli_args, compare, compare_cli, compare_report, ray_backend
+from observer_gym.train import cli_args, compare, compare_cli, compare_report, ray_backend, request
 from observer_gym.train.compare import command_line, run_comparison
 from observer_gym.train.compare_report import format_seeds, pair_folders, safe_name
 from observer_gym.train.compare_stats import (
@@ -217,7 +217,7 @@ def test_without_ray_the_ray_backend_says_how_to_install_it(tmp_path, monkeypatc
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray now raises ImportError
     with pytest.raises(ImportError, match=r"pip install 'observer-gym\[distributed\]'"):
         ray_backend.run_episodes_ray([])
-    monkeypatch.setattr(compare.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(request.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(ValueError, match=r"needs Ray.*pip install 'observer-gym\[distributed\]'"):
         run_comparison("BallTable-v0", ["oracle"], ["lqr"], [0], tmp_path / "out", backend="ray")
     assert not (tmp_path / "out").exists()

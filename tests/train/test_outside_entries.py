@@ -278,6 +278,7 @@ def test_a_policy_zip_trained_with_plain_stable_baselines3_is_compared(tmp_path,
     model.learn(128)
     env.close()
     path = tmp_path / "elsewhere" / "policy.zip"
+    path.parent.mkdir()
     model.save(path)
     out = tmp_path / "cmp"
     argv = ["compare", "--env", ENV, "--observers", "kf-measurements", "--controllers"]
