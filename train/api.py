@@ -154,7 +154,7 @@ def run(
     writes results.json and the env's plots into ``out_dir`` (default: a new folder
     under runs/). ``observer_options`` and ``controller_options`` go to an outside
     observer's and controller's factory. ValueError for a bad input, before anything
-    runs; :class:`observer_gym.train.run.EpisodeError` for an episode that fails
+    runs; :class:`observer_gym.train.episode.EpisodeError` for an episode that fails
     part-way (nothing is written)."""
     from observer_gym.train.run import results_text, run_experiment
 

@@ -10,7 +10,7 @@ controllers. It is a copy, so that parsing and checking import only the registry
 (Gymnasium); tests/train/test_cli_errors.py holds it equal to the layers
 (:func:`observer_gym.train.systems.system_entries`), and the library checks every request
 again against the layers themselves, with the same messages
-(:func:`observer_gym.train.run.check_pair`).
+(:func:`observer_gym.train.request.check_pair`).
 
 Env options are checked by the env's configuration class (``config_class.from_kwargs``,
 the check the env runs first), which imports the env's module and PyBullet but builds no
@@ -176,7 +176,7 @@ def observer_mode(env_id: str, observer: str) -> str:
 
 def check_controller(controller: str, env_id: str, observer: str) -> None:
     """ValueError unless ``controller`` acts on ``observer``'s output in ``env_id`` (as
-    :func:`observer_gym.train.run.check_controller`): one of the system's controllers
+    :func:`observer_gym.train.request.check_controller`): one of the system's controllers
     (another system's is refused naming those that fit), which read the state layout
     (any observer but one giving camera frames), or a trained agent ``ALGO:DIR`` whose
     folder holds a run of ``env_id`` with a model to load, trained on what ``observer``

@@ -191,7 +191,7 @@ def _run_run(args: argparse.Namespace) -> int:
         return _error("run", exc)
 
     from observer_gym.train import api  # deferred: the layers
-    from observer_gym.train.run import EpisodeError
+    from observer_gym.train.episode import EpisodeError
 
     try:
         result = api.run(

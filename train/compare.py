@@ -26,15 +26,10 @@ from typing import Any, NamedTuple
 from observer_gym.train.aggregate import across_seeds
 from observer_gym.train.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.compare_stats import CONFIDENCE, ORACLE, analyse_pairs, compare_metrics
+from observer_gym.train.episode import EpisodeSpec, build_controller, check_entries, run_episodes
 from observer_gym.train.observer_env import make_env
 from observer_gym.train.outputs import VERSIONED_PACKAGES, output_folder, package_versions
 from observer_gym.train.request import Request, resolve_request
-from observer_gym.train.run import (
-    EpisodeSpec,
-    build_controller,
-    check_entries,
-    run_episodes,
-)
 from observer_gym.train.run_dir import SEED_PREFIX
 
 
@@ -62,7 +57,7 @@ def check_comparison(
     is designed once on the env's state version with ``env_kwargs``
     (:func:`check_designs`: a BallCatcher controller on BallTable, or a bad env option,
     fails here rather than in every episode), and each pair with an outside observer or
-    controller is tried once (:func:`observer_gym.train.run.check_entries`).
+    controller is tried once (:func:`observer_gym.train.episode.check_entries`).
     ``observer_options`` and ``controller_options`` go to every outside observer's and
     controller's factory.
 
@@ -80,7 +75,7 @@ def check_comparison(
 
 def check_pairs_once(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     """Try every pair with an outside observer or controller once with ``env_kwargs``
-    (:func:`observer_gym.train.run.check_entries`)."""
+    (:func:`observer_gym.train.episode.check_entries`)."""
     for controller in request.controllers:
         for observer in request.observers:
             if observer.plugin is None and controller.kind in ("design", "agent"):

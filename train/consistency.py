@@ -77,7 +77,7 @@ def nees_per_step(
 
 def episode_consistency(record: Mapping[str, Any]) -> dict[str, float | None]:
     """The episode's mean NEES and mean NIS with their mean degrees of freedom, from a
-    :func:`observer_gym.train.run.run_episode` record; {} for the oracle (no estimate).
+    :func:`observer_gym.train.episode.run_episode` record; {} for the oracle (no estimate).
     ``nees_ratio`` = mean NEES / mean dof (1 for a consistent filter); None where the
     observer gave none."""
     if record.get("nees") is None:

@@ -29,9 +29,9 @@ from scipy import stats
 
 from observer_gym.train.cli_args import error_line
 from observer_gym.train.consistency import consistency_text, episode_consistency, nees_flag
+from observer_gym.train.episode import EpisodeSpec, run_episode
 from observer_gym.train.outputs import format_table, write_text_atomic
 from observer_gym.train.plots import new_figure, save_figure
-from observer_gym.train.run import EpisodeSpec, run_episode
 from observer_gym.train.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 ACCEPTED = (1.0 / 3.0, 3.0)  # the range the tests hold every observer's median NEES/dof to

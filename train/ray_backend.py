@@ -1,7 +1,7 @@
 """Ray tasks: the ``ray`` backend of ``observer-gym compare``, ``sweep`` and ``train --seeds``.
 
-Each :class:`~observer_gym.train.run.EpisodeSpec` runs as one Ray task calling
-:func:`~observer_gym.train.run.run_episode` (and each seed of a multi-seed training run
+Each :class:`~observer_gym.train.episode.EpisodeSpec` runs as one Ray task calling
+:func:`~observer_gym.train.episode.run_episode` (and each seed of a multi-seed training run
 as one calling :func:`~observer_gym.train.training.continue_run`:
 :mod:`observer_gym.train.seeds`), on a local Ray instance or on an existing
 cluster (``ray start --head`` on one machine, ``ray start --address HEAD:6379`` on the
@@ -25,7 +25,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from observer_gym.train.run import EpisodeSpec, run_episode
+from observer_gym.train.episode import EpisodeSpec, run_episode
 
 INSTALL_HINT = "pip install 'observer-gym[distributed]'"
 CANCEL_WAIT_S = 60.0  # how long cancelled tasks get to end before Ray shuts down

@@ -10,7 +10,7 @@ and controller by name (the command line's light copies are in
 Each observer becomes an :class:`ObserverEntry` (its env mode, the package's pipeline
 options or an outside entry, its options) and each controller a :class:`ControllerEntry`
 (the package's design, a trained agent, a stable-baselines3 zip or an outside entry).
-Episodes still travel to workers by name (:class:`~observer_gym.train.run.EpisodeSpec`):
+Episodes still travel to workers by name (:class:`~observer_gym.train.episode.EpisodeSpec`):
 names and import paths pickle, and a worker resolves them again in its own process.
 """
 

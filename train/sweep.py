@@ -5,7 +5,7 @@ The cells and their episodes come from :func:`~observer_gym.train.sweep_plan.che
 (episode i resets with seed S + i in every cell, so cells are paired episode by episode,
 across observers and controllers as in ``observer-gym compare`` and across grid points as
 far as the varied option leaves the world's random draws alone: docs/sweep.md). The
-episodes run as compare's do (locally by :func:`~observer_gym.train.run.iter_episodes`, or
+episodes run as compare's do (locally by :func:`~observer_gym.train.episode.iter_episodes`, or
 as Ray tasks by :func:`~observer_gym.train.ray_backend.iter_episodes_ray`), measured with
 the task's metrics (:func:`~observer_gym.train.compare_stats.episode_values`) and
 summarised with compare's intervals and paired differences.
@@ -41,6 +41,7 @@ from observer_gym.train.compare_stats import (
     paired_difference,
 )
 from observer_gym.train.consistency import nees_flag
+from observer_gym.train.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.outputs import (
     VERSIONED_PACKAGES,
     OneLineWarning,
@@ -49,7 +50,6 @@ from observer_gym.train.outputs import (
     to_jsonable,
     write_json_atomic,
 )
-from observer_gym.train.run import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.sweep_grid import VaryInput, world_draw_notes
 from observer_gym.train.sweep_plan import (
     ARGUMENTS_FILE,
@@ -84,7 +84,7 @@ class SweepResult:
 
 # --- one episode, one cell -------------------------------------------------------------------
 def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
-    """One episode (:func:`~observer_gym.train.run.run_episode`) reduced to what a cell
+    """One episode (:func:`~observer_gym.train.episode.run_episode`) reduced to what a cell
     keeps: its metrics (the task's, JSON types), the state it started from, the
     controller's description and the seconds it took (measured where it ran)."""
     tic_s = time.perf_counter()

@@ -5,7 +5,7 @@ A cell is one grid point (:mod:`observer_gym.train.sweep_grid`) x observer x con
 named by a stable id (its file ``cells/<id>.json``). :func:`check_sweep` checks a request,
 as ``observer-gym compare`` checks its own plus the grid and the output folder, and
 returns its :class:`SweepPlan`: the cells, each cell's episodes
-(:class:`~observer_gym.train.run.EpisodeSpec`; episode i resets with seed S + i in every
+(:class:`~observer_gym.train.episode.EpisodeSpec`; episode i resets with seed S + i in every
 cell), the arguments recorded in ``sweep.json`` and the command line that repeats them.
 """
 
@@ -22,9 +22,9 @@ from typing import Any
 from observer_gym.train.compare import check_designs, check_pairs_once, option_text
 from observer_gym.train.compare_report import safe_name
 from observer_gym.train.compare_stats import compare_metrics
+from observer_gym.train.episode import EpisodeSpec
 from observer_gym.train.outputs import to_jsonable
 from observer_gym.train.request import Request, resolve_request
-from observer_gym.train.run import EpisodeSpec
 from observer_gym.train.sweep_grid import Grid, VaryInput, check_grid, value_text
 from observer_gym.train.sweep_report import ROW_COLUMNS
 
@@ -230,7 +230,7 @@ def check_sweep(
     every observer's obs_mode); ``second_metric`` one of the task's ``COMPARE_METRICS``
     (default: its second); every baseline controller designed once at the first grid
     point, and each pair with an outside observer or controller tried once there with its
-    options (:func:`~observer_gym.train.run.check_entries`); and, with ``out_dir``, that
+    options (:func:`~observer_gym.train.episode.check_entries`); and, with ``out_dir``, that
     the folder holds no other sweep (:func:`check_out_dir`).
 
     Raises:

@@ -134,7 +134,7 @@ def _default_policy(
     features: str | None,
 ) -> str:
     """The policy ``observer-gym train`` picks for the agent env's observation space."""
-    from observer_gym.train.training import default_policy  # deferred: stable-baselines3
+    from observer_gym.train.learning import default_policy  # deferred: stable-baselines3
 
     env = make_agent_env(
         env_id, obs, env_kwargs=dict(env_kwargs), image=dict(image), features=features

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from observer_gym.train import cli_args, compare, compare_cli, compare_report, ray_backend, request
+from observer_gym.train import cli_args, compare_cli, compare_report, ray_backend, request
 from observer_gym.train.compare import command_line, run_comparison
 from observer_gym.train.compare_report import format_seeds, pair_folders, safe_name
 from observer_gym.train.compare_stats import (

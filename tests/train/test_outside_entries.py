@@ -17,7 +17,7 @@ from outside_package import PACKAGE, VERSION, forget_package, write_package
 import observer_gym
 from observer_gym.train import entries
 from observer_gym.train.cli import main
-from observer_gym.train.run import EpisodeSpec, run_episode
+from observer_gym.train.episode import EpisodeSpec, run_episode
 
 ENV = "BallTable-v0"
 STEPS = 60

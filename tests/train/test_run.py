@@ -9,8 +9,9 @@ import cv2
 import pytest
 
 from observer_gym.train.cli import main
+from observer_gym.train.episode import EpisodeSpec, run_episodes
 from observer_gym.train.outputs import VERSIONED_PACKAGES
-from observer_gym.train.run import EpisodeSpec, run_episodes, run_experiment
+from observer_gym.train.run import run_experiment
 from observer_gym.train.systems import resolve_env_id
 from observer_gym.train.tasks.ball_table import SUMMARY_ROWS
 

@@ -86,7 +86,7 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
     # it bounces, which no ballistic model predicts, and those steps carry no NEES or NIS.
     import gymnasium as gym
 
-    from observer_gym.train.run import EpisodeSpec, run_episode
+    from observer_gym.train.episode import EpisodeSpec, run_episode
 
     options = {"measurement_noise_px": 2.0}
     spec = EpisodeSpec(

@@ -22,7 +22,8 @@ from observer_gym.train.agent import Agent, model_files
 from observer_gym.train.checkpoints import latest_checkpoint
 from observer_gym.train.cli import main
 from observer_gym.train.evaluate import evaluate_agent
-from observer_gym.train.run import make_env, run_experiment
+from observer_gym.train.observer_env import make_env
+from observer_gym.train.run import run_experiment
 from observer_gym.train.training import resume_training, train_agent
 
 # Small budgets: rollouts of 2 envs x 256 steps, an evaluation episode every 1,000 steps.

@@ -33,7 +33,7 @@ class Task(Protocol):
       whose paired observer - oracle difference gets a column. An optional
       ``compare_extras(episode)`` adds per-episode numbers derived for the table.
     - ``episode_metrics(record)``: one episode's metrics from the record of
-      :func:`observer_gym.train.run.run_episode`.
+      :func:`observer_gym.train.episode.run_episode`.
     - ``summarize(episodes)``: the summary of a list of ``episode_metrics`` dicts; it has
       every key of ``SUMMARY_ROWS``.
     - ``plot(records, observer, out_dir)``: writes the plots; returns their file names.
