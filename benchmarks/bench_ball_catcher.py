@@ -20,7 +20,7 @@ import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.outputs import format_table
+from observer_gym.train.reports.outputs import format_table
 
 PAPER_DETECTION_MS = 4.0
 

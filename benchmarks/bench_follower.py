@@ -15,7 +15,7 @@ import numpy as np
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
-from observer_gym.train.outputs import format_table
+from observer_gym.train.reports.outputs import format_table
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 REPEATS = 200

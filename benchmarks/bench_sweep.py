@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from observer_gym.train.outputs import format_table, write_json_atomic
-from observer_gym.train.sweep import run_sweep
+from observer_gym.train.experiments.sweep import run_sweep
+from observer_gym.train.reports.outputs import format_table, write_json_atomic
 
 sys.path.insert(0, str(Path(__file__).parent))  # outside_entries, as a user's package
 OUTSIDE_TARGET = 1.05  # an outside cell's median episode time over the built-in cell's

@@ -15,8 +15,8 @@ import os
 import tempfile
 from pathlib import Path
 
-from observer_gym.train.outputs import format_table
-from observer_gym.train.training import train_agent
+from observer_gym.train.reports.outputs import format_table
+from observer_gym.train.rl.training import train_agent
 
 # (label, obs, estimate_from, n_envs, vec_env, hyperparameter overrides); the rgb rows
 # read 84 x 84 frames: through the YAML's frame encoder (BallTable) or, with the encoder

@@ -2,7 +2,8 @@
 
 Each system has one record in :data:`SYSTEMS`. Its ``name`` is the name of its package in
 every layer (``envs/<name>/``, ``estimation/<name>/``, ``controllers/<name>/``,
-``train/tasks/<name>.py``); each layer finds its own part of a system there by that name.
+``train/experiments/tasks/<name>.py``); each layer finds its own part of a system there by that
+name.
 Adding a system is one package per layer and one record here.
 """
 

@@ -10,7 +10,7 @@ A = [[1, 1], [2, 1], ..., [k, 1]], leaves the residual of least variance
 leaves no residual and the measurement noise is what remains). Its variance per channel
 is sigma^2 = var(eps*) = eps*^T eps* / k, the variance of the k residuals as the spec
 writes it (their mean is zero: the fit has an intercept). For white noise of variance
-s^2 its expectation is (k - 2) s^2 / k; the Table 2 study (train/reproduce/tsai2009.py)
+s^2 its expectation is (k - 2) s^2 / k; the Table 2 study (train/experiments/reproduce/tsai2009.py)
 matched the paper's figures better with this than with the unbiased eps*^T eps* / (k - 2)
 (at sigma_n = 10, x_i: 17.1 against 21.7 px^2). The measurement covariance is then
 

@@ -2,7 +2,8 @@
 see, with vision + Kalman-filter observers, control baselines and RL tools.
 
 The experiments of the ``observer-gym`` command are functions here: ``run``, ``compare``,
-``sweep`` and ``evaluate`` (:mod:`observer_gym.train.api`, imported on first use), taking
+``sweep`` and ``evaluate`` (:mod:`observer_gym.train.experiments.api`, imported on first use),
+taking
 the package's names, import paths, factories or objects as observers and controllers.
 
 Importing ``observer_gym`` or any part of it (``observer_gym.envs``, ``.estimation``,
@@ -28,7 +29,7 @@ def __getattr__(name: str):
     """The experiment functions, imported when first used: ``import observer_gym`` stays
     light (Gymnasium and the env registry only)."""
     if name in API:
-        from observer_gym.train import api
+        from observer_gym.train.experiments import api
 
         return getattr(api, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

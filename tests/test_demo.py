@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.demo import START_DISTANCE_M, run_demo
-from observer_gym.train.outputs import VERSIONED_PACKAGES
+from observer_gym.train.experiments.demo import START_DISTANCE_M, run_demo
+from observer_gym.train.reports.outputs import VERSIONED_PACKAGES
 
 SECONDS = 2.0
 

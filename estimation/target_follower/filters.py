@@ -22,7 +22,7 @@ The spec's procedure, one call of :meth:`VisualStateEstimator.step` per sample:
 
 Where the numbers come from is the estimator's *noise*: :class:`Table1Noise` is the
 spec's (Q_0, R_0, P_0 = p0 I, with :class:`VSEParams`' defaults: the Table 2 study,
-train/reproduce/tsai2009.py); the observers' default is the noise rule of
+train/experiments/reproduce/tsai2009.py); the observers' default is the noise rule of
 :mod:`~observer_gym.estimation.target_follower.noise` (R from the declared sensor, Q from
 the target's motion model, both at the current estimate), with which they also gate
 (``VSEParams.gate_probability``, ``confirm_updates``:
@@ -80,7 +80,7 @@ class VSEParams:
     ``window`` is k, the length of the self-tuning shift register: the spec leaves it
     open; 10 samples (1 s at T = 100 ms) is long enough for the residual variance of a
     10 px noise to settle and short enough that the target's curving image path adds
-    little to it (the Table 2 study, train/reproduce/tsai2009.py, compares values).
+    little to it (the Table 2 study, train/experiments/reproduce/tsai2009.py, compares values).
     ``q0``, ``r0`` and ``p0`` are the spec's noise (:class:`Table1Noise`), unused when the
     estimator is given another noise.
     """

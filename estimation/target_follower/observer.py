@@ -20,7 +20,7 @@ gap used once the next frame confirms it, a new track replacing the old after a 
 rejected detections that agree (:mod:`~observer_gym.estimation.target_follower.tracks`),
 and the self-tuning filter's R never below the rule's (``adaptation="floor"``). Given
 ``params``, it is the spec's procedure with Table 1's noise (the Table 2 study,
-train/reproduce/tsai2009.py).
+train/experiments/reproduce/tsai2009.py).
 
 The output has the env's state layout; ``tracking_valid`` is 1 while the estimate is
 valid (a track, every diagonal element of P below the threshold), else 0, and

@@ -10,7 +10,7 @@ from collections.abc import Iterable, Mapping
 import pytest
 
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.consistency_study import measure_consistency
+from observer_gym.train.experiments.consistency_study import measure_consistency
 
 LOW, HIGH = 1.0 / 3.0, 3.0
 CONDITIONS = {

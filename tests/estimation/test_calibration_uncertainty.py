@@ -10,7 +10,7 @@ import pytest
 
 from observer_gym.envs.sensor import SensorSpec
 from observer_gym.estimation.calibration import calibration_covariance, calibration_variances
-from observer_gym.train.consistency_study import measure_consistency
+from observer_gym.train.experiments.consistency_study import measure_consistency
 
 K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
 POINT_CAM = np.array([0.2, -0.1, 2.0])  # a point in the camera frame

@@ -34,7 +34,7 @@ from observer_gym.estimation.observer import default_pipeline
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator, VSEParams
 from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.observer import RESTART_UPDATES
-from observer_gym.train.consistency import nees_per_step
+from observer_gym.train.reports.consistency import nees_per_step
 
 ENV_ID = "observer_gym/TargetFollower-v0"
 OBSERVERS = ("kf", "stkf", "kf-latency", "stkf-latency", "ekf")

@@ -15,8 +15,8 @@ from fuzzlib import record
 from hypothesis import given, note
 from hypothesis import strategies as st
 
-from observer_gym.train.run_dir import check_resumable, intact_checkpoint, read_config
-from observer_gym.train.training import train_agent
+from observer_gym.train.rl.run_dir import check_resumable, intact_checkpoint, read_config
+from observer_gym.train.rl.training import train_agent
 
 STEPS = 64  # one checkpoint per rollout of one env
 FILES = [

@@ -10,13 +10,13 @@ from gymnasium.wrappers import RescaleAction
 from stable_baselines3.common.preprocessing import is_image_space
 
 from observer_gym.envs import ENV_IDS
-from observer_gym.train.agent_env import (
+from observer_gym.train.rl.agent_env import (
     ImageOptions,
     make_agent_env,
     observer_for,
     to_env_action,
 )
-from observer_gym.train.hyperparams import ALGOS, load_hyperparams, split
+from observer_gym.train.rl.hyperparams import ALGOS, load_hyperparams, split
 
 
 def test_observer_for_each_obs():

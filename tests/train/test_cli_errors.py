@@ -2,7 +2,7 @@
 what was wrong and what is allowed, exit code 2, never a traceback; it is found before
 any env is built and (but for a hyperparameter's name, which stable-baselines3 knows)
 before the heavy imports. The command's light copy of the systems' names
-(:mod:`observer_gym.train.checks`) is the layers', with the library's messages."""
+(:mod:`observer_gym.train.cli.checks`) is the layers', with the library's messages."""
 
 from __future__ import annotations
 
@@ -16,12 +16,11 @@ from pathlib import Path
 import pytest
 
 from observer_gym.envs import SYSTEMS
-from observer_gym.train import checks
-from observer_gym.train.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
-from observer_gym.train.cli import build_parser
-from observer_gym.train.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
-from observer_gym.train.request import check_pair
-from observer_gym.train.systems import system_entries
+from observer_gym.train.cli import build_parser, checks
+from observer_gym.train.experiments.request import check_pair
+from observer_gym.train.experiments.systems import system_entries
+from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
+from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
 # never imported to parse a command line or to find a mistake in it
@@ -32,7 +31,7 @@ HEAVY = (
     "matplotlib",
     "observer_gym.estimation",
     "observer_gym.controllers",
-    "observer_gym.train.tasks",
+    "observer_gym.train.experiments.tasks",
 )
 
 

@@ -18,18 +18,21 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from observer_gym.train import cli_args, compare_cli, compare_report, ray_backend, request
-from observer_gym.train.compare import command_line, run_comparison
-from observer_gym.train.compare_report import format_seeds, pair_folders, safe_name
-from observer_gym.train.compare_stats import (
+from observer_gym.train.cli import args as cli_args
+from observer_gym.train.cli import compare as compare_cli
+from observer_gym.train.experiments import ray_backend, request
+from observer_gym.train.experiments.compare import command_line, run_comparison
+from observer_gym.train.experiments.run import run_experiment
+from observer_gym.train.experiments.tasks import ball_table
+from observer_gym.train.experiments.tasks.ball_table import COMPARE_METRICS
+from observer_gym.train.reports import compare_report
+from observer_gym.train.reports.compare_report import format_seeds, pair_folders, safe_name
+from observer_gym.train.reports.compare_stats import (
     mean_interval,
     metric_statistics,
     paired_difference,
     rate_interval,
 )
-from observer_gym.train.run import run_experiment
-from observer_gym.train.tasks import ball_table
-from observer_gym.train.tasks.ball_table import COMPARE_METRICS
 
 OBSERVERS = ["oracle", "kf-measurements"]
 CONTROLLERS = ["lqr", "pid"]
@@ -380,7 +383,7 @@ def test_cli_refuses_conflicting_options(argv, message, tmp_path, capsys):
 def test_cli_episodes_and_seed_make_consecutive_seeds(tmp_path, monkeypatch):
     seen = {}
     monkeypatch.setattr(
-        "observer_gym.train.api.compare",
+        "observer_gym.train.experiments.api.compare",
         lambda *args, **kwargs: seen.update(kwargs) or SimpleNamespace(text="(not run)"),
     )
     argv = ["--observers", "oracle", "--controllers", "pid", "--episodes", "3", "--seed", "7"]

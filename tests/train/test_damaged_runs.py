@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from observer_gym.train import run_dir
 from observer_gym.train.cli import main
-from observer_gym.train.training import train_agent
+from observer_gym.train.rl import run_dir
+from observer_gym.train.rl.training import train_agent
 
 CHECKPOINT_EVERY = 64  # env steps: one rollout of one env
 

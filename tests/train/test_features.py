@@ -10,10 +10,10 @@ import pytest
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.envs.sim import GRAVITY_MPS2
-from observer_gym.train.agent_env import make_agent_env
-from observer_gym.train.features import feature_names, wrap_features
-from observer_gym.train.features.ball_catcher import FEATURE_NAMES, CrossingFeatures
-from observer_gym.train.training import check_features
+from observer_gym.train.rl.agent_env import make_agent_env
+from observer_gym.train.rl.features import feature_names, wrap_features
+from observer_gym.train.rl.features.ball_catcher import FEATURE_NAMES, CrossingFeatures
+from observer_gym.train.rl.training import check_features
 
 
 @pytest.fixture

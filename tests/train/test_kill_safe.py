@@ -15,12 +15,12 @@ import time
 
 import pytest
 
-from observer_gym.train import compare, demo, run
 from observer_gym.train.cli import main
-from observer_gym.train.evaluate import evaluate_agent
-from observer_gym.train.outputs import OutputFolderWarning, writer_identity
-from observer_gym.train.run import run_experiment
-from observer_gym.train.run_dir import latest_checkpoint, read_state
+from observer_gym.train.experiments import compare, demo, run
+from observer_gym.train.experiments.evaluate import evaluate_agent
+from observer_gym.train.experiments.run import run_experiment
+from observer_gym.train.reports.outputs import OutputFolderWarning, writer_identity
+from observer_gym.train.rl.run_dir import latest_checkpoint, read_state
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
 RUN_ONE = ["--observer", "oracle", "--controller", "lqr", "--episodes", "1", "--steps", "5"]
@@ -58,7 +58,7 @@ def _dead_pid() -> int:
 STUCK_WRITER = textwrap.dedent(
     """
     import os, sys, time
-    from observer_gym.train.outputs import write_json_atomic
+    from observer_gym.train.reports.outputs import write_json_atomic
     os.replace = lambda src, dst: (print("stuck", flush=True), time.sleep(600))
     write_json_atomic(sys.argv[1], {"a": 1})
     """
@@ -91,7 +91,7 @@ def test_a_later_run_removes_the_temps_of_a_killed_writer(tmp_path, capsys):
 STUCK_TRAINER = textwrap.dedent(
     """
     import os, sys, time
-    import observer_gym.train.outputs as outputs
+    import observer_gym.train.reports.outputs as outputs
     from observer_gym.train.cli import main
     real = os.replace
     def replace(src, dst):
@@ -265,7 +265,7 @@ def test_a_failed_run_leaves_no_empty_folder(command, tmp_path, monkeypatch):
 
 
 def test_a_failed_training_run_leaves_no_empty_folder(tmp_path, monkeypatch):
-    from observer_gym.train import training
+    from observer_gym.train.rl import training
 
     monkeypatch.setattr(training, "write_config", _fail)  # config.json: its first write
     with pytest.raises(RuntimeError, match="before writing anything"):

@@ -15,9 +15,9 @@ import pytest
 from outside_package import PACKAGE, VERSION, forget_package, write_package
 
 import observer_gym
-from observer_gym.train import entries
 from observer_gym.train.cli import main
-from observer_gym.train.episode import EpisodeSpec, run_episode
+from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 
 ENV = "BallTable-v0"
 STEPS = 60
@@ -127,7 +127,14 @@ def test_a_sweep_takes_outside_entries_and_their_options(outside, tmp_path):
     assert timing["cells_run"] == 0 and timing["cells_reused"] == 4
 
 
-def test_entries_installed_by_a_package_are_listed_and_taken_by_name(installed, tmp_path, capsys):
+def test_entries_installed_by_a_package_are_listed_and_taken_by_name(
+    installed, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.setenv("COLUMNS", "400")  # --help on long lines: no hyphen broken
+    with pytest.raises(SystemExit):
+        main(["sweep", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    assert "(installed: alpha-beta)" in shown and "(installed: scaled-lqr)" in shown
     assert main(["list", "observer"]) == 0
     listed = capsys.readouterr().out
     (line,) = [text for text in listed.splitlines() if text.split()[0] == "alpha-beta"]
@@ -303,8 +310,8 @@ def test_a_policy_zip_trained_with_plain_stable_baselines3_is_compared(tmp_path,
 
 
 def test_list_has_one_line_for_every_system_observer_controller_and_shipped_agent(capsys):
-    from observer_gym.train.shipped import shipped_names
-    from observer_gym.train.systems import system_entries
+    from observer_gym.train.experiments.systems import system_entries
+    from observer_gym.train.rl.shipped import shipped_names
 
     assert main(["list"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -316,7 +323,7 @@ def test_list_has_one_line_for_every_system_observer_controller_and_shipped_agen
             assert len(named[name].split()) > 3 and entry.system.short_id in named[name]
     for name in shipped_names():
         assert any(key.endswith(f":{name}") for key in named)
-    assert observer_gym.compare is observer_gym.train.api.compare
+    assert observer_gym.compare is observer_gym.train.experiments.api.compare
 
 
 # --- the tutorial's package (docs/your_method.md) ------------------------------------------

@@ -14,9 +14,9 @@ import torch
 from gymnasium.wrappers import FrameStackObservation
 
 from observer_gym.controllers.registry import make_controller
-from observer_gym.train.agent import Agent
-from observer_gym.train.agent_env import make_agent_env
-from observer_gym.train.pixel_encoder import (
+from observer_gym.train.rl.agent import Agent
+from observer_gym.train.rl.agent_env import make_agent_env
+from observer_gym.train.rl.pixel_encoder import (
     ENCODERS_DIR,
     EncodedFrames,
     Encoder,
@@ -27,8 +27,8 @@ from observer_gym.train.pixel_encoder import (
     encoder_sha256,
     load_encoder,
 )
-from observer_gym.train.pretrain_encoder import fit_encoder, main
-from observer_gym.train.shipped import shipped_path
+from observer_gym.train.rl.pretrain_encoder import fit_encoder, main
+from observer_gym.train.rl.shipped import shipped_path
 
 
 def test_coordinate_channels_hold_each_pixels_position():

@@ -9,7 +9,7 @@ import re
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.reproduce import linderoth2010
+from observer_gym.train.experiments.reproduce import linderoth2010
 
 
 def test_reproduce_linderoth2010_small(tmp_path, capsys):

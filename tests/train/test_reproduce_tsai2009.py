@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.reproduce import tsai2009
+from observer_gym.train.experiments.reproduce import tsai2009
 
 
 def _tables(text: str) -> dict[str, list[list[str]]]:

@@ -9,11 +9,11 @@ import cv2
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.episode import EpisodeSpec, run_episodes
-from observer_gym.train.outputs import VERSIONED_PACKAGES
-from observer_gym.train.run import run_experiment
-from observer_gym.train.systems import resolve_env_id
-from observer_gym.train.tasks.ball_table import SUMMARY_ROWS
+from observer_gym.train.experiments.episode import EpisodeSpec, run_episodes
+from observer_gym.train.experiments.run import run_experiment
+from observer_gym.train.experiments.systems import resolve_env_id
+from observer_gym.train.experiments.tasks.ball_table import SUMMARY_ROWS
+from observer_gym.train.reports.outputs import VERSIONED_PACKAGES
 
 ENV_ID = "observer_gym/BallTable-v0"
 START_10_CM = {"ball_pos_table_m": (0.1, 0.0), "ball_vel_table_mps": (0.0, 0.0)}

@@ -8,7 +8,7 @@ import pytest
 from scipy.stats import binomtest
 
 from observer_gym.train.cli import main
-from observer_gym.train.tasks.ball_catcher import SUMMARY_ROWS, summarize
+from observer_gym.train.experiments.tasks.ball_catcher import SUMMARY_ROWS, summarize
 
 
 def test_kf_measurements_run_catches_and_writes_results(tmp_path):

@@ -1,4 +1,4 @@
-"""NEES and NIS per episode (train/consistency.py): chi-square means on samples drawn from
+"""NEES and NIS per episode (train/reports/consistency.py): chi-square means on samples drawn from
 the claimed covariance, a singular covariance counted by its rank."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer_gym.train.consistency import (
+from observer_gym.train.reports.consistency import (
     chi_square_band,
     episode_consistency,
     nees_flag,
@@ -86,7 +86,7 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
     # it bounces, which no ballistic model predicts, and those steps carry no NEES or NIS.
     import gymnasium as gym
 
-    from observer_gym.train.episode import EpisodeSpec, run_episode
+    from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 
     options = {"measurement_noise_px": 2.0}
     spec = EpisodeSpec(
@@ -110,7 +110,7 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
 
 
 def test_the_study_pools_each_cell_and_brackets_its_ratio():
-    from observer_gym.train.consistency_study import option_table, summarise
+    from observer_gym.train.experiments.consistency_study import option_table, summarise
 
     rng = np.random.default_rng(3)
     rows = [

@@ -18,16 +18,16 @@ import numpy as np
 import pytest
 from stable_baselines3 import PPO
 
-from observer_gym.train import aggregate, compare_report
-from observer_gym.train.agent import Agent
-from observer_gym.train.checkpoints import latest_checkpoint
 from observer_gym.train.cli import main
-from observer_gym.train.compare import run_comparison
-from observer_gym.train.evaluate import evaluate_agent, evaluate_seeds
-from observer_gym.train.run_dir import expand_agent, is_multi_seed, read_config
-from observer_gym.train.seeds import SeedsConfig, resume_seeds, train_seeds
-from observer_gym.train.tasks import ball_table
-from observer_gym.train.training import train_agent
+from observer_gym.train.experiments.compare import run_comparison
+from observer_gym.train.experiments.evaluate import evaluate_agent, evaluate_seeds
+from observer_gym.train.experiments.tasks import ball_table
+from observer_gym.train.reports import aggregate, compare_report
+from observer_gym.train.rl.agent import Agent
+from observer_gym.train.rl.checkpoints import latest_checkpoint
+from observer_gym.train.rl.run_dir import expand_agent, is_multi_seed, read_config
+from observer_gym.train.rl.seeds import SeedsConfig, resume_seeds, train_seeds
+from observer_gym.train.rl.training import train_agent
 
 SEEDS = (0, 1, 2)
 STEPS = 512

@@ -7,12 +7,12 @@ from __future__ import annotations
 import pytest
 
 from observer_gym.envs import system_for_id
-from observer_gym.train import shipped
-from observer_gym.train.agent import Agent
-from observer_gym.train.episode import build_controller
-from observer_gym.train.run_dir import model_files, parse_agent_spec, read_config
-from observer_gym.train.ship_agent import fingerprint_difference, read_fingerprint, ship_agent
-from observer_gym.train.training import train_agent
+from observer_gym.train.experiments.episode import build_controller
+from observer_gym.train.rl import shipped
+from observer_gym.train.rl.agent import Agent
+from observer_gym.train.rl.run_dir import model_files, parse_agent_spec, read_config
+from observer_gym.train.rl.ship_agent import fingerprint_difference, read_fingerprint, ship_agent
+from observer_gym.train.rl.training import train_agent
 
 MAX_AGENT_BYTES = 500_000  # the package stays small: a few hundred kB per agent at most
 

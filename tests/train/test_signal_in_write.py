@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from observer_gym.train.run_dir import latest_checkpoint
+from observer_gym.train.rl.run_dir import latest_checkpoint
 
 # SIGTERM takes the same path as SIGINT once the command line makes it a KeyboardInterrupt
 # (the kill tests of test_training.py and test_seeds.py send it in the default run)

@@ -21,12 +21,12 @@ import pytest
 from scipy import stats
 
 from observer_gym.envs import system_for_id
-from observer_gym.train import sweep
 from observer_gym.train.cli import build_parser, main
-from observer_gym.train.sweep import SweepWarning, run_sweep
-from observer_gym.train.sweep_grid import check_grid, world_draw_notes
-from observer_gym.train.sweep_plan import check_sweep
-from observer_gym.train.tasks.ball_table import COMPARE_METRICS
+from observer_gym.train.experiments import sweep
+from observer_gym.train.experiments.sweep import SweepWarning, run_sweep
+from observer_gym.train.experiments.sweep_grid import check_grid, world_draw_notes
+from observer_gym.train.experiments.sweep_plan import check_sweep
+from observer_gym.train.experiments.tasks.ball_table import COMPARE_METRICS
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
 KEY = "measurement_noise_px"  # a sensor option: it changes what kf-measurements sees only
@@ -406,9 +406,10 @@ def test_a_mistake_is_found_before_the_heavy_imports(tmp_path):
     probe = (
         "import sys\nfrom observer_gym.train.cli import main\ncode = main(sys.argv[1:])\n"
         "heavy = ('torch', 'ray', 'matplotlib', 'observer_gym.estimation', "
-        "'observer_gym.controllers', 'observer_gym.train.tasks', 'observer_gym.train.sweep.')\n"
+        "'observer_gym.controllers', 'observer_gym.train.experiments.tasks', "
+        "'observer_gym.train.experiments.sweep.')\n"
         "loaded = sorted(m for m in sys.modules if m.startswith(heavy))\n"
-        "print(code, loaded, 'observer_gym.train.sweep' in sys.modules)\n"
+        "print(code, loaded, 'observer_gym.train.experiments.sweep' in sys.modules)\n"
     )
     argv = [*BASE, "--vary", "latency=0", "--out", str(tmp_path / "out")]
     result = subprocess.run(

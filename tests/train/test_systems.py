@@ -12,15 +12,16 @@ import pytest
 from observer_gym.controllers import ControllerDesign, controllers_for, make_controller
 from observer_gym.envs import SYSTEMS, system_for_id, system_named, system_of
 from observer_gym.estimation import VisionObserver, observers_of
-from observer_gym.train import cli, compare_cli
-from observer_gym.train.checks import check_observer
-from observer_gym.train.cli_args import controller_name
-from observer_gym.train.systems import (
+from observer_gym.train import cli
+from observer_gym.train.cli import compare as compare_cli
+from observer_gym.train.cli.args import controller_name
+from observer_gym.train.cli.checks import check_observer
+from observer_gym.train.experiments.systems import (
     controller_choices,
     observer_choices,
     system_entries,
 )
-from observer_gym.train.tasks import task_for
+from observer_gym.train.experiments.tasks import task_for
 
 LAYERS = ("envs", "estimation", "controllers")
 
@@ -41,7 +42,7 @@ def test_every_layer_holds_its_part_of_the_system(system):
     assert controllers_for(system.env_id) is controllers
 
     task = task_for(system.env_id)
-    assert task.__name__ == f"observer_gym.train.tasks.{system.name}"
+    assert task.__name__ == f"observer_gym.train.experiments.tasks.{system.name}"
     assert task.OBSERVERS["oracle"] == ("state", {})
     assert set(task.ESTIMATE_OBSERVERS.values()) <= set(task.OBSERVERS)
     for name in ("SUMMARY_ROWS", "COMPARE_METRICS", "CONFIG"):

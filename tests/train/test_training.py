@@ -18,13 +18,13 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
-from observer_gym.train.agent import Agent, model_files
-from observer_gym.train.checkpoints import latest_checkpoint
 from observer_gym.train.cli import main
-from observer_gym.train.evaluate import evaluate_agent
-from observer_gym.train.observer_env import make_env
-from observer_gym.train.run import run_experiment
-from observer_gym.train.training import resume_training, train_agent
+from observer_gym.train.experiments.evaluate import evaluate_agent
+from observer_gym.train.experiments.observer_env import make_env
+from observer_gym.train.experiments.run import run_experiment
+from observer_gym.train.rl.agent import Agent, model_files
+from observer_gym.train.rl.checkpoints import latest_checkpoint
+from observer_gym.train.rl.training import resume_training, train_agent
 
 # Small budgets: rollouts of 2 envs x 256 steps, an evaluation episode every 1,000 steps.
 SMALL = {"n_steps": 256, "batch_size": 64, "eval_freq": 1000, "eval_episodes": 1}

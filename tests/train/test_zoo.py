@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from observer_gym.envs import SYSTEMS
-from observer_gym.train import zoo
-from observer_gym.train.agent_env import OBS_TYPES, make_agent_env
-from observer_gym.train.hyperparams import ALGOS, algorithm_parameters, resolve_hyperparams
+from observer_gym.train.rl import zoo
+from observer_gym.train.rl.agent_env import OBS_TYPES, make_agent_env
+from observer_gym.train.rl.hyperparams import ALGOS, algorithm_parameters, resolve_hyperparams
 
 # Zoo's own keys (taken out of an entry before the rest goes to the algorithm)
 ZOO_KEYS = {"n_timesteps", "n_envs", "policy", "env_kwargs", "env_wrapper", "normalize"}
@@ -25,9 +25,9 @@ ZOO_NOISE = {"noise_type", "noise_std"}
 def test_the_shipped_files_are_what_our_yaml_generates():
     expected = {entry.name: zoo.zoo_text(entry) for entry in zoo.zoo_files()}
     shipped = {path.name: path.read_text() for path in zoo.ZOO_DIR.glob("*.yml")}
-    assert sorted(shipped) == sorted(expected), "run 'python -m observer_gym.train.zoo write'"
+    assert sorted(shipped) == sorted(expected), "run 'python -m observer_gym.train.rl.zoo write'"
     stale = [name for name in expected if shipped[name] != expected[name]]
-    assert not stale, f"stale Zoo files {stale}: run 'python -m observer_gym.train.zoo write'"
+    assert not stale, f"stale Zoo files {stale}: run 'python -m observer_gym.train.rl.zoo write'"
     assert len(expected) == len(ALGOS) * len(SYSTEMS) * len(OBS_TYPES)
 
 

@@ -1,0 +1,116 @@
+"""The ``observer-gym`` command: one subcommand per entry of :data:`COMMANDS`.
+
+Each subcommand is a thin layer over a library function that tests call directly; to add
+one, write its ``add_arguments`` and ``run`` functions and list its module in ``COMMANDS``.
+
+Building the parser imports nothing heavy (:mod:`observer_gym.train.cli.args`), so
+``--help`` answers at once. Each ``run`` function checks the whole request first
+(:mod:`observer_gym.train.cli.checks`: observers, controllers, trained agents, env options,
+training settings), before the heavy imports (PyTorch, stable-baselines3, the layers) and
+before any env is built; a mistake, there or in parsing, is one line on stderr,
+``observer-gym COMMAND: error: ...``, and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Sequence
+from importlib import metadata
+
+from observer_gym.train.cli import (
+    compare,
+    demo,
+    evaluate,
+    listing,
+    reproduce,
+    run,
+    sweep,
+    train,
+)
+from observer_gym.train.cli.args import Parser, error_line, one_line
+from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
+
+# the subcommands in the order --help lists them
+COMMANDS = {
+    "demo": demo.COMMAND,
+    "run": run.COMMAND,
+    "compare": compare.COMMAND,
+    "sweep": sweep.COMMAND,
+    "train": train.COMMAND,
+    "evaluate": evaluate.COMMAND,
+    "list": listing.COMMAND,
+    "reproduce": reproduce.COMMAND,
+}
+
+
+def _version() -> str:
+    try:
+        return metadata.version("observer-gym")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`; it
+    imports nothing heavy."""
+    parser = Parser(
+        prog="observer-gym",
+        description=(
+            "Gymnasium environments in PyBullet controlled through what their cameras see. "
+            "Run 'observer-gym COMMAND --help' for a command's options."
+        ),
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    subparsers = parser.add_subparsers(
+        dest="command", metavar="COMMAND", title="commands", required=True
+    )
+    for name, command in COMMANDS.items():
+        sub = subparsers.add_parser(name, help=command.help, description=command.description)
+        command.add_arguments(sub)
+        sub.set_defaults(run=command.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``observer-gym``; returns the process exit code.
+
+    argparse raises ``SystemExit`` for ``--help`` (code 0); a mistake in parsing raises
+    :class:`~observer_gym.train.cli.args.UsageError` (a ``SystemExit`` with code 2) after
+    printing its one line, one found by a command's checks returns 2 after printing its.
+    Ctrl-C and SIGTERM stop any command the same way: ``observer-gym COMMAND: interrupted``
+    (or the command's own account: ``train`` says how far it got), exit code 130, after
+    the file being written, if any, is complete
+    (:func:`~observer_gym.train.reports.signals.signals_deferred`). A file that cannot be read or
+    written (a full disk, no permission: ``OSError``) is one line,
+    ``observer-gym COMMAND: error: ...``, and exit code 1; the file is as it was.
+    What a command finds left by a killed run in a folder it uses (an
+    :class:`~observer_gym.train.reports.outputs.OutputFolderWarning`), and any other
+    :class:`~observer_gym.train.reports.outputs.OneLineWarning`, is one line on stderr,
+    ``observer-gym COMMAND: warning: ...``; other warnings show as Python shows them.
+    """
+    args = build_parser().parse_args(argv)
+    prog = f"observer-gym {args.command}"
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None) -> None:
+            # deferred: the warning comes from outputs, loaded by then; --help stays light
+            from observer_gym.train.reports.outputs import OneLineWarning
+
+            if issubclass(category, OneLineWarning):
+                print(f"{prog}: warning: {one_line(message)}", file=sys.stderr)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        try:
+            with sigterm_as_interrupt():
+                return args.run(args)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM where the command does not catch it
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return INTERRUPTED_EXIT_CODE
+        except OSError as exc:  # a file that could not be read or written (a full disk)
+            print(error_line(prog, exc), file=sys.stderr)
+            return 1

@@ -1,0 +1,348 @@
+"""The experiments as Python functions: what the ``observer-gym`` command runs.
+
+``observer_gym.run``, ``compare``, ``sweep`` and ``evaluate`` are these functions; the
+command line parses its arguments, calls them and prints their ``text``. Wherever they
+take an observer or a controller, it may be
+
+- a name of the package (``"kf"``, ``"lqr"``, ``"ppo:ball_table-estimate"``), a
+  stable-baselines3 zip (``"ppo:path/model.zip"``), an import path
+  (``"mylab.filters:make_observer"``) or an installed entry point's name
+  (:mod:`observer_gym.train.experiments.entries`), or
+- the factory itself, ``factory(env, **options)``, or an object with the protocol (an
+  observer pipeline with ``reset()`` and ``observe(obs, info, action) -> Estimate``, a
+  controller with stable-baselines3's ``predict``; each episode gets a deep copy). An
+  observer given so reads camera frames, or the measurements if it has the attribute
+  ``obs_mode = "measurements"``. With ``workers`` > 1 or the Ray backend it must pickle
+  (a module-level function or class does; a lambda does not): ValueError before
+  anything runs otherwise.
+
+Example::
+
+    import observer_gym
+
+    result = observer_gym.compare(
+        "BallTable-v0",
+        observers=["kf-measurements", "mylab.filters:make_observer-measurements"],
+        controllers=["lqr"],
+        seeds=range(5),
+        out_dir="runs/mine",
+    )
+    print(result.text)
+    for pair in result.pairs:
+        print(pair.observer, pair.statistics["mean_distance_m"]["mean"])
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from observer_gym.train.experiments import entries
+
+Entry = Any  # a name, an import path, a factory or an object (see the module docstring)
+
+
+class RunResult(NamedTuple):
+    """What :func:`run` (and :func:`evaluate`) did."""
+
+    out_dir: Path
+    summary: dict[str, Any]  # the task's summary over the episodes
+    episodes: list[dict[str, Any]]  # per episode: seed, the task's metrics, NEES/NIS
+    consistency: dict[str, Any]  # NEES/dof over the episodes and its chi-square band
+    files: list[str]  # written into out_dir
+    text: str  # what 'observer-gym run' prints
+    results: dict[str, Any]  # all of results.json
+
+
+class PairResult(NamedTuple):
+    """One (observer, controller) pair of a comparison."""
+
+    observer: str
+    controller: str
+    summary: dict[str, Any]
+    statistics: dict[str, Any]  # per compared metric: mean, 95 % interval, n
+    consistency: dict[str, Any]
+    episodes: list[dict[str, Any]]
+    vs_oracle: dict[str, Any] | None  # the paired difference from the oracle, if it ran
+
+
+class ComparisonResult(NamedTuple):
+    """What :func:`compare` did."""
+
+    out_dir: Path
+    pairs: list[PairResult]
+    files: list[str]
+    text: str  # what 'observer-gym compare' prints (the table among it)
+    results: dict[str, Any]
+
+
+class SweepOutcome(NamedTuple):
+    """What :func:`sweep` did."""
+
+    out_dir: Path
+    cells: list[dict[str, Any]]  # per cell: point, observer, controller, statistics, ...
+    cells_run: int
+    cells_reused: int
+    files: list[str]
+    text: str  # what 'observer-gym sweep' prints
+    results: dict[str, Any]
+
+
+class _Entries(NamedTuple):
+    observers: list[str]
+    controllers: list[str]
+    objects: dict[tuple[str, str], Any]
+
+
+def _names(
+    observers: Sequence[Entry], controllers: Sequence[Entry], workers: int, backend: str
+) -> _Entries:
+    """Names for the entries (:func:`observer_gym.train.experiments.entries.as_name`) and the
+    objects
+    among them; ValueError for one that cannot reach the workers."""
+    objects: dict[tuple[str, str], Any] = {}
+    named: list[list[str]] = [[], []]
+    for kind, given, out in (
+        ("observer", observers, named[0]),
+        ("controller", controllers, named[1]),
+    ):
+        for entry in given:
+            obs_mode = getattr(entry, "obs_mode", "rgb")
+            name, found = entries.as_name(kind, entry, obs_mode)
+            out.append(name)
+            objects.update(found)
+    if objects and (workers != 1 or backend != "local"):
+        entries.check_picklable(objects)
+    return _Entries(named[0], named[1], objects)
+
+
+def _listed(value: Entry | Sequence[Entry]) -> list[Entry]:
+    """A list of entries: a text is split at commas, one object is a list of one."""
+    if isinstance(value, str):
+        return [part.strip() for part in value.split(",")]
+    if isinstance(value, Sequence):
+        return list(value)
+    return [value]
+
+
+@contextlib.contextmanager
+def _out_dir(out_dir: str | Path | None, command: str) -> Iterator[Path]:
+    from observer_gym.train.reports.outputs import default_out_dir
+
+    yield Path(out_dir) if out_dir is not None else default_out_dir(command)
+
+
+def run(
+    env: str,
+    observer: Entry,
+    controller: Entry,
+    *,
+    episodes: int = 10,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    steps: int | None = None,
+    workers: int = 1,
+    env_options: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> RunResult:
+    """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env``
+    (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with ``seed + i``;
+    writes results.json and the env's plots into ``out_dir`` (default: a new folder
+    under runs/). ``observer_options`` and ``controller_options`` go to an outside
+    observer's and controller's factory. ValueError for a bad input, before anything
+    runs; :class:`observer_gym.train.experiments.episode.EpisodeError` for an episode that fails
+    part-way (nothing is written)."""
+    from observer_gym.train.experiments.run import results_text, run_experiment
+
+    found = _names([observer], [controller], workers, "local")
+    with _out_dir(out_dir, "run") as folder, entries.objects_in_use(found.objects):
+        results = run_experiment(
+            env_id=env,
+            observer=found.observers[0],
+            controller=found.controllers[0],
+            episodes=episodes,
+            seed=seed,
+            out_dir=folder,
+            steps=steps,
+            workers=workers,
+            progress=progress,
+            env_kwargs=env_options,
+            cli_args=cli_args,
+            observer_options=observer_options,
+            controller_options=controller_options,
+        )
+    return _run_result(results, results_text(results))
+
+
+def _run_result(results: dict[str, Any], text: str) -> RunResult:
+    return RunResult(
+        Path(results["config"]["out_dir"]),
+        results["summary"],
+        results["episodes"],
+        results["consistency"],
+        results["files"],
+        text,
+        results,
+    )
+
+
+def compare(
+    env: str,
+    observers: Entry | Sequence[Entry],
+    controllers: Entry | Sequence[Entry],
+    *,
+    seeds: Sequence[int] = range(10),
+    out_dir: str | Path | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    steps: int | None = None,
+    env_options: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> ComparisonResult:
+    """Every (observer, controller) pair on the same ``seeds``, with intervals, paired
+    differences from the oracle and NEES/NIS
+    (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
+    processes or as Ray tasks (``backend="ray"``), with the same records."""
+    from observer_gym.train.experiments.compare import run_comparison
+    from observer_gym.train.reports.compare_report import comparison_text
+
+    found = _names(_listed(observers), _listed(controllers), workers, backend)
+    with _out_dir(out_dir, "compare") as folder, entries.objects_in_use(found.objects):
+        results = run_comparison(
+            env_id=env,
+            observers=found.observers,
+            controllers=found.controllers,
+            seeds=list(seeds),
+            out_dir=folder,
+            workers=workers,
+            backend=backend,
+            address=address,
+            steps=steps,
+            env_kwargs=env_options,
+            progress=progress,
+            cli_args=cli_args,
+            observer_options=observer_options,
+            controller_options=controller_options,
+        )
+    pairs = [
+        PairResult(
+            p["observer"],
+            p["controller"],
+            p["summary"],
+            p["statistics"],
+            p["consistency"],
+            p["episodes"],
+            p["vs_oracle"],
+        )
+        for p in results["pairs"]
+    ]
+    return ComparisonResult(
+        Path(results["config"]["out_dir"]),
+        pairs,
+        results["files"],
+        comparison_text(results),
+        results,
+    )
+
+
+def sweep(
+    env: str,
+    vary: Mapping[str, Sequence[Any]] | Sequence[tuple[str, Sequence[Any]]],
+    observers: Entry | Sequence[Entry],
+    controllers: Entry | Sequence[Entry],
+    *,
+    out_dir: str | Path,
+    episodes: int = 10,
+    seed: int = 0,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    steps: int | None = None,
+    env_options: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    second_metric: str | None = None,
+    progress: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> SweepOutcome:
+    """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
+    resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`)."""
+    from observer_gym.train.experiments.sweep import run_sweep
+    from observer_gym.train.reports.sweep_report import sweep_text
+
+    found = _names(_listed(observers), _listed(controllers), workers, backend)
+    with entries.objects_in_use(found.objects):
+        result = run_sweep(
+            env_id=env,
+            vary=vary,
+            observers=found.observers,
+            controllers=found.controllers,
+            out_dir=out_dir,
+            episodes=episodes,
+            seed=seed,
+            workers=workers,
+            backend=backend,
+            address=address,
+            steps=steps,
+            env_kwargs=env_options,
+            second_metric=second_metric,
+            progress=progress,
+            cli_args=cli_args,
+            observer_options=observer_options,
+            controller_options=controller_options,
+        )
+    text = sweep_text(
+        result.results, result.out_dir, result.cells_run, result.cells_reused, result.wall_time_s
+    )
+    return SweepOutcome(
+        result.out_dir,
+        result.results["cells"],
+        result.cells_run,
+        result.cells_reused,
+        result.files,
+        text,
+        result.results,
+    )
+
+
+def evaluate(
+    model: str | Path,
+    *,
+    episodes: int = 10,
+    seed: int = 0,
+    observer: Entry | None = None,
+    out_dir: str | Path | None = None,
+    steps: int | None = None,
+    workers: int = 1,
+    progress: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> RunResult:
+    """Episodes of the agent trained in the folder ``model`` (one seed's run) on its env
+    with its training options, reading what it was trained on or ``observer``
+    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`)."""
+    from observer_gym.train.experiments.evaluate import evaluate_agent
+    from observer_gym.train.experiments.run import results_text
+
+    found = _names([] if observer is None else [observer], [], workers, "local")
+    with _out_dir(out_dir, "evaluate") as folder, entries.objects_in_use(found.objects):
+        results = evaluate_agent(
+            model,
+            episodes,
+            folder,
+            seed=seed,
+            observer=found.observers[0] if found.observers else None,
+            steps=steps,
+            workers=workers,
+            progress=progress,
+            cli_args=cli_args,
+        )
+    return _run_result(results, results_text(results))

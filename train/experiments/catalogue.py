@@ -1,0 +1,103 @@
+"""What ``observer-gym list`` shows: every system, observer, controller and shipped agent,
+with one line each, and the outside observers and controllers installed packages add
+through entry points (:mod:`observer_gym.train.experiments.entries`).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import NamedTuple
+
+from observer_gym.controllers import controllers_of
+from observer_gym.envs import SYSTEMS
+from observer_gym.estimation.observer import OBSERVER_ROLES
+from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.systems import system_entries
+from observer_gym.train.rl.shipped import README_FILE, shipped_names, shipped_path
+
+# the observers of a task that are no pipeline
+TASK_OBSERVERS = {
+    "oracle": "the true state (no camera)",
+    "pixels": "the camera frames themselves, for agents trained with --obs rgb",
+}
+MEASUREMENTS = "-measurements"
+
+
+class Listed(NamedTuple):
+    """One line of the catalogue."""
+
+    kind: str  # "system", "observer", "controller" or "agent"
+    name: str  # what a command takes
+    systems: tuple[str, ...]  # the env ids it applies to (all of them for an outside one)
+    summary: str  # one line
+    source: str  # "observer-gym", or "entry point of <distribution>"
+
+
+def observer_summary(name: str) -> str:
+    """One line for a task observer's ``name``."""
+    if name in TASK_OBSERVERS:
+        return TASK_OBSERVERS[name]
+    role = name.removesuffix(MEASUREMENTS)
+    summary = OBSERVER_ROLES.get(role, role)
+    return summary + (
+        ", from the perfect detector's measurements (no rendering)"
+        if name.endswith(MEASUREMENTS)
+        else ", from rendered frames"
+    )
+
+
+def _agent_summary(name: str) -> tuple[str, str]:
+    """(env id, one line) of the shipped agent ``name``: from its config and README title."""
+    folder = shipped_path(name)
+    config = json.loads((folder / "config.json").read_text(encoding="utf-8"))
+    readme = folder / README_FILE
+    title = ""
+    if readme.is_file():
+        first = readme.read_text(encoding="utf-8").splitlines()[:1]
+        title = first[0].lstrip("# ").strip() if first else ""
+    return config["env_id"], title or f"{config['algo']} on --obs {config['obs']}"
+
+
+def catalogue() -> list[Listed]:
+    """Every system, observer, controller and shipped agent of the package, then the
+    installed entry points' observers and controllers."""
+    items: list[Listed] = []
+    system_list = system_entries()
+    for entry in system_list:
+        env_class = entry.system.env_class()
+        doc = (env_class.__doc__ or "").strip().splitlines()
+        items.append(
+            Listed(
+                "system",
+                entry.system.short_id,
+                (entry.env_id,),
+                doc[0] if doc else "",
+                "observer-gym",
+            )
+        )
+    for kind, field in (("observer", "observers"), ("controller", "controllers")):
+        names: dict[str, list[str]] = {}
+        for entry in system_list:
+            for name in getattr(entry, field):
+                names.setdefault(name, []).append(entry.env_id)
+        for name, env_ids in names.items():
+            if kind == "observer":
+                summary = observer_summary(name)
+            else:
+                first = next(e for e in system_list if name in e.controllers)
+                summary = controllers_of(first.system)[name].summary
+            items.append(Listed(kind, name, tuple(env_ids), summary, "observer-gym"))
+    for name in shipped_names():
+        env_id, summary = _agent_summary(name)
+        algo = json.loads((shipped_path(name) / "config.json").read_text(encoding="utf-8"))["algo"]
+        items.append(Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym"))
+    all_envs = tuple(system.env_id for system in SYSTEMS)
+    for kind in ("observer", "controller"):
+        for name, entry_point in entries.entry_points(kind).items():
+            plugin = entries.find_plugin(kind, name)
+            items.append(
+                Listed(
+                    kind, name, all_envs, f"{entry_point.value} ({plugin.version})", plugin.source
+                )
+            )
+    return items

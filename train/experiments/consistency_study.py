@@ -1,0 +1,325 @@
+"""The consistency study: each observer's NEES/dof and NIS/dof against pixel noise,
+latency, frame drops and calibration error, per system (docs/results/consistency.md).
+
+One :func:`~observer_gym.train.experiments.sweep.run_sweep` per system and sensor option (resumable:
+run the command again to finish an interrupted study), the estimating observers fed the
+perfect detector's pixels (``*-measurements``), under each system's reference controller.
+From the sweeps' episodes it tabulates, per observer and value, the cell's NEES/dof (the
+episodes' summed mean NEES over their summed dof, :func:`~observer_gym.train.reports.consistency.
+nees_flag`) with its 95 % chi-square band, and the median episode NIS/dof; and plots both
+against each option with a 95 % bootstrap interval over the episodes.
+
+    python -m observer_gym.train.experiments.consistency_study --out docs/results/consistency \\
+        --episodes 10 --workers 2
+
+writes ``<system>_<option>/`` (the sweep's folder: ``table.md``, ``episodes.csv``, ...),
+``<system>_<option>.png`` and ``tables.md`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy import stats
+
+from observer_gym.train.cli.args import error_line
+from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
+from observer_gym.train.reports.consistency import consistency_text, episode_consistency, nees_flag
+from observer_gym.train.reports.outputs import format_table, write_text_atomic
+from observer_gym.train.reports.plots import new_figure, save_figure
+from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
+
+ACCEPTED = (1.0 / 3.0, 3.0)  # the range the tests hold every observer's median NEES/dof to
+
+
+class SystemStudy(NamedTuple):
+    """What one system's study runs: its reference controller, the observers, the env
+    options every cell keeps, and the cap on an episode's steps (None: the env's end)."""
+
+    controller: str
+    observers: tuple[str, ...]
+    env_kwargs: Mapping[str, Any]
+    steps: int | None
+
+
+SYSTEMS: dict[str, SystemStudy] = {
+    "BallTable-v0": SystemStudy(
+        "lqr",
+        ("kf-measurements", "kf-latency-measurements", "ekf-measurements"),
+        {"push_rate_hz": 0.5},
+        300,
+    ),
+    "BallCatcher-v0": SystemStudy(
+        "intercept",
+        ("kf-measurements", "ekf-measurements"),  # kf-latency is kf under a second name
+        {},
+        None,
+    ),
+    "TargetFollower-v0": SystemStudy(
+        "vtc",
+        (
+            "kf-measurements",
+            "stkf-measurements",
+            "kf-latency-measurements",
+            "stkf-latency-measurements",
+            "ekf-measurements",
+        ),
+        {},
+        300,
+    ),
+}
+
+# The sensor options and their values (the first is each system's default).
+OPTIONS: dict[str, tuple[float, ...]] = {
+    "measurement_noise_px": (0.0, 0.5, 1.0, 2.0, 4.0),
+    "latency_s": (0.0, 0.05, 0.1, 0.2),
+    "frame_drop_prob": (0.0, 0.2, 0.5),
+    "calib_rotation_error_deg": (0.0, 0.5, 1.0, 2.0),
+    "calib_focal_error": (0.0, 0.02, 0.05),
+}
+
+
+class ConsistencyRun(NamedTuple):
+    """NEES/dof and NIS/dof of each episode of :func:`measure_consistency` (None where an
+    episode had none) and their medians."""
+
+    nees_ratios: tuple[float | None, ...]
+    nis_ratios: tuple[float | None, ...]
+
+    @staticmethod
+    def _median(values: Sequence[float | None]) -> float | None:
+        kept = [v for v in values if v is not None]
+        return float(np.median(kept)) if kept else None
+
+    @property
+    def median_nees_ratio(self) -> float | None:
+        return self._median(self.nees_ratios)
+
+    @property
+    def median_nis_ratio(self) -> float | None:
+        return self._median(self.nis_ratios)
+
+
+def measure_consistency(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    steps: int | None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> ConsistencyRun:
+    """Run ``episodes`` closed-loop episodes (seeds ``seed``, ``seed + 1``, ...) of
+    ``observer`` (a name of the env's task, e.g. "kf-measurements") with ``controller``
+    and the env options ``env_kwargs``; each episode's NEES/dof and NIS/dof."""
+    nees, nis = [], []
+    for i in range(episodes):
+        spec = EpisodeSpec(
+            env_id,
+            observer,
+            controller,
+            seed + i,
+            steps,
+            dict(env_kwargs or {}),
+            observer_options=dict(observer_options or {}),
+        )
+        consistency = episode_consistency(run_episode(spec))
+        nees.append(consistency.get("nees_ratio"))
+        nis.append(consistency.get("nis_ratio"))
+    return ConsistencyRun(tuple(nees), tuple(nis))
+
+
+def _short(env_id: str) -> str:
+    return {"BallTable-v0": "ball_table", "BallCatcher-v0": "ball_catcher"}.get(
+        env_id, "target_follower"
+    )
+
+
+def _bootstrap_interval(nees: np.ndarray, dof: np.ndarray) -> tuple[float, float]:
+    """95 % percentile-bootstrap interval of sum(nees) / sum(dof) over the episodes."""
+    if len(nees) < 2:
+        return (float("nan"), float("nan"))
+    result = stats.bootstrap(
+        (nees, dof),
+        lambda n, d: np.sum(n) / np.sum(d),
+        paired=True,
+        vectorized=False,
+        n_resamples=2000,
+        method="percentile",
+        random_state=np.random.default_rng(0),
+    )
+    return float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def summarise(rows: Sequence[Mapping[str, Any]], key: str) -> dict[tuple[str, float], dict]:
+    """Per (observer, value of ``key``): the cell's :func:`nees_flag`, a bootstrap interval
+    of its ratio, and the median episode NIS/dof, from a sweep's episode rows."""
+    cells: dict[tuple[str, float], list] = {}
+    for row in rows:
+        cells.setdefault((row["observer"], float(row[key])), []).append(row)
+    out = {}
+    for cell_key, episodes in cells.items():
+        flag = nees_flag(episodes)
+        kept = [e for e in episodes if e.get("nees_mean") is not None and e.get("nees_dof")]
+        nees = np.array([e["nees_mean"] for e in kept], float)
+        dof = np.array([e["nees_dof"] for e in kept], float)
+        nis = [e["nis_ratio"] for e in episodes if e.get("nis_ratio") is not None]
+        out[cell_key] = {
+            "consistency": flag._asdict(),
+            "interval": _bootstrap_interval(nees, dof) if len(kept) else (np.nan, np.nan),
+            "nis_median": float(np.median(nis)) if nis else None,
+            "episodes": len(episodes),
+        }
+    return out
+
+
+def plot_option(path: Path, title: str, key: str, summary: Mapping[tuple[str, float], dict]):
+    """NEES/dof (with its bootstrap interval) and median NIS/dof against ``key``, one line
+    per observer, on log axes, with the range the tests accept shaded."""
+    fig = new_figure((10.0, 4.2))
+    axes = fig.subplots(1, 2)
+    observers = list(dict.fromkeys(o for o, _ in summary))
+    for i, observer in enumerate(observers):
+        values = sorted(v for o, v in summary if o == observer)
+        cells = [summary[observer, v] for v in values]
+        ratio = np.array([c["consistency"]["nees_ratio"] or np.nan for c in cells], float)
+        low, high = np.array([c["interval"] for c in cells], float).T
+        color = f"C{i}"
+        axes[0].plot(values, ratio, "o-", color=color, label=observer.removesuffix("-measurements"))
+        axes[0].fill_between(values, low, high, color=color, alpha=0.15)
+        nis = np.array([np.nan if c["nis_median"] is None else c["nis_median"] for c in cells])
+        axes[1].plot(values, nis, "o-", color=color, label=observer.removesuffix("-measurements"))
+    for ax, name in zip(
+        axes, ("NEES/dof (95 % bootstrap interval)", "NIS/dof, episode median"), strict=True
+    ):
+        ax.set_yscale("log")
+        ax.axhspan(*ACCEPTED, color="0.9", zorder=0, label="[1/3, 3]")
+        ax.axhline(1.0, color="k", lw=0.8, ls=":")
+        ax.set_xlabel(key)
+        ax.set_ylabel(name)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    save_figure(fig, path)
+
+
+def option_table(key: str, summary: Mapping[tuple[str, float], dict]) -> str:
+    """The Markdown table of one option: a row per observer, a column per value, each
+    cell the NEES/dof with its band (⚠ outside) and the median NIS/dof."""
+    observers = list(dict.fromkeys(o for o, _ in summary))
+    values = sorted({v for _, v in summary})
+    rows = []
+    for observer in observers:
+        row = [observer.removesuffix("-measurements")]
+        for v in values:
+            cell = summary.get((observer, v))
+            if cell is None:
+                row.append("")
+                continue
+            nis = cell["nis_median"]
+            row.append(
+                consistency_text(cell["consistency"]) + ("" if nis is None else f"; NIS {nis:.2f}")
+            )
+        rows.append(row)
+    return format_table([f"observer \\ {key}", *(f"{v:g}" for v in values)], rows)
+
+
+def run_study(
+    out_dir: Path,
+    systems: Sequence[str],
+    options: Sequence[str],
+    episodes: int,
+    workers: int,
+    seed: int = 0,
+) -> str:
+    """Run (or resume) the study's sweeps and write its plots and ``tables.md``; returns
+    the tables' Markdown."""
+    from observer_gym.train.experiments.sweep import (
+        run_sweep,  # heavy: after the arguments are read
+    )
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    sections = []
+    for env_id in systems:
+        study = SYSTEMS[env_id]
+        for key in options:
+            name = f"{_short(env_id)}_{key}"
+            result = run_sweep(
+                env_id,
+                {key: list(OPTIONS[key])},
+                list(study.observers),
+                [study.controller],
+                out_dir / name,
+                episodes=episodes,
+                seed=seed,
+                workers=workers,
+                steps=study.steps,
+                env_kwargs=dict(study.env_kwargs),
+                progress=sys.stderr.isatty(),
+            )
+            summary = summarise(result.results["episodes"], key)
+            plot_option(out_dir / f"{name}.png", f"{env_id}: {key}", key, summary)
+            sections += [f"### {env_id}: {key}", "", option_table(key, summary), ""]
+    text = "\n".join(sections)
+    write_text_atomic(out_dir / "tables.md", text)
+    return text
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m observer_gym.train.experiments.consistency_study",
+        description=__doc__.split("\n\n")[0],
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--systems",
+        default=",".join(SYSTEMS),
+        help=f"comma-separated env ids (default: all: {','.join(SYSTEMS)})",
+    )
+    parser.add_argument(
+        "--options",
+        default=",".join(OPTIONS),
+        help=f"comma-separated sensor options (default: all: {','.join(OPTIONS)})",
+    )
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per cell")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes")
+    parser.add_argument("--seed", type=int, default=0, help="episode i resets with seed + i")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    systems = [s.strip() for s in args.systems.split(",") if s.strip()]
+    options = [o.strip() for o in args.options.split(",") if o.strip()]
+    for name, given, allowed in (("systems", systems, SYSTEMS), ("options", options, OPTIONS)):
+        unknown = [g for g in given if g not in allowed]
+        if unknown or not given:
+            parser.error(f"--{name}: {unknown or 'none given'}; allowed: {', '.join(allowed)}")
+    if args.episodes < 2 or args.workers < 1 or args.seed < 0:
+        parser.error("--episodes must be >= 2, --workers >= 1 and --seed >= 0")
+    try:
+        with sigterm_as_interrupt():
+            text = run_study(args.out, systems, options, args.episodes, args.workers, args.seed)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM
+        print(
+            f"{parser.prog}: interrupted; the finished sweeps' cells are kept in {args.out}: "
+            "run the same command again to resume",
+            file=sys.stderr,
+        )
+        return INTERRUPTED_EXIT_CODE
+    except (OSError, ValueError) as exc:
+        print(error_line(parser.prog, exc), file=sys.stderr)
+        return 1
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""Controllers from outside the package, as the experiments drive them.
+
+- :class:`CheckedController`: what an outside factory (an import path or an entry point,
+  :mod:`observer_gym.train.experiments.entries`) returned, with every action it gives checked
+  against
+  the env's action space, so a wrong shape, NaN or a non-numeric action ends the episode
+  with one line naming the entry, not somewhere inside the env.
+- :class:`PolicyFile`: a stable-baselines3 model saved anywhere (``model.save(PATH)``),
+  named ``ALGO:PATH.zip`` wherever a controller is taken. It reads the observation the
+  env gives (the state, or an observer's estimate of it) and acts in the env's units.
+  Loading a zip unpickles parts of it: load only files from a trusted source.
+"""
+
+from __future__ import annotations
+
+import reprlib
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from observer_gym.train.experiments import entries
+
+
+def checked_action(action: Any, space: gym.spaces.Box, who: str) -> np.ndarray:
+    """``action`` as a float array of ``space``'s shape; ValueError naming ``who`` for
+    anything else (another shape, complex, text, NaN or inf)."""
+    try:
+        array = np.asarray(action)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.dtype.kind not in "biuf" or array.shape != space.shape:
+        raise ValueError(
+            f"controller {who!r}: predict() must return (action, state) with an action of "
+            f"real numbers of shape {space.shape}, got {reprlib.repr(action)}"
+        )
+    if not np.isfinite(array).all():
+        raise ValueError(f"controller {who!r}: predict() returned a non-finite action {array}")
+    return array.astype(np.float64)
+
+
+class CheckedController:
+    """An outside controller with the protocol the experiments use (``name``, ``reset``,
+    ``predict``), its actions checked by :func:`checked_action`. Its other attributes
+    (``observe_info``, ``failures``, design values) are the wrapped object's."""
+
+    def __init__(self, plugin: entries.Plugin, env: gym.Env, options: Mapping[str, Any]):
+        self.controller = entries.build(plugin, env, options)
+        self.name = plugin.name
+        self.entry = plugin.describe(options)
+        self._space = env.action_space
+
+    def __getattr__(self, attribute: str) -> Any:  # only for attributes not set above
+        return getattr(self.__dict__["controller"], attribute)
+
+    def reset(self) -> None:
+        reset = getattr(self.controller, "reset", None)
+        if callable(reset):
+            reset()
+
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        result = self.controller.predict(observation, state, episode_start, deterministic)
+        if not (isinstance(result, tuple) and len(result) == 2):
+            raise ValueError(
+                f"controller {self.name!r}: predict() must return (action, state) as "
+                f"stable-baselines3's does, got {reprlib.repr(result)}"
+            )
+        return checked_action(result[0], self._space, self.name), result[1]
+
+
+def is_policy_file(path: Path) -> bool:
+    """Whether ``path`` names a saved stable-baselines3 model (a file, not a run folder)."""
+    return path.suffix == ".zip" or path.is_file()
+
+
+def check_policy_file(name: str, path: Path) -> None:
+    """ValueError unless ``path`` is a stable-baselines3 zip (``data`` and
+    ``policy.pth`` inside); reads the archive's listing only."""
+    if not path.is_file():
+        raise ValueError(f"policy {name!r}: no file {path}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise ValueError(
+            f"policy {name!r}: {path} is not a stable-baselines3 zip ({exc})"
+        ) from None
+    if not {"data", "policy.pth"} <= names:
+        raise ValueError(
+            f"policy {name!r}: {path} is not a stable-baselines3 model (no data and "
+            "policy.pth inside)"
+        )
+
+
+class PolicyFile:
+    """A stable-baselines3 model from ``ALGO:PATH.zip`` as a controller, on the CPU.
+
+    Attributes:
+        name: ``ALGO:PATH``; algo, run_dir (the file): recorded by the experiments.
+    """
+
+    def __init__(self, algo: str, path: Path, env: gym.Env):
+        from observer_gym.train.rl.hyperparams import algorithm_class  # deferred: torch
+
+        self.name, self.algo, self.run_dir = f"{algo}:{path}", algo, str(path)
+        check_policy_file(self.name, path)
+        try:
+            self.model = algorithm_class(algo).load(path, device="cpu")
+        except Exception as exc:  # a zip of another algorithm or a damaged one
+            raise ValueError(
+                f"policy {self.name!r}: {algo} cannot load it: {type(exc).__name__}: {exc}"
+            ) from None
+        model_shape = self.model.observation_space.shape
+        env_shape = env.observation_space.shape
+        if model_shape != env_shape:
+            raise ValueError(
+                f"policy {self.name!r} reads observations of shape {model_shape}, the env "
+                f"gives {env_shape}"
+            )
+        if self.model.action_space.shape != env.action_space.shape:
+            raise ValueError(
+                f"policy {self.name!r} acts with shape {self.model.action_space.shape}, the "
+                f"env takes {env.action_space.shape}"
+            )
+        self._space = env.action_space
+
+    def reset(self) -> None:
+        """Nothing to reset: a stable-baselines3 policy here is feed-forward."""
+
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        action, _ = self.model.predict(observation, deterministic=deterministic)
+        return checked_action(action, self._space, self.name), state

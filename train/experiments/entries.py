@@ -1,0 +1,318 @@
+"""Observers and controllers from outside the package: by import path or entry point.
+
+Wherever ``run``, ``compare``, ``sweep`` or ``evaluate`` take an observer or a controller
+name, they also take
+
+- an import path ``package.module:factory`` (the module importable from the Python path
+  of the command and of its workers), or
+- the name of an entry point that an installed package declares in the group
+  ``observer_gym.observers`` or ``observer_gym.controllers``, e.g. in its pyproject.toml::
+
+      [project.entry-points."observer_gym.observers"]
+      alpha-beta = "mylab.filters:make_observer"
+
+An observer factory is called as ``factory(env, **options)`` with the unwrapped env and
+returns a pipeline with ``reset()`` and ``observe(obs, info, action) -> Estimate``
+(:mod:`observer_gym.estimation.observer`). It reads the camera frames (``obs_mode="rgb"``)
+or, with the suffix ``-measurements`` on the entry (``mylab.filters:make_observer-measurements``,
+``alpha-beta-measurements``), the perfect detector's measurements, as the built-in
+observers' names do. A controller factory is called as ``factory(env, **options)`` with
+the env it acts on (whose observation is the state or an estimate of it) and returns an
+object with stable-baselines3's ``predict(obs, state, episode_start, deterministic)``;
+its ``reset()``, if it has one, is called before every episode.
+
+From Python (:mod:`observer_gym.train.experiments.api`), an entry can also be the factory itself or
+an object with the protocol (a pipeline, a controller; each episode gets a deep copy). A
+module-level factory is named by its import path; anything else gets the name
+``python:<module>.<qualname>`` and travels to the workers inside each episode's spec
+(:func:`as_name`), so it must pickle when episodes run in other processes.
+
+Names of the package's own observers and controllers win over an entry point of the same
+name. This module imports nothing but the standard library, so the command line checks an
+entry before it loads any layer.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import functools
+import importlib
+import pickle
+from collections.abc import Callable, Iterator, Mapping
+from importlib import metadata
+from typing import Any, NamedTuple
+
+OBSERVER_GROUP = "observer_gym.observers"
+CONTROLLER_GROUP = "observer_gym.controllers"
+GROUPS = {"observer": OBSERVER_GROUP, "controller": CONTROLLER_GROUP}
+MEASUREMENTS_SUFFIX = "-measurements"
+NOT_INSTALLED = "not installed"
+OBJECT_PREFIX = "python:"
+# The entries given as Python objects in this process, by (kind, name): set while an
+# experiment runs (:func:`objects_in_use`), from the specs in a worker.
+_OBJECTS: dict[tuple[str, str], Any] = {}
+
+
+class Plugin(NamedTuple):
+    """An observer or controller from outside the package, as a request names it."""
+
+    kind: str  # "observer" or "controller"
+    name: str  # as given: "mylab.filters:make_observer-measurements", "alpha-beta"
+    target: str  # the factory's import path: "mylab.filters:make_observer"
+    obs_mode: str | None  # an observer's env mode ("rgb" or "measurements"); None for a controller
+    source: str  # "import path" or "entry point of <distribution>"
+    package: str  # the distribution that provides it, else the module's top-level package
+    version: str  # the distribution's version, or "not installed"
+
+    def describe(self, options: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """What results record of the entry: its import path, source, package, version
+        and ``options``."""
+        return {
+            "name": self.name,
+            "import_path": self.target,
+            "source": self.source,
+            "package": self.package,
+            "version": self.version,
+            "options": dict(options or {}),
+        }
+
+
+def is_import_path(text: str) -> bool:
+    """Whether ``text`` reads ``dotted.module:dotted.attribute`` (an optional
+    ``-measurements`` suffix aside)."""
+    module, sep, attribute = text.removesuffix(MEASUREMENTS_SUFFIX).partition(":")
+    return bool(sep) and all(
+        part.isidentifier() for part in module.split(".") + attribute.split(".")
+    )
+
+
+@functools.cache
+def entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
+    """The installed entry points of ``kind`` ("observer" or "controller"), by name."""
+    return {ep.name: ep for ep in metadata.entry_points(group=GROUPS[kind])}
+
+
+def refresh() -> None:
+    """Read the installed packages and their entry points again (after an install in
+    this process)."""
+    entry_points.cache_clear()
+    _distributions.cache_clear()
+
+
+@functools.cache
+def _distributions() -> Mapping[str, list[str]]:
+    return metadata.packages_distributions()
+
+
+def _version_of(module: str) -> tuple[str, str]:
+    """(distribution, version) of the installed distribution that provides ``module``'s
+    top-level package, else (that package, "not installed")."""
+    top = module.split(".")[0]
+    for distribution in _distributions().get(top, []):
+        try:
+            return distribution, metadata.version(distribution)
+        except metadata.PackageNotFoundError:  # pragma: no cover - a broken install
+            continue
+    return top, NOT_INSTALLED
+
+
+def find_plugin(kind: str, name: str) -> Plugin | None:
+    """The plugin ``name`` stands for (an import path, an installed entry point's name or
+    a Python object given in this process, each with an optional ``-measurements`` suffix
+    for an observer), None for any other name. Imports nothing."""
+    if kind not in GROUPS:
+        raise ValueError(f"kind must be one of {', '.join(GROUPS)}, got {kind!r}")
+    obs_mode = None
+    stem = name
+    if kind == "observer":
+        measurements = name.endswith(MEASUREMENTS_SUFFIX)
+        stem = name.removesuffix(MEASUREMENTS_SUFFIX) if measurements else name
+        obs_mode = "measurements" if measurements else "rgb"
+    if (kind, stem) in _OBJECTS:
+        target = stem.removeprefix(OBJECT_PREFIX)
+        package, version = _version_of(target.partition(":")[0])
+        return Plugin(kind, name, stem, obs_mode, "python object", package, version)
+    if is_import_path(stem):
+        package, version = _version_of(stem.partition(":")[0])
+        return Plugin(kind, name, stem, obs_mode, "import path", package, version)
+    entry_point = entry_points(kind).get(stem)
+    if entry_point is None:
+        return None
+    distribution = entry_point.dist.name if entry_point.dist is not None else stem
+    try:
+        version = metadata.version(distribution)
+    except metadata.PackageNotFoundError:  # pragma: no cover - an entry point without a dist
+        version = NOT_INSTALLED
+    return Plugin(
+        kind,
+        name,
+        entry_point.value,
+        obs_mode,
+        f"entry point of {distribution}",
+        distribution,
+        version,
+    )
+
+
+def load_factory(plugin: Plugin) -> Callable[..., Any]:
+    """The factory ``plugin`` names, imported; ValueError naming the entry and what is
+    wrong (the module cannot be imported, has no such attribute, or it is not callable)."""
+    if (plugin.kind, plugin.target) in _OBJECTS:
+        return _OBJECTS[plugin.kind, plugin.target]
+    module_name, _, attribute = plugin.target.partition(":")
+    where = f"{plugin.kind} {plugin.name!r}"
+    try:
+        target: Any = importlib.import_module(module_name)
+    except Exception as exc:  # an ImportError, or anything the module raises on import
+        raise ValueError(
+            f"{where}: cannot import {module_name!r}: {type(exc).__name__}: {exc}"
+        ) from None
+    for part in attribute.split("."):
+        try:
+            target = getattr(target, part)
+        except AttributeError:
+            raise ValueError(
+                f"{where}: module {module_name!r} has no attribute {attribute!r}"
+            ) from None
+    if not callable(target):
+        raise ValueError(
+            f"{where}: {plugin.target} is a {type(target).__name__}, not a factory "
+            "(a callable taking the env and the options)"
+        )
+    return target
+
+
+def build(plugin: Plugin, env: Any, options: Mapping[str, Any] | None = None) -> Any:
+    """``factory(env, **options)`` of ``plugin``, checked: ValueError naming the entry when
+    the factory raises, or returns an object without the protocol's methods (an observer
+    pipeline's ``reset`` and ``observe``, a controller's ``predict``)."""
+    factory = load_factory(plugin)
+    where = f"{plugin.kind} {plugin.name!r}"
+    try:
+        made = factory(env, **dict(options or {}))
+    except Exception as exc:
+        raise ValueError(
+            f"{where}: {plugin.target}(env, **{dict(options or {})}) raised "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
+    needed = ("reset", "observe") if plugin.kind == "observer" else ("predict",)
+    missing = [method for method in needed if not callable(getattr(made, method, None))]
+    if missing:
+        raise ValueError(
+            f"{where}: {plugin.target} returned a {type(made).__name__} without "
+            f"{', '.join(m + '()' for m in missing)}; an {plugin.kind} must have "
+            f"{', '.join(m + '()' for m in needed)}"
+        )
+    return made
+
+
+def _import_path_of(obj: Any) -> str | None:
+    """``module:qualname`` of a module-level function or class that imports back as
+    itself (not from ``__main__``), else None."""
+    module, qualname = getattr(obj, "__module__", None), getattr(obj, "__qualname__", None)
+    if not module or not qualname or module == "__main__" or "<" in qualname:
+        return None
+    try:
+        found: Any = importlib.import_module(module)
+        for part in qualname.split("."):
+            found = getattr(found, part)
+    except (ImportError, AttributeError):
+        return None
+    return f"{module}:{qualname}" if found is obj else None
+
+
+class _Copies:
+    """A factory that gives each episode a deep copy of a given pipeline or controller."""
+
+    def __init__(self, prototype: Any) -> None:
+        self.prototype = prototype
+
+    def __call__(self, env: Any, **options: Any) -> Any:
+        if options:
+            raise TypeError(f"an object given as an entry takes no options, got {options}")
+        return copy.deepcopy(self.prototype)
+
+
+def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[str, Any]]:
+    """``(name, objects)`` for an entry given from Python: a name or import path (text)
+    as it is, with no objects; a module-level factory by its import path; any other
+    factory, or an object with the protocol (an observer pipeline's ``reset`` and
+    ``observe``, a controller's ``predict``; each episode gets a deep copy), as
+    ``python:<module>.<qualname>`` with ``objects`` mapping (kind, that name) to the factory.
+    An observer's name gets the ``-measurements`` suffix for ``obs_mode`` "measurements".
+    ValueError for anything else."""
+    suffix = MEASUREMENTS_SUFFIX if kind == "observer" and obs_mode == "measurements" else ""
+    if isinstance(entry, str):
+        return entry, {}
+    needed = ("reset", "observe") if kind == "observer" else ("predict",)
+    has_protocol = all(callable(getattr(entry, m, None)) for m in needed)
+    if isinstance(entry, type) or (callable(entry) and not has_protocol):  # a factory
+        path = _import_path_of(entry)
+        if path is not None:
+            return path + suffix, {}
+        factory = entry
+    elif has_protocol:
+        factory = _Copies(entry)
+        entry = type(entry)
+    else:
+        raise ValueError(
+            f"{kind} {entry!r}: expected a name, an import path package.module:factory, a "
+            f"factory (env, **options) or an object with {', '.join(m + '()' for m in needed)}"
+        )
+    module = getattr(entry, "__module__", "object")
+    qualname = getattr(entry, "__qualname__", type(entry).__name__)
+    name = f"{OBJECT_PREFIX}{module}:{qualname}"
+    return name + suffix, {(kind, name): factory}
+
+
+def check_picklable(objects: Mapping[tuple[str, str], Any]) -> None:
+    """ValueError, one line, for an entry given as an object that does not pickle (it
+    cannot reach a worker process or a Ray task)."""
+    for (kind, name), factory in objects.items():
+        try:
+            pickle.dumps(factory)
+        except (
+            Exception
+        ) as exc:  # pickle raises several types (PicklingError, AttributeError, TypeError)
+            raise ValueError(
+                f"{kind} {name!r} cannot run in workers: it does not pickle ({type(exc).__name__}: "
+                f"{exc}); define it at module level, name it by import path, or use workers=1"
+            ) from None
+
+
+@contextlib.contextmanager
+def objects_in_use(objects: Mapping[tuple[str, str], Any]) -> Iterator[None]:
+    """Make the entries given as objects findable by name (:func:`find_plugin`) inside."""
+    added = {key: value for key, value in objects.items() if key not in _OBJECTS}
+    _OBJECTS.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            _OBJECTS.pop(key, None)
+
+
+def objects_for(observer: str, controller: str) -> dict[tuple[str, str], Any]:
+    """The entries given as objects among ``observer`` and ``controller`` (for an
+    episode's spec)."""
+    wanted = {("observer", observer.removesuffix(MEASUREMENTS_SUFFIX)), ("controller", controller)}
+    return {key: value for key, value in _OBJECTS.items() if key in wanted}
+
+
+def entry_line(kind: str, entry: Mapping[str, Any]) -> str:
+    """One line for a table's header from a :meth:`Plugin.describe` record: "observer
+    NAME = IMPORT_PATH (PACKAGE VERSION; options {...})"."""
+    where = "" if entry["name"] == entry["import_path"] else f" = {entry['import_path']}"
+    options = f"; options {entry['options']}" if entry["options"] else ""
+    return f"{kind} {entry['name']}{where} ({entry['package']} {entry['version']}{options})"
+
+
+def unknown_message(kind: str, name: str, env_id: str, builtins: list[str]) -> str:
+    """The one line for a name that is neither built in nor an entry: what is allowed."""
+    installed = sorted(entry_points(kind))
+    return (
+        f"unknown {kind} {name!r} for {env_id}; allowed: {', '.join(builtins)}, "
+        f"an import path package.module:factory"
+        + (f", or an installed entry point: {', '.join(installed)}" if installed else "")
+    )

@@ -1,0 +1,321 @@
+"""One closed-loop episode, and many: what ``run``, ``compare`` and ``sweep`` run.
+
+:class:`EpisodeSpec` is everything one episode needs, by name (picklable, so a worker
+process or a Ray task runs it); :func:`run_episode` builds its own env and controller,
+resets with the spec's seed and closes the env, so any episode can be rerun alone and
+running the episodes in several processes gives exactly the results of one
+(:func:`iter_episodes`, :func:`run_episodes`). :func:`check_entries` tries an outside
+observer or controller once before anything runs.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import multiprocessing
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from observer_gym.controllers import (
+    controllers_for,
+    controllers_of,
+    make_controller,
+)
+from observer_gym.envs import system_of
+from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.controller_entries import (
+    CheckedController,
+    PolicyFile,
+    is_policy_file,
+)
+from observer_gym.train.experiments.observer_env import make_env, observer_setup
+from observer_gym.train.reports.consistency import (
+    nees_per_step,
+)
+from observer_gym.train.reports.outputs import (
+    to_jsonable,
+)
+from observer_gym.train.rl.agent import Agent
+from observer_gym.train.rl.run_dir import parse_agent_spec
+
+# Controller attributes recorded in results.json when present (the MPC's Q, R, K are its
+# LQR's: its terminal cost and fallback).
+CONTROLLER_ATTRIBUTES = (
+    "K",
+    "Q",
+    "R",
+    "horizon",
+    "constrained",
+    "tilt_limit_rad",
+    "tilt_rate_limit_radps",
+    "ball_limit_m",
+    "settings",
+    "kp",
+    "ki",
+    "kd",
+    "profile",
+    "max_speed_mps",
+    "max_accel_mps2",
+    "algo",
+    "run_dir",
+    "obs",
+    "timesteps",
+    "entry",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeSpec:
+    """Everything one episode needs; picklable, so a worker process can run it."""
+
+    env_id: str
+    observer: str
+    controller: str
+    seed: int
+    max_steps: int | None = None
+    env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    reset_options: Mapping[str, Any] | None = None
+    observer_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    controller_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    # the observer and controller if given as Python objects (entries.as_name), by name:
+    # they travel with the spec to a worker
+    objects: Mapping[tuple[str, str], Any] = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def of(
+        cls, env_id: str, observer: str, controller: str, seed: int, **fields: Any
+    ) -> EpisodeSpec:
+        """The spec with the objects the observer and controller names stand for, if any."""
+        return cls(
+            env_id, observer, controller, seed, **fields,
+            objects=entries.objects_for(observer, controller),
+        )  # fmt: skip
+
+
+class EpisodeError(ValueError):
+    """An episode that failed part-way (an observer's or a controller's fault): the
+    message names it, the episode's seed and the step."""
+
+
+def is_outside(env_id: str, observer: str, controller: str) -> bool:
+    """Whether the pair has an outside observer or controller (an import path, an entry
+    point, or a stable-baselines3 zip): what :func:`check_entries` tries."""
+    agent_spec = parse_agent_spec(controller)
+    outside_controller = (
+        is_policy_file(agent_spec[1])
+        if agent_spec is not None
+        else controller not in controllers_for(env_id)
+    )
+    return observer_setup(env_id, observer)[2] is not None or outside_controller
+
+
+def check_entries(
+    env_id: str,
+    observer: str,
+    controller: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> None:
+    """Try an outside observer or controller once before anything runs: build the env,
+    the pipeline and the controller, reset with ``seed``, and ask for one action (the
+    estimate's layout and the action are checked as in every step). ValueError naming the
+    entry and what is wrong; nothing for a pair of the package's own (tested) entries."""
+    if not is_outside(env_id, observer, controller):
+        return
+    env = make_env(env_id, observer, env_kwargs, observer_options)
+    try:
+        built = build_controller(controller, env, controller_options)
+        env = getattr(built, "wrap_env", lambda env: env)(env)
+        getattr(built, "reset", lambda: None)()
+        obs, info = env.reset(seed=seed)
+        getattr(built, "observe_info", lambda info: None)(info)
+        action, _ = built.predict(obs)
+        env.step(action)
+    finally:
+        env.close()
+
+
+def build_controller(
+    controller: str, env: gym.Env, options: Mapping[str, Any] | None = None
+) -> Any:
+    """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
+    a :class:`~observer_gym.train.experiments.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
+    the :class:`~observer_gym.train.experiments.controller_entries.CheckedController` of an outside
+    factory called with ``options``, else ``make_controller(controller, env, **options)``."""
+    agent_spec = parse_agent_spec(controller)
+    if agent_spec is not None:
+        if options:
+            raise ValueError(f"controller {controller!r} takes no options, got {dict(options)}")
+        if is_policy_file(agent_spec[1]):
+            return PolicyFile(agent_spec[0], agent_spec[1], env)
+        return Agent.load(agent_spec[1], algo=agent_spec[0])
+    if controller not in controllers_of(system_of(env)):
+        plugin = entries.find_plugin("controller", controller)
+        if plugin is not None:
+            return CheckedController(plugin, env, options or {})
+    return make_controller(controller, env, **dict(options or {}))
+
+
+def describe_controller(controller: Any) -> dict[str, Any]:
+    """The controller's name, class and the design values in :data:`CONTROLLER_ATTRIBUTES`."""
+    described: dict[str, Any] = {"name": controller.name, "class": type(controller).__name__}
+    # An MPC's Q, R and K are its LQR's; a controller's own attributes come last and win.
+    sources = [getattr(controller, "lqr", None), controller]
+    for source in filter(None, sources):
+        for attr in CONTROLLER_ATTRIBUTES:
+            if hasattr(source, attr):
+                described[attr] = to_jsonable(getattr(source, attr))
+    return described
+
+
+def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """:func:`run_episode_here` with the spec's entries given as objects findable."""
+    with entries.objects_in_use(spec.objects):
+        return run_episode_here(spec)
+
+
+def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
+    """Run one episode; its record (arrays, T steps).
+
+    Returns ``time_s`` (T + 1,), ``state`` (T + 1, n) ground truth, ``estimate`` and
+    ``estimate_std`` (T + 1, n; None for the oracle), for an observer also ``nees``,
+    ``nees_dof``, ``nis``, ``nis_dof`` (T + 1,; :mod:`observer_gym.train.reports.consistency`;
+    NaN where a step has none, and on the steps where the env says its observers' model
+    does not hold: ``model_holds_key``), ``actions`` (T, m), ``rewards``
+    (T,), ``terminated``, ``truncated``, ``final_info`` (the scalar entries of the last
+    step's info, e.g. an episode's outcome), ``solver_failures``, ``controller``
+    (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
+    Stops at termination, truncation (the env's time limit) or ``spec.max_steps``.
+    """
+    env = make_env(spec.env_id, spec.observer, spec.env_kwargs, spec.observer_options)
+    try:
+        controller = build_controller(spec.controller, env, spec.controller_options)
+        # An agent sees the env through the wrappers it was trained with (image resizing
+        # and frame stacking for rgb); info, with the ground truth, passes through them.
+        env = getattr(controller, "wrap_env", lambda env: env)(env)
+        controller.reset()
+        failures_before = getattr(controller, "failures", 0)
+        # A controller that uses more than the observation (the intercept planner reads
+        # the estimate's covariance) gets every info through observe_info.
+        observe_info = getattr(controller, "observe_info", lambda info: None)
+        actions: list[np.ndarray] = []
+        rewards: list[float] = []
+        terminated = truncated = False
+        try:
+            obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
+            observe_info(info)
+            samples = [info]
+            while not (terminated or truncated) and (
+                spec.max_steps is None or len(actions) < spec.max_steps
+            ):
+                action, _ = controller.predict(obs)
+                obs, reward, terminated, truncated, info = env.step(action)
+                observe_info(info)
+                actions.append(np.asarray(action, dtype=float))
+                rewards.append(float(reward))
+                samples.append(info)
+        except ValueError as exc:  # an observer's or controller's fault: which episode, when
+            raise EpisodeError(
+                f"{exc} (episode seed {spec.seed}, after {len(actions)} steps)"
+            ) from None
+        record: dict[str, Any] = {
+            # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
+            "time_s": np.round([s["time_s"] for s in samples], 9),
+            "state": np.array([s["state"] for s in samples], dtype=float),
+            "estimate": None,
+            "estimate_std": None,
+            "actions": np.array(actions).reshape(len(actions), *env.action_space.shape),
+            "rewards": np.array(rewards),
+            "terminated": bool(terminated),
+            "truncated": bool(truncated),
+            "final_info": {
+                k: v for k, v in samples[-1].items() if isinstance(v, (bool, int, float, str))
+            },
+            "solver_failures": int(getattr(controller, "failures", 0) - failures_before),
+            "controller": describe_controller(controller),
+            "env_config": dataclasses.asdict(env.unwrapped.config),
+        }
+        if "estimate" in samples[0]:
+            estimates = [s["estimate"] for s in samples]
+            record["estimate"] = np.array([e["mean"] for e in estimates], dtype=float)
+            covariances = [e["covariance"] for e in estimates]
+            variances = np.array([np.diag(P) for P in covariances], dtype=float)
+            record["estimate_std"] = np.sqrt(np.maximum(variances, 0.0))
+            record["nees"], record["nees_dof"] = nees_per_step(
+                record["estimate"], covariances, record["state"]
+            )
+            record["nis"] = np.array(
+                [np.nan if e.get("nis") is None else e["nis"] for e in estimates], dtype=float
+            )
+            record["nis_dof"] = np.array([e.get("nis_dof", 0) for e in estimates], dtype=int)
+            _keep_where_model_holds(record, env.unwrapped, samples)
+        return record
+    finally:
+        env.close()
+
+
+def _keep_where_model_holds(record: dict[str, Any], env: gym.Env, samples: list) -> None:
+    """NEES and NIS only over the steps where the observers' process model holds (the
+    env's ``model_holds_key`` info entry, e.g. BallCatcher's ball in free flight): NaN and
+    0 dof elsewhere."""
+    key = getattr(env, "model_holds_key", None)
+    if key is None:
+        return
+    outside = ~np.array([bool(s.get(key, True)) for s in samples])
+    for name in ("nees", "nis"):
+        record[name][outside] = np.nan
+        record[f"{name}_dof"][outside] = 0
+
+
+def iter_episodes(
+    specs: Sequence[EpisodeSpec],
+    workers: int = 1,
+    run: Callable[[EpisodeSpec], Any] = run_episode,
+) -> Iterator[tuple[int, Any]]:
+    """``(index, run(specs[index]))`` for every spec, as each finishes: in order in this
+    process for ``workers`` == 1, else in ``workers`` spawned processes (``run`` must then
+    be a module-level function), in the order they finish. The first episode that fails
+    raises at once (with a note naming it), and the episodes not started are dropped; so
+    are they when the caller stops iterating (Ctrl-C, or an error of its own)."""
+    if workers == 1:
+        for index, spec in enumerate(specs):
+            yield index, run(spec)
+        return
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(
+        max_workers=min(workers, len(specs)), mp_context=context
+    ) as pool:
+        futures = {pool.submit(run, spec): index for index, spec in enumerate(specs)}
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                error = future.exception()
+                if error is not None:  # ends the run now, not after the other episodes
+                    error.add_note(f"in the episode {specs[futures[future]]}")
+                    raise error
+                yield futures[future], future.result()
+        except BaseException:  # a failed episode, Ctrl-C, or the caller stopped iterating
+            for pending in futures:
+                pending.cancel()  # the episodes not started yet are dropped
+            raise
+
+
+def run_episodes(
+    specs: Sequence[EpisodeSpec], workers: int = 1, progress: bool = True, desc: str = "run"
+) -> list[dict]:
+    """The records of ``specs`` (:func:`run_episode`), in order; in ``workers`` spawned
+    processes if > 1, with the same results (:func:`iter_episodes`: the first episode
+    that fails raises at once, naming it)."""
+    records: list[Any] = [None] * len(specs)
+    if not specs:
+        return []
+    with tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress) as bar:
+        for index, record in iter_episodes(specs, workers):
+            records[index] = record
+            bar.update(1)
+    return records

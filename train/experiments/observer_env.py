@@ -1,0 +1,92 @@
+"""The env an observer gives: ``make_env(env_id, observer, env_kwargs)``.
+
+The same env serves ``observer-gym run`` and ``compare`` (with a controller on it) and
+``train`` (with an agent on it). ``observer`` is one of the env's task's ``OBSERVERS``,
+or an observer from outside the package (:mod:`observer_gym.train.experiments.entries`: an import
+path or an installed entry point's name).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+
+import observer_gym.envs  # noqa: F401  (registers the envs)
+from observer_gym.estimation import VisionObserver
+from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.tasks import task_for
+
+
+def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] | None, Any]:
+    """``(obs_mode, pipeline_options, plugin)`` of ``observer`` for ``env_id``: a task
+    observer's env mode and default-pipeline options (None for one without a pipeline,
+    "pixels") and plugin None; an outside observer's mode, None and its
+    :class:`~observer_gym.train.experiments.entries.Plugin`. ValueError naming what is allowed for
+    any other name."""
+    observers = task_for(env_id).OBSERVERS
+    if observer in observers:
+        obs_mode, pipeline_options = observers[observer]
+        return obs_mode, pipeline_options, None
+    plugin = entries.find_plugin("observer", observer)
+    if plugin is None:
+        raise ValueError(entries.unknown_message("observer", observer, env_id, list(observers)))
+    return plugin.obs_mode, None, plugin
+
+
+def observer_record(
+    env_id: str, observer: str, options: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """What results record of ``observer``: its env mode, its default pipeline's options
+    (a task observer) or its entry (an outside one: import path, package, version and
+    ``options``)."""
+    obs_mode, pipeline_options, plugin = observer_setup(env_id, observer)
+    record: dict[str, Any] = {"obs_mode": obs_mode, "pipeline_options": pipeline_options}
+    if plugin is not None:
+        record["entry"] = plugin.describe(options)
+    elif options:
+        record["observer_options"] = dict(options)
+    return record
+
+
+def make_env(
+    env_id: str,
+    observer: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+) -> gym.Env:
+    """The env for ``observer``: the state env for "oracle", the camera frames for an
+    observer without a pipeline ("pixels"), else the env in the observer's obs_mode
+    wrapped in :class:`VisionObserver` with the observer's pipeline (a task observer's
+    default pipeline with its options and ``observer_options``; an outside observer's
+    factory called with ``observer_options``). ``env_kwargs`` go to ``gym.make``."""
+    obs_mode, _, _ = observer_setup(env_id, observer)
+    env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
+    return wrap_observer(env, env_id, observer, observer_options)
+
+
+def wrap_observer(
+    env: gym.Env,
+    env_id: str,
+    observer: str,
+    observer_options: Mapping[str, Any] | None = None,
+) -> gym.Env:
+    """``env`` (made in ``observer``'s obs_mode) wrapped in the :class:`VisionObserver` of
+    ``observer``'s pipeline (see :func:`make_env`), or unchanged for "oracle" and an
+    observer without a pipeline; ``env`` is closed if this fails."""
+    try:
+        _, pipeline_options, plugin = observer_setup(env_id, observer)
+        if plugin is not None:
+            pipeline = entries.build(plugin, env.unwrapped, observer_options)
+            return VisionObserver(env, pipeline=pipeline, name=observer)
+        if observer == "oracle" or pipeline_options is None:
+            if observer_options:
+                raise ValueError(
+                    f"observer {observer!r} takes no options, got {dict(observer_options)}"
+                )
+            return env
+        return VisionObserver(env, **{**dict(pipeline_options), **dict(observer_options or {})})
+    except BaseException:
+        env.close()
+        raise

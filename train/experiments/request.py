@@ -1,0 +1,294 @@
+"""An experiment's request, resolved once: :func:`resolve_request` turns what a caller
+gives (an env id, observer and controller names, seeds, options) into one validated
+:class:`Request` that ``compare`` and ``sweep`` pass down, so nothing below re-reads the
+env id or looks a name up again.
+
+:func:`check_pair` and :func:`check_controller` are the library's checks of one observer
+and controller by name (the command line's light copies are in
+:mod:`observer_gym.train.cli.checks`, held to the same messages by the tests).
+
+Each observer becomes an :class:`ObserverEntry` (its env mode, the package's pipeline
+options or an outside entry, its options) and each controller a :class:`ControllerEntry`
+(the package's design, a trained agent, a stable-baselines3 zip or an outside entry).
+Episodes still travel to workers by name
+(:class:`~observer_gym.train.experiments.episode.EpisodeSpec`):
+names and import paths pickle, and a worker resolves them again in its own process.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Mapping, Sequence
+from types import ModuleType
+from typing import Any, NamedTuple
+
+from observer_gym.controllers import check_controller_fits, controllers_for, controllers_of
+from observer_gym.envs import System, system_for_id
+from observer_gym.train.cli.checks import (
+    AGENT_FORMS,
+    BACKENDS,
+    OUTSIDE_FORMS,
+    RAY_INSTALL_HINT,
+    check_agent,
+    check_seeds,
+    frames_message,
+)
+from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
+from observer_gym.train.experiments.entries import (
+    Plugin,
+    find_plugin,
+    load_factory,
+    unknown_message,
+)
+from observer_gym.train.experiments.observer_env import observer_setup
+from observer_gym.train.experiments.systems import resolve_env_id
+from observer_gym.train.experiments.tasks import task_of
+from observer_gym.train.reports.aggregate import check_rliable
+from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec
+
+
+class ObserverEntry(NamedTuple):
+    """One observer of a request."""
+
+    name: str  # as the results name it
+    obs_mode: str  # the env's obs_mode it reads
+    pipeline_options: Mapping[str, Any] | None  # a package observer's; None: pixels, outside
+    plugin: Plugin | None  # an outside observer's entry
+    options: dict[str, Any]  # its factory's keyword arguments (outside observers only)
+
+    def record(self) -> dict[str, Any]:
+        """What results record of it: env mode, pipeline options, an outside entry."""
+        record: dict[str, Any] = {
+            "obs_mode": self.obs_mode,
+            "pipeline_options": self.pipeline_options,
+        }
+        if self.plugin is not None:
+            record["entry"] = self.plugin.describe(self.options)
+        return record
+
+
+class ControllerEntry(NamedTuple):
+    """One controller of a request."""
+
+    name: str
+    kind: str  # "design" (the package's), "agent" (ALGO:DIR), "policy" (ALGO:PATH.zip), "outside"
+    plugin: Plugin | None  # an outside controller's entry
+    options: dict[str, Any]  # its factory's keyword arguments (outside controllers only)
+
+
+class Request(NamedTuple):
+    """A checked request of ``compare`` or ``sweep``."""
+
+    system: System
+    task: ModuleType  # observer_gym.train.experiments.tasks.<system>
+    observers: tuple[ObserverEntry, ...]
+    controllers: tuple[ControllerEntry, ...]  # a multi-seed agent stands for its seeds' agents
+    named_controllers: tuple[str, ...]  # the controllers as given
+    seed_groups: dict[str, list[str]]  # each multi-seed name: its seeds' agents
+    seeds: tuple[int, ...]
+    env_kwargs: dict[str, Any]
+    observer_options: dict[str, Any]  # as given, for every outside observer
+    controller_options: dict[str, Any]  # as given, for every outside controller
+    steps: int | None
+    workers: int
+    backend: str
+    address: str | None
+
+    @property
+    def env_id(self) -> str:
+        return self.system.env_id
+
+    def observer(self, name: str) -> ObserverEntry:
+        return next(entry for entry in self.observers if entry.name == name)
+
+    def controller(self, name: str) -> ControllerEntry:
+        return next(entry for entry in self.controllers if entry.name == name)
+
+    @property
+    def observer_names(self) -> list[str]:
+        return [entry.name for entry in self.observers]
+
+    @property
+    def controller_names(self) -> list[str]:
+        return [entry.name for entry in self.controllers]
+
+
+def check_controller(controller: str, env_id: str, observer: str) -> None:
+    """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
+    ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
+    system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
+    folder holds a run of ``env_id`` with a model to load
+    (:func:`observer_gym.train.cli.checks.check_agent`), a stable-baselines3 zip
+    ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
+    :mod:`observer_gym.train.experiments.entries`; its factory is imported). Controllers, outside
+    ones and agents trained on the state or an estimate read the state layout (any
+    observer but "pixels"); an agent trained on rgb reads only "pixels"."""
+    obs_mode, pipeline, plugin = observer_setup(env_id, observer)
+    reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
+    agent_spec = parse_agent_spec(controller)
+    if agent_spec is None:
+        controller_plugin = None
+        if controller not in controllers_for(env_id):
+            controller_plugin = entries.find_plugin("controller", controller)
+        if controller_plugin is not None:
+            entries.load_factory(controller_plugin)
+        else:
+            check_controller_fits(
+                controller,
+                system_for_id(env_id),
+                others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}",
+            )
+        if reads_pixels:
+            raise ValueError(frames_message(controller, observer))
+        return
+    if is_policy_file(agent_spec[1]):
+        check_policy_file(controller, agent_spec[1])
+        if reads_pixels:
+            raise ValueError(frames_message(controller, observer))
+        return
+    check_agent(controller, resolve_env_id(env_id), reads_pixels, observer)
+
+
+def check_pair(env_id: str, observer: str, controller: str) -> str:
+    """The registered id of ``env_id`` after checking that ``observer`` is one of its
+    task's ``OBSERVERS`` or an outside observer whose factory imports, and ``controller``
+    acts on it (:func:`check_controller`); ValueError naming what is allowed otherwise.
+    Builds no env."""
+    env_id = resolve_env_id(env_id)
+    _, _, plugin = observer_setup(env_id, observer)
+    if plugin is not None:
+        entries.load_factory(plugin)
+    check_controller(controller, env_id, observer)
+    return env_id
+
+
+def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
+    """``names`` (a list, or text split at commas) as a list; ValueError for an empty list,
+    an empty name or a name given twice (``kind`` and ``allowed`` in the message)."""
+    if isinstance(names, str):
+        names = [name.strip() for name in names.split(",")]
+    names = list(names)
+    if not names:
+        raise ValueError(f"{kind} must name at least one; allowed: {allowed}")
+    if "" in names:
+        raise ValueError(f"{kind} has an empty name in {names}; allowed: {allowed}")
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise ValueError(f"{kind} lists {', '.join(map(repr, duplicates))} more than once")
+    return names
+
+
+def _observer_entry(system: System, task: ModuleType, name: str, options: dict) -> ObserverEntry:
+    if name in task.OBSERVERS:
+        obs_mode, pipeline_options = task.OBSERVERS[name]
+        return ObserverEntry(name, obs_mode, pipeline_options, None, {})
+    plugin = find_plugin("observer", name)
+    if plugin is None:
+        raise ValueError(unknown_message("observer", name, system.env_id, list(task.OBSERVERS)))
+    load_factory(plugin)  # ValueError naming the entry if it does not import
+    return ObserverEntry(name, plugin.obs_mode, None, plugin, options)
+
+
+def _controller_entry(system: System, name: str, options: dict) -> ControllerEntry:
+    spec = parse_agent_spec(name)
+    if spec is not None:
+        kind = "policy" if spec[1].suffix == ".zip" or spec[1].is_file() else "agent"
+        return ControllerEntry(name, kind, None, {})
+    if name in controllers_of(system):
+        return ControllerEntry(name, "design", None, {})
+    plugin = find_plugin("controller", name)
+    # an unknown name is refused by check_controller, naming what fits
+    return ControllerEntry(
+        name, "outside" if plugin else "design", plugin, options if plugin else {}
+    )
+
+
+def _check_options(kind: str, given: dict, entries: Sequence[Any]) -> None:
+    if given and not any(entry.plugin is not None for entry in entries):
+        names = ", ".join(entry.name for entry in entries)
+        raise ValueError(
+            f"{kind} options {given} apply to outside {kind}s (an import path or an entry "
+            f"point) only; none is among {names}"
+        )
+
+
+def resolve_request(
+    env_id: str,
+    observers: Sequence[str] | str,
+    controllers: Sequence[str] | str,
+    seeds: Sequence[int],
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    steps: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+) -> Request:
+    """The :class:`Request` of these inputs, after the checks that build no env: the env,
+    the observers (the task's ``OBSERVERS`` or outside entries that import), the
+    controllers (:func:`check_controller` for every pair; a
+    multi-seed agent stands for its seeds' agents, which needs rliable), non-empty lists
+    without duplicates, seeds, ``workers``, ``steps``, ``backend``, ``address``, no
+    ``obs_mode`` in ``env_kwargs``, and options only where an outside entry takes them.
+
+    Raises:
+        ValueError: naming the bad value and what is allowed.
+    """
+    system = system_for_id(env_id)
+    task = task_of(system)
+    observer_options, controller_options = (
+        dict(observer_options or {}),
+        dict(controller_options or {}),
+    )
+    observer_names = names_of("observers", observers, ", ".join(task.OBSERVERS))
+    observer_entries = tuple(
+        _observer_entry(system, task, name, observer_options) for name in observer_names
+    )
+    named = names_of("controllers", controllers, "a controller name or ALGO:DIR")
+    seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}
+    expanded = [agent for name in named for agent in seed_groups.get(name, [name])]
+    duplicates = sorted({c for c in expanded if expanded.count(c) > 1})
+    if duplicates:
+        raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
+    if seed_groups:
+        try:
+            check_rliable()
+        except ImportError as exc:
+            raise ValueError(str(exc)) from None
+    for controller in expanded:
+        for observer in observer_names:
+            check_controller(controller, system.env_id, observer)
+    controller_entries = tuple(
+        _controller_entry(system, name, controller_options) for name in expanded
+    )
+    _check_options("observer", observer_options, observer_entries)
+    _check_options("controller", controller_options, controller_entries)
+    seeds = tuple(check_seeds(seeds))
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+        raise ValueError(f"steps must be an integer >= 1 or None, got {steps!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+    if address is not None and backend != "ray":
+        raise ValueError(
+            f"address {address!r} is a Ray cluster's address: it needs backend 'ray', "
+            f"got {backend!r}"
+        )
+    if backend == "ray":
+        if workers != 1:
+            raise ValueError(
+                f"workers={workers} applies to the local backend only; with backend 'ray' "
+                "the cluster's CPUs decide how many episodes run at once"
+            )
+        if importlib.util.find_spec("ray") is None:
+            raise ValueError(f"backend 'ray' needs Ray, which is not installed: {RAY_INSTALL_HINT}")
+    env_kwargs = dict(env_kwargs or {})
+    if "obs_mode" in env_kwargs:
+        raise ValueError("env_kwargs must not set obs_mode: each observer decides it")
+    return Request(
+        system, task, observer_entries, controller_entries, tuple(named), seed_groups, seeds,
+        env_kwargs, observer_options, controller_options, steps, workers, backend, address,
+    )  # fmt: skip

@@ -1,0 +1,436 @@
+"""``observer-gym sweep``: every observer x controller at every point of a grid of env
+options, on the same seeds, resumable.
+
+The cells and their episodes come from
+:func:`~observer_gym.train.experiments.sweep_plan.check_sweep`
+(episode i resets with seed S + i in every cell, so cells are paired episode by episode,
+across observers and controllers as in ``observer-gym compare`` and across grid points as
+far as the varied option leaves the world's random draws alone: docs/sweep.md). The
+episodes run as compare's do (locally by
+:func:`~observer_gym.train.experiments.episode.iter_episodes`, or
+as Ray tasks by :func:`~observer_gym.train.experiments.ray_backend.iter_episodes_ray`), measured
+with
+the task's metrics (:func:`~observer_gym.train.reports.compare_stats.episode_values`) and
+summarised with compare's intervals and paired differences.
+
+Resuming: ``sweep.json`` in the output folder records the arguments that decide the
+numbers; each finished cell is written at once, atomically, to ``cells/<id>.json``. A run
+into a folder with the same ``sweep.json`` skips the cells found there; a run with other
+arguments is refused before anything is written. The outputs are assembled from the cell
+files alone (:func:`assemble_results`, then :mod:`observer_gym.train.reports.sweep_report`), so a
+resumed sweep writes the bytes of an uninterrupted one; wall-clock times go to
+``timing.json`` only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import closing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
+from observer_gym.train.experiments.sweep_grid import VaryInput, world_draw_notes
+from observer_gym.train.experiments.sweep_plan import (
+    ARGUMENTS_FILE,
+    CELLS_DIR,
+    Cell,
+    SweepPlan,
+    check_sweep,
+)
+from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.reports.compare_stats import (
+    CONFIDENCE,
+    compare_metrics,
+    episode_values,
+    metrics_statistics,
+    paired_difference,
+)
+from observer_gym.train.reports.consistency import nees_flag
+from observer_gym.train.reports.outputs import (
+    VERSIONED_PACKAGES,
+    OneLineWarning,
+    output_folder,
+    package_versions,
+    to_jsonable,
+    write_json_atomic,
+)
+from observer_gym.train.reports.sweep_report import write_outputs
+
+TIMING_FILE = "timing.json"
+CELL_FORMAT = 1
+
+
+class SweepWarning(OneLineWarning):
+    """Something about a sweep's pairing or its output folder worth knowing."""
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """What :func:`run_sweep` did."""
+
+    out_dir: Path
+    results: dict[str, Any]  # what results.json holds
+    cells_run: int  # cells computed by this call
+    cells_reused: int  # cells found finished in the output folder
+    wall_time_s: float  # the whole call
+    episode_time_s: float  # the sum of the times of the episodes this call ran
+    files: list[str]  # written into out_dir, besides cells/, sweep.json and timing.json
+
+
+# --- one episode, one cell -------------------------------------------------------------------
+def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """One episode (:func:`~observer_gym.train.experiments.episode.run_episode`) reduced to what a
+    cell
+    keeps: its metrics (the task's, JSON types), the state it started from, the
+    controller's description and the seconds it took (measured where it ran)."""
+    tic_s = time.perf_counter()
+    record = run_episode(spec)
+    values = episode_values(task_for(spec.env_id), record)
+    return {
+        "metrics": to_jsonable(values),
+        "start": to_jsonable(record["state"][0]),
+        "controller": to_jsonable(record["controller"]),
+        "time_s": time.perf_counter() - tic_s,
+    }
+
+
+def _cell_file(plan: SweepPlan, cell: Cell, episodes: Sequence[Mapping[str, Any]]) -> dict:
+    """What ``cells/<id>.json`` holds for a finished cell."""
+    return {
+        "format": CELL_FORMAT,
+        "sweep": plan.digest(),
+        "id": cell.id,
+        "point": dict(cell.point),
+        "observer": cell.observer,
+        "controller": cell.controller,
+        "controller_config": episodes[0]["controller"],
+        "episodes": [
+            {"episode": i, "seed": seed, **episode["metrics"]}
+            for i, (seed, episode) in enumerate(zip(plan.seeds, episodes, strict=True))
+        ],
+        "starts": [episode["start"] for episode in episodes],
+        "timing": {"episode_s": [episode["time_s"] for episode in episodes]},
+    }
+
+
+def finished_cells(out_dir: Path, plan: SweepPlan) -> dict[str, dict]:
+    """The plan's cells already in ``out_dir/cells`` (by id), written for these arguments
+    with all their episodes; a cell file that is unreadable or from other arguments is
+    left out with a :class:`SweepWarning` (the cell runs again)."""
+    found = {}
+    for cell in plan.cells:
+        path = out_dir / CELLS_DIR / f"{cell.id}.json"
+        if not path.exists():
+            continue
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            ok = (
+                data["format"] == CELL_FORMAT
+                and data["sweep"] == plan.digest()
+                and len(data["episodes"]) == len(plan.seeds)
+            )
+        except (OSError, ValueError, KeyError, TypeError):
+            ok = False
+        if not ok:
+            warnings.warn(
+                f"{path} is not a finished cell of this sweep; it runs again",
+                SweepWarning,
+                stacklevel=3,
+            )
+            continue
+        found[cell.id] = data
+    return found
+
+
+# --- running -------------------------------------------------------------------------------
+def _episodes(plan: SweepPlan, specs: Sequence[EpisodeSpec]) -> Iterator[tuple[int, Any]]:
+    """(index, :func:`sweep_episode` of specs[index]) as they finish, on the plan's backend."""
+    if plan.backend == "ray":
+        from observer_gym.train.experiments.ray_backend import (
+            iter_episodes_ray,  # deferred: imports Ray
+        )
+
+        return iter_episodes_ray(specs, plan.address, sweep_episode)
+    return iter_episodes(specs, plan.workers, sweep_episode)
+
+
+def run_cells(
+    out_dir: Path, plan: SweepPlan, cells: Sequence[Cell], progress: bool = True
+) -> dict[str, dict]:
+    """Run every episode of ``cells`` in one batch; write each cell to
+    ``out_dir/cells/<id>.json`` (atomically) as soon as its last episode is in. Returns the
+    cell files' contents by id. An error or Ctrl-C stops it; the cells written stay."""
+    specs, owner = [], []
+    for k, cell in enumerate(cells):
+        for i, spec in enumerate(plan.specs(cell)):
+            specs.append(spec)
+            owner.append((k, i))
+    if not specs:
+        return {}
+    (out_dir / CELLS_DIR).mkdir(exist_ok=True)
+    results: list[list[Any]] = [[None] * len(plan.seeds) for _ in cells]
+    missing = [len(plan.seeds)] * len(cells)
+    written: dict[str, dict] = {}
+    bar = tqdm(total=len(specs), unit="episode", desc="sweep", disable=not progress)
+    # closing: an error here, or Ctrl-C, stops the workers at once (their pending episodes
+    # are dropped) rather than when the generator is collected
+    with bar, closing(_episodes(plan, specs)) as episodes:
+        bar.set_postfix_str(f"cells 0/{len(cells)}")
+        for index, episode in episodes:
+            k, i = owner[index]
+            results[k][i] = episode
+            missing[k] -= 1
+            if missing[k] == 0:
+                # as read back from the file: the outputs are the same from either
+                data = json.loads(json.dumps(_cell_file(plan, cells[k], results[k])))
+                write_json_atomic(out_dir / CELLS_DIR / f"{cells[k].id}.json", data)
+                written[cells[k].id] = data
+                bar.set_postfix_str(f"cells {len(written)}/{len(cells)}")
+            bar.update(1)
+    return written
+
+
+# --- the results ---------------------------------------------------------------------------
+def assemble_results(
+    plan: SweepPlan, cells: Mapping[str, Mapping[str, Any]], versions: Mapping[str, str]
+) -> dict[str, Any]:
+    """What ``results.json`` holds (without ``files``), from the plan and its cell files:
+    ``config`` (the arguments, the command, the metrics), ``versions``, ``starts_match``
+    (episode i of every cell of a grid point starts from the same state),
+    ``starts_match_across_grid`` (and at every grid point), ``cells`` (per cell: its
+    point, observer, controller, the statistics of every compared metric and
+    ``vs_reference``, the paired difference of the primary metric from the cell with the
+    same observer and controller at the first grid point) and ``episodes`` (one row per
+    episode: cell id, the point's values, observer, controller, episode, seed, metrics)."""
+    task = plan.request.task
+    metrics = compare_metrics(task)
+    primary = plan.primary_metric
+    first = plan.grid.first()
+    reference = {
+        (c.observer, c.controller): cells[c.id] for c in plan.cells if dict(c.point) == first
+    }
+    summaries, rows = [], []
+    for cell in plan.cells:
+        data = cells[cell.id]
+        episodes = data["episodes"]
+        base = reference[cell.observer, cell.controller]
+        summaries.append(
+            {
+                "id": cell.id,
+                "point": dict(cell.point),
+                "observer": cell.observer,
+                "controller": cell.controller,
+                **plan.request.observer(cell.observer).record(),
+                "controller_config": data["controller_config"],
+                "statistics": metrics_statistics(episodes, metrics),
+                "consistency": nees_flag(episodes)._asdict(),
+                "vs_reference": None
+                if base is data
+                else paired_difference(
+                    [e.get(primary) for e in episodes], [e.get(primary) for e in base["episodes"]]
+                ),
+            }
+        )
+        for episode in episodes:
+            rows.append(
+                {
+                    "cell": cell.id,
+                    **cell.point,
+                    "observer": cell.observer,
+                    "controller": cell.controller,
+                    **episode,
+                }
+            )
+    starts = [
+        (json.dumps(cell.point, sort_keys=True), cells[cell.id]["starts"]) for cell in plan.cells
+    ]
+    by_point: dict[str, list] = {}
+    for point, start in starts:
+        by_point.setdefault(point, []).append(start)
+    base_config = _base_config(plan)
+    return to_jsonable(
+        {
+            "config": {
+                **plan.arguments(),
+                "keys": list(plan.grid.keys),
+                "seeds": list(plan.seeds),
+                "grid_points": len(plan.grid.points()),
+                "cells": len(plan.cells),
+                "env_config": {
+                    k: v for k, v in dataclasses.asdict(base_config).items() if k != "obs_mode"
+                },
+                "env_config_class": type(base_config).__name__,
+                "confidence": CONFIDENCE,
+                "primary_metric": primary,
+                "second_metric": plan.second_metric,
+                "metrics": {
+                    key: dict(
+                        zip(("label", "unit", "scale", "digits", "better"), spec, strict=True)
+                    )
+                    for key, spec in metrics.items()
+                },
+                "reference": first,
+                "plots": "one per varied key: the other keys at their first value",
+                **task.CONFIG,
+                "command": plan.command(),
+            },
+            "versions": dict(versions),
+            "starts_match": all(all(s == group[0] for s in group) for group in by_point.values()),
+            "starts_match_across_grid": all(s == starts[0][1] for _, s in starts),
+            "cells": summaries,
+            "episodes": rows,
+        }
+    )
+
+
+def _base_config(plan: SweepPlan) -> Any:
+    """The env's configuration with the sweep's fixed options (the keys at their defaults)."""
+    from observer_gym.envs import system_for_id
+
+    config_class = system_for_id(plan.env_id).env_class().config_class
+    return config_class.from_kwargs(**plan.env_kwargs)
+
+
+def _versions(plan: SweepPlan) -> dict[str, str]:
+    names = VERSIONED_PACKAGES + ("scipy",) + (("ray",) if plan.backend == "ray" else ())
+    return package_versions(names)
+
+
+# --- the whole sweep -------------------------------------------------------------------------
+def run_sweep(
+    env_id: str,
+    vary: VaryInput,
+    observers: Sequence[str] | str,
+    controllers: Sequence[str] | str,
+    out_dir: str | Path,
+    episodes: int = 10,
+    seed: int = 0,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    steps: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    second_metric: str | None = None,
+    progress: bool = True,
+    cli_args: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+) -> SweepResult:
+    """Run every cell (grid point x observer x controller) of a sweep on the same seeds,
+    resuming from the cells ``out_dir`` already holds; write its outputs.
+
+    Every input is checked first (:func:`check_sweep`; nothing is written for a bad one).
+    Then, in ``out_dir``: ``sweep.json`` (the arguments, written once), ``cells/<id>.json``
+    for each cell as it finishes (the cells found there from an earlier run with the same
+    arguments are not run again), and from the cell files ``table.md``, ``episodes.csv``,
+    ``<key>.png`` per varied key and, last and atomically, ``results.json``
+    (:func:`assemble_results`; the same bytes whether or not the sweep was resumed);
+    ``timing.json`` gets this call's wall-clock times, the episodes' times, the backend
+    and ``cli_args``.
+
+    Warns (:class:`SweepWarning`) when a varied key may change the world's random draws
+    (:func:`~observer_gym.train.experiments.sweep_grid.world_draw_notes`), when episode i of a grid
+    point's cells does not start from one state, and when the cells found were computed
+    with other package versions.
+
+    Args:
+        env_id: a registered id, with or without ``observer_gym/``.
+        vary: {key: values} or [(key, values), ...]; values as the key's type or as text.
+        observers, controllers: names of the task's ``OBSERVERS`` and of controllers (or
+            trained agents ``ALGO:DIR``), lists or comma-separated text.
+        out_dir: the output folder; a new one, or one to resume.
+        episodes: episodes per cell (>= 1); episode i resets with ``seed + i``.
+        seed: the first seed (>= 0).
+        workers: processes for the local backend (>= 1); the numbers do not depend on it.
+        backend: "local" or "ray"; address: the Ray cluster (None: a local instance).
+        steps: cap on each episode's steps (None: the env's time limit).
+        env_kwargs: fixed ``gym.make`` options for every cell (not a varied key).
+        second_metric: the metric shown beside the primary one in the table and plots.
+        observer_options, controller_options: keyword arguments of every outside observer's
+            and controller's factory.
+        progress: a progress bar over the episodes to run.
+        cli_args: the command line's arguments, recorded in timing.json.
+
+    Raises:
+        ValueError: a bad input, or an ``out_dir`` holding another sweep
+            (:func:`check_out_dir`), before anything runs; cells that cannot be summarised
+            (a value that is not a finite number), before any output is written.
+        WriteError: an output could not be written (the earlier outputs are kept).
+        KeyboardInterrupt: Ctrl-C; the cells written stay, each whole.
+    """
+    tic_s = time.perf_counter()
+    plan = check_sweep(
+        env_id, vary, observers, controllers, episodes, seed, out_dir, workers, backend,
+        address, steps, env_kwargs, second_metric, observer_options, controller_options,
+    )  # fmt: skip
+    for note in world_draw_notes(plan.env_id, plan.grid):
+        warnings.warn(note, SweepWarning, stacklevel=2)
+    out_dir = Path(out_dir)
+    versions = _versions(plan)
+    checked_s = time.perf_counter()
+    with output_folder(out_dir, "sweep"):
+        arguments_path = out_dir / ARGUMENTS_FILE
+        if arguments_path.exists():
+            stored = json.loads(arguments_path.read_text(encoding="utf-8")).get("versions")
+            if stored != versions:
+                warnings.warn(
+                    f"the cells in {out_dir} were computed with other package versions "
+                    f"({stored}); the cells run now use {versions}",
+                    SweepWarning,
+                    stacklevel=2,
+                )
+        else:
+            write_json_atomic(arguments_path, {"arguments": plan.arguments(), "versions": versions})
+        cells = finished_cells(out_dir, plan)
+        reused = len(cells)
+        todo = [cell for cell in plan.cells if cell.id not in cells]
+        ran = run_cells(out_dir, plan, todo, progress)
+        cells.update(ran)
+        ran_s = time.perf_counter()
+
+        try:
+            results = assemble_results(plan, cells, versions)
+        except (ValueError, TypeError) as exc:  # a cell file holding a value of no number
+            raise ValueError(
+                f"the cells in {out_dir / CELLS_DIR} cannot be summarised: {exc}"
+            ) from None
+        if not results["starts_match"]:
+            warnings.warn(
+                "episode i of the cells of a grid point does not always start from the same "
+                "state: those cells are not paired",
+                SweepWarning,
+                stacklevel=2,
+            )
+        written = write_outputs(out_dir, results)
+        done_s = time.perf_counter()
+        episode_s = [t for data in ran.values() for t in data["timing"]["episode_s"]]
+        write_json_atomic(
+            out_dir / TIMING_FILE,
+            {
+                "wall_time_s": done_s - tic_s,
+                "check_s": checked_s - tic_s,
+                "run_s": ran_s - checked_s,
+                "report_s": done_s - ran_s,
+                "cells_run": len(ran),
+                "cells_reused": reused,
+                "episodes_run": len(episode_s),
+                "episode_time_s_sum": sum(episode_s),
+                "workers": plan.workers,
+                "backend": plan.backend,
+                "address": plan.address,
+                "out_dir": str(out_dir),
+                "cli_args": cli_args,
+                "cells": {cell_id: data["timing"] for cell_id, data in ran.items()},
+            },
+        )
+    return SweepResult(
+        out_dir, written, len(ran), reused, done_s - tic_s, sum(episode_s), written["files"]
+    )

@@ -1,0 +1,64 @@
+"""Per-env pieces of ``observer-gym run``: observers, metrics, summary rows and plots.
+
+``observer_gym.train.experiments.run`` runs episodes of any registered env the same way; what is
+measured and drawn depends on the task: each system of :data:`observer_gym.envs.SYSTEMS`
+has the module of this package named after it (``ball_table.py`` is the reference), which
+provides the :class:`Task` interface.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Protocol
+
+from observer_gym.envs import System, system_for_id
+
+
+class Task(Protocol):
+    """What a task module defines.
+
+    - ``OBSERVERS``: observer name -> (the env's ``obs_mode``, options of the env's default
+      VisionObserver pipeline, or None for no observer); "oracle" maps to ("state", {})
+      and is not wrapped; "pixels" maps to ("rgb", None): the camera frames themselves,
+      which only an agent trained with ``--obs rgb`` reads.
+    - ``ESTIMATE_OBSERVERS``: the observer an agent trained with ``--obs estimate`` reads,
+      by where the estimate comes from ("measurements" or "rgb").
+    - ``CONFIG``: task constants recorded in results.json (e.g. tolerances).
+    - ``SUMMARY_ROWS``: summary key -> (label, unit, scale from SI to the unit, digits).
+    - ``COMPARE_METRICS``: the metrics of ``observer-gym compare``'s table, key -> (label,
+      unit, scale, digits, "lower" or "higher" is better); the first is the primary one,
+      whose paired observer - oracle difference gets a column. An optional
+      ``compare_extras(episode)`` adds per-episode numbers derived for the table.
+    - ``episode_metrics(record)``: one episode's metrics from the record of
+      :func:`observer_gym.train.experiments.episode.run_episode`.
+    - ``summarize(episodes)``: the summary of a list of ``episode_metrics`` dicts; it has
+      every key of ``SUMMARY_ROWS``.
+    - ``plot(records, observer, out_dir)``: writes the plots; returns their file names.
+    """
+
+    OBSERVERS: Mapping[str, tuple[str, Mapping[str, Any] | None]]
+    ESTIMATE_OBSERVERS: Mapping[str, str]
+    CONFIG: Mapping[str, Any]
+    SUMMARY_ROWS: Mapping[str, tuple[str, str, float, int]]
+
+    def episode_metrics(self, record: Mapping[str, Any]) -> dict[str, Any]: ...
+
+    def summarize(self, episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]: ...
+
+    def plot(
+        self, records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path
+    ) -> list[str]: ...
+
+
+def task_of(system: System) -> ModuleType:
+    """The task module of ``system``: ``observer_gym.train.experiments.tasks.<system name>``."""
+    return importlib.import_module(f"{__name__}.{system.name}")
+
+
+def task_for(env_id: str) -> ModuleType:
+    """The task module of the system registered as ``env_id`` (with or without the
+    ``observer_gym/`` namespace); ValueError listing the known envs otherwise."""
+    return task_of(system_for_id(env_id))

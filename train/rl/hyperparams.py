@@ -1,0 +1,246 @@
+"""Hyperparameters of ``observer-gym train``: YAML files shipped with the package, one per
+algorithm (``hyperparams/ppo.yml``, ``sac.yml``, ``td3.yml``), keyed by env id.
+
+An env's entry holds two kinds of keys:
+
+- training keys (:data:`TRAINING_DEFAULTS`): ``n_timesteps`` (the default
+  ``--timesteps``), ``n_envs``, ``vec_env`` (subproc or dummy), ``normalize`` (false or
+  VecNormalize's options), ``image`` (:class:`~observer_gym.train.rl.agent_env.ImageOptions`
+  for ``--obs rgb``), ``checkpoint_freq`` and ``eval_freq`` (env steps), ``eval_episodes``,
+  ``torch_threads``, ``policy`` (default: MlpPolicy for a vector, CnnPolicy for an
+  image, MultiInputPolicy for a Dict), ``env_kwargs`` (``gym.make`` options, e.g. a
+  smaller camera image for ``--obs rgb``; ``--env-option`` overrides them) and
+  ``features`` (null or a feature set of :mod:`observer_gym.train.rl.features` that replaces
+  or extends a state or estimate observation);
+- everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
+  against its signature (:func:`algorithm_parameters`: its public parameters but those
+  ``observer-gym train`` sets itself). Two values are written as text and built on use:
+  ``policy_kwargs.activation_fn`` (relu, tanh, elu) and ``action_noise``
+  (``{type: normal, sigma: 0.1}``, in the [-1, 1] action units).
+
+An optional ``obs`` section overrides keys per ``--obs`` type. Command-line overrides are
+``KEY=VALUE`` with dotted keys for nested values (``normalize.norm_reward=False``,
+``policy_kwargs.net_arch=[128,128]``). The resolved dict is what a run's config.json
+records, so a run can be repeated from it alone.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import inspect
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
+ALGOS = ("ppo", "sac", "td3")
+
+TRAINING_DEFAULTS: dict[str, Any] = {
+    "n_timesteps": 100_000,
+    "n_envs": 1,
+    "vec_env": "subproc",
+    "normalize": False,
+    "image": {"size_px": 84, "grayscale": True, "frame_stack": 4},
+    "checkpoint_freq": 10_000,
+    "eval_freq": 10_000,
+    "eval_episodes": 5,
+    "torch_threads": 1,
+    "policy": None,
+    "env_kwargs": {},
+    "features": None,
+}
+INTEGER_KEYS = ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes")
+VEC_ENVS = ("subproc", "dummy")
+ACTIVATIONS = ("relu", "tanh", "elu")
+
+
+def algorithm_class(algo: str) -> type:
+    """SB3's class for ``algo`` (ppo, sac, td3)."""
+    from stable_baselines3 import PPO, SAC, TD3
+
+    classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    if algo not in classes:
+        raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
+    return classes[algo]
+
+
+def _set_dotted(params: dict[str, Any], dotted: str, value: Any) -> None:
+    *parents, leaf = dotted.split(".")
+    node = params
+    for key in parents:
+        if not isinstance(node.get(key), dict):
+            node[key] = {}
+        node = node[key]
+    node[leaf] = value
+
+
+def _merge(base: dict[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    for key, value in extra.items():
+        if isinstance(value, Mapping) and isinstance(base.get(key), dict):
+            _merge(base[key], value)
+        else:
+            base[key] = copy.deepcopy(value)
+    return base
+
+
+def resolve_hyperparams(
+    env_id: str, algo: str, obs: str, overrides: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The hyperparameters of ``algo`` on ``env_id`` with ``obs``: the defaults, the YAML
+    entry, its ``obs`` section, then ``overrides`` (dotted keys), with the training keys
+    checked (:func:`check_training_keys`) but not the algorithm's: this imports neither
+    stable-baselines3 nor PyTorch.
+
+    Raises:
+        ValueError: an unknown algo, an env without an entry or a bad training value.
+    """
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
+    path = HYPERPARAMS_DIR / f"{algo}.yml"
+    entries = yaml.safe_load(path.read_text()) or {}
+    if env_id not in entries:
+        raise ValueError(f"{path.name} has no entry for {env_id}; it has: {', '.join(entries)}")
+    entry = copy.deepcopy(entries[env_id])
+    by_obs = entry.pop("obs", None) or {}
+    params = _merge(copy.deepcopy(TRAINING_DEFAULTS), entry)
+    _merge(params, by_obs.get(obs) or {})
+    for dotted, value in (overrides or {}).items():
+        _set_dotted(params, dotted, value)
+    check_training_keys(params)
+    return params
+
+
+def load_hyperparams(
+    env_id: str, algo: str, obs: str, overrides: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The resolved hyperparameters of ``algo`` on ``env_id`` with ``obs``
+    (:func:`resolve_hyperparams`), every key checked: a key that is no training key must
+    be one of :func:`algorithm_parameters` (this imports stable-baselines3).
+
+    Raises:
+        ValueError: an unknown algo, an env without an entry, an unknown key or a bad
+            training value, naming it and what is allowed.
+    """
+    params = resolve_hyperparams(env_id, algo, obs, overrides)
+    check_algorithm_keys(params, algo)
+    return params
+
+
+# Constructor parameters of the SB3 classes that observer-gym train sets itself, with
+# what sets them; they are no hyperparameters.
+SET_BY_TRAIN = {
+    "env": "--env and --obs",
+    "seed": "--seed",
+    "device": "always cpu",
+    "verbose": "always 0",
+}
+
+
+def algorithm_parameters(algo: str) -> tuple[str, ...]:
+    """The constructor parameters of ``algo``'s SB3 class that a hyperparameter may set,
+    sorted: the public ones (no leading underscore) but ``policy`` (a training key) and
+    those of :data:`SET_BY_TRAIN`."""
+    cls = algorithm_class(algo)
+    skip = {"self", "policy", *SET_BY_TRAIN}
+    return tuple(
+        sorted(
+            name
+            for name in inspect.signature(cls.__init__).parameters
+            if not name.startswith("_") and name not in skip
+        )
+    )
+
+
+def check_algorithm_keys(params: Mapping[str, Any], algo: str) -> None:
+    """ValueError unless every key of ``params`` is a training key or one of
+    :func:`algorithm_parameters`; the message names the allowed keys (and the closest
+    one to a misspelt key)."""
+    allowed = algorithm_parameters(algo)
+    unknown = sorted(set(params) - set(TRAINING_DEFAULTS) - set(allowed))
+    if not unknown:
+        return
+    name = algorithm_class(algo).__name__
+    set_here = [key for key in unknown if key in SET_BY_TRAIN]
+    if set_here:
+        raise ValueError(
+            "not hyperparameters, observer-gym train sets them: "
+            + ", ".join(f"{key} ({SET_BY_TRAIN[key]})" for key in set_here)
+        )
+    close = difflib.get_close_matches(unknown[0], [*TRAINING_DEFAULTS, *allowed], n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise ValueError(
+        f"unknown hyperparameter(s) {unknown} for {name}{hint}; allowed: training keys "
+        f"{', '.join(TRAINING_DEFAULTS)} and {name}'s {', '.join(allowed)}"
+    )
+
+
+def check_training_keys(params: Mapping[str, Any]) -> None:
+    """ValueError for a bad value of a training key (:data:`TRAINING_DEFAULTS`) or of
+    the two text values built on use (``policy_kwargs.activation_fn``,
+    ``action_noise``)."""
+    for key in INTEGER_KEYS:
+        value = params[key]
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            raise ValueError(f"hyperparameter {key} must be an integer >= 1, got {value!r}")
+    if params["vec_env"] not in VEC_ENVS:
+        raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {params['vec_env']!r}")
+    if not (params["features"] is None or isinstance(params["features"], str)):
+        raise ValueError(
+            f"features must be null or a feature set's name, got {params['features']!r}"
+        )
+    if not isinstance(params["env_kwargs"], Mapping):
+        raise ValueError(f"env_kwargs must be a mapping, got {params['env_kwargs']!r}")
+    if not (params["normalize"] is False or isinstance(params["normalize"], Mapping)):
+        raise ValueError(
+            f"normalize must be false or VecNormalize's options, got {params['normalize']!r}"
+        )
+    activation = (params.get("policy_kwargs") or {}).get("activation_fn")
+    if activation is not None and activation not in ACTIVATIONS:
+        raise ValueError(
+            f"policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, "
+            f"got {activation!r}"
+        )
+    noise = params.get("action_noise")
+    sigma = noise.get("sigma") if isinstance(noise, Mapping) else None
+    if noise is not None and not (
+        isinstance(noise, Mapping)
+        and noise.get("type") == "normal"
+        and isinstance(sigma, int | float)
+        and not isinstance(sigma, bool)
+        and sigma > 0
+    ):
+        raise ValueError(f"action_noise must be {{type: normal, sigma: > 0}}, got {noise!r}")
+
+
+def split(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(training keys, algorithm constructor keys) of resolved ``params``."""
+    training = {k: v for k, v in params.items() if k in TRAINING_DEFAULTS}
+    algo_kwargs = {k: v for k, v in params.items() if k not in TRAINING_DEFAULTS}
+    for key in INTEGER_KEYS:
+        training[key] = int(training[key])
+    return training, algo_kwargs
+
+
+def build_algo_kwargs(algo_kwargs: Mapping[str, Any], action_dim: int) -> dict[str, Any]:
+    """``algo_kwargs`` with the text values built: the activation function's class and
+    the action-noise object."""
+    import torch.nn
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    built = copy.deepcopy(dict(algo_kwargs))
+    policy_kwargs = built.get("policy_kwargs") or {}
+    if "activation_fn" in policy_kwargs:
+        names = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "elu": torch.nn.ELU}
+        policy_kwargs["activation_fn"] = names[policy_kwargs["activation_fn"]]
+    if "action_noise" in built:
+        sigma = float(built["action_noise"]["sigma"])
+        built["action_noise"] = NormalActionNoise(
+            mean=np.zeros(action_dim), sigma=np.full(action_dim, sigma)
+        )
+    return built

@@ -1,0 +1,274 @@
+"""The training loop of a run: its vectorised envs, the stable-baselines3 model (new or
+from a checkpoint), the callbacks (checkpoints, the evaluation curve) and ``learn``, as
+:mod:`observer_gym.train.rl.training` starts and resumes it.
+
+Seeds: the training envs of a run with seed s reset first with 1,000,000 + 1,000 s + rank
+(after a resume, plus the timestep count), and evaluation uses 2,000,000 + 1,000 s.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from observer_gym.train.reports.outputs import (
+    write_json_atomic,
+    writer_identity,
+)
+from observer_gym.train.reports.signals import signals_deferred, sigterm_as_interrupt
+from observer_gym.train.rl.agent_env import make_agent_env
+from observer_gym.train.rl.callbacks import EveryStepsCallback
+from observer_gym.train.rl.run_dir import (
+    CHECKPOINTS,
+    FINAL_MODEL,
+    FINAL_VECNORMALIZE,
+    STATE_FILE,
+    latest_checkpoint,
+)
+
+TRAIN_SEED_OFFSET = 1_000_000
+EVAL_SEED_OFFSET = 2_000_000
+SEED_STRIDE = 1_000
+EVAL_COLUMNS = (
+    "timesteps",
+    "wall_time_s",
+    "return_mean",
+    "return_std",
+    "length_mean",
+    "episodes",
+)
+
+
+def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Path | None):
+    """The training (or evaluation, ``monitor_dir`` None and one env) vector env."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    env_fn = functools.partial(
+        make_agent_env,
+        config["env_id"],
+        config["obs"],
+        config["estimate_from"] or "measurements",
+        config["env_kwargs"],
+        config["hyperparams"]["image"],
+        # the observer by name for an estimate (runs written before config.json recorded
+        # it as chosen are the estimate_from default, which is what observer_for gives)
+        config.get("observer") if config["obs"] == "estimate" else None,
+        config["hyperparams"].get("features"),  # absent from runs written before it existed
+    )
+    subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
+    return make_vec_env(
+        env_fn,
+        n_envs=n_envs,
+        seed=seed,
+        monitor_dir=None if monitor_dir is None else str(monitor_dir),
+        vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
+        vec_env_kwargs={"start_method": "spawn"} if subproc else None,
+    )
+
+
+def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
+    return ValueError(
+        f"the checkpoint at {steps} steps in {run_dir / CHECKPOINTS} cannot be loaded: "
+        f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    )
+
+
+def learn(
+    run_dir: Path,
+    config: dict[str, Any],
+    progress: bool,
+    checkpoint: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Train the run in ``run_dir`` (from ``checkpoint``, as
+    :func:`~observer_gym.train.rl.run_dir.intact_checkpoint` gives it, when resuming)."""
+    import torch
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import set_random_seed
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from observer_gym.train.reports.plots import plot_learning_curve
+    from observer_gym.train.rl.checkpoints import (
+        CheckpointCallback,
+        replace_atomically,
+        save_checkpoint,
+    )
+    from observer_gym.train.rl.hyperparams import algorithm_class, build_algo_kwargs, split
+
+    training, algo_kwargs = split(config["hyperparams"])
+    cls = algorithm_class(config["algo"])
+    seed = config["seed"]
+    torch.set_num_threads(training["torch_threads"])
+    resume = checkpoint is not None
+    start_steps = int(checkpoint["timesteps"]) if checkpoint else 0
+    set_random_seed(seed + start_steps)
+    total = training["n_timesteps"]
+    save_replay_buffer = config["obs"] != "rgb"  # image buffers are GBs; not kept
+
+    train_seed = TRAIN_SEED_OFFSET + SEED_STRIDE * seed + start_steps
+    eval_seed = EVAL_SEED_OFFSET + SEED_STRIDE * seed
+    venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor")
+    eval_env = _vec_env(config, 1, eval_seed, None)
+    try:
+        normalize = training["normalize"]
+        if normalize:
+            options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
+            if checkpoint:
+                try:
+                    venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
+                except Exception as exc:  # a damaged set saved before hashes were recorded
+                    raise _unloadable(run_dir, start_steps, exc) from exc
+                venv.training = True
+            else:
+                venv = VecNormalize(venv, **options)
+            eval_env = VecNormalize(
+                eval_env, training=False, norm_obs=options.get("norm_obs", True), norm_reward=False
+            )
+        if checkpoint:
+            try:
+                model = cls.load(checkpoint["model"], env=venv, device="cpu")
+                if "replay_buffer" in checkpoint:
+                    model.load_replay_buffer(checkpoint["replay_buffer"])
+            except Exception as exc:  # files SB3 cannot load (another version, no hashes)
+                raise _unloadable(run_dir, start_steps, exc) from exc
+        else:
+            policy = training["policy"] or default_policy(venv.observation_space)
+            kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
+            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+        segment = f"resume-{start_steps}" if resume else "start"
+        formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])
+        model.set_logger(configure(str(run_dir / "logs" / segment), formats))
+
+        evaluation = EvalCurveCallback(
+            eval_env,
+            run_dir / "eval.csv",
+            every_steps=training["eval_freq"],
+            episodes=training["eval_episodes"],
+            eval_seed=eval_seed,
+        )
+        callbacks = [
+            CheckpointCallback(
+                run_dir / "checkpoints", training["checkpoint_freq"], save_replay_buffer
+            ),
+            evaluation,
+        ]
+        writer = writer_identity()  # tells a killed run from a running one (read_state)
+        state = {
+            "status": "running",
+            "timesteps": start_steps,
+            "target_timesteps": total,
+            "writer": writer,
+        }
+        write_json_atomic(run_dir / STATE_FILE, state)
+        tic_s = time.perf_counter()
+        status = "finished"
+        try:
+            with sigterm_as_interrupt():
+                model.learn(
+                    total_timesteps=max(total - start_steps, 0),
+                    callback=callbacks,
+                    reset_num_timesteps=not resume,
+                    progress_bar=progress,
+                )
+        except KeyboardInterrupt:
+            status = "interrupted"
+        wall_time_s = time.perf_counter() - tic_s
+        steps = int(model.num_timesteps) - start_steps
+        train_time_s = max(wall_time_s - evaluation.time_s, 1e-9)
+        with signals_deferred():  # the run's end is written whole, then a signal counts
+            if status == "finished":
+                save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
+                if normalize:
+                    replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+                replace_atomically(run_dir / FINAL_MODEL, model.save)
+            latest = latest_checkpoint(run_dir / "checkpoints")
+            state = {
+                "status": status,
+                "timesteps": int(model.num_timesteps),
+                "target_timesteps": total,
+                "last_checkpoint_timesteps": None if latest is None else latest["timesteps"],
+                "segment_steps": steps,
+                "segment_wall_time_s": wall_time_s,
+                "segment_eval_time_s": evaluation.time_s,
+                "train_steps_per_s": steps / train_time_s,
+                "writer": writer,
+            }
+            write_json_atomic(run_dir / STATE_FILE, state)
+        if (run_dir / "eval.csv").exists():
+            plot_learning_curve(run_dir / "eval.csv", run_dir / "curve.png", config)
+        return state
+    finally:
+        for env in (venv, eval_env):
+            try:
+                env.close()
+            except (BrokenPipeError, ConnectionResetError, EOFError):
+                pass  # Ctrl-C reached the SubprocVecEnv workers too; they are gone
+
+
+def default_policy(space: Any) -> str:
+    """SB3's policy for an observation ``space``: MultiInputPolicy for a Dict, CnnPolicy
+    for an image, else MlpPolicy."""
+    from gymnasium import spaces
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if isinstance(space, spaces.Dict):
+        return "MultiInputPolicy"
+    return "CnnPolicy" if is_image_space(space) else "MlpPolicy"
+
+
+class EvalCurveCallback(EveryStepsCallback):
+    """Every ``every_steps`` env steps, scores the deterministic policy on the same
+    ``episodes`` evaluation episodes (seeded with ``eval_seed``) and appends a row of
+    :data:`EVAL_COLUMNS` to ``csv_path``; ``time_s`` is the time spent evaluating."""
+
+    def __init__(
+        self, eval_env: Any, csv_path: Path, every_steps: int, episodes: int, eval_seed: int
+    ) -> None:
+        super().__init__(every_steps)
+        self.eval_env, self.csv_path = eval_env, Path(csv_path)
+        self.episodes, self.eval_seed = episodes, eval_seed
+        self.time_s = 0.0
+        self._start_s = time.time()
+
+    def _on_training_end(self) -> None:
+        if self.num_timesteps % self.every_steps:
+            self.act()  # the final policy's score, unless just measured
+
+    def act(self) -> None:
+        from stable_baselines3.common.evaluation import evaluate_policy
+        from stable_baselines3.common.vec_env import sync_envs_normalization
+
+        tic_s = time.perf_counter()
+        if self.model.get_vec_normalize_env() is not None:
+            sync_envs_normalization(self.training_env, self.eval_env)
+        self.eval_env.seed(self.eval_seed)
+        returns, lengths = evaluate_policy(
+            self.model,
+            self.eval_env,
+            n_eval_episodes=self.episodes,
+            deterministic=True,
+            return_episode_rewards=True,
+            warn=False,
+        )
+        row = [
+            self.num_timesteps,
+            round(time.time() - self._start_s, 3),
+            float(np.mean(returns)),
+            float(np.std(returns)),
+            float(np.mean(lengths)),
+            self.episodes,
+        ]
+        new = not self.csv_path.exists()
+        with open(self.csv_path, "a", newline="") as f:
+            writer = csv.writer(f)
+            if new:
+                writer.writerow(EVAL_COLUMNS)
+            writer.writerow(row)
+        self.logger.record("eval/return_mean", row[2])
+        self.time_s += time.perf_counter() - tic_s
