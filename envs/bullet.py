@@ -13,26 +13,47 @@ import functools
 import os
 import sys
 import tempfile
+import threading
+
+
+# The descriptors silenced now: fd -> [threads inside, the real descriptor's copy]. One
+# swap per fd however many threads are inside (each entering thread would otherwise save
+# /dev/null as "the real one" and restore it last), under a lock.
+_SILENCED: dict[int, list] = {}
+_SILENCED_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
 def silenced(fd: int):
     """Silence C-level writes to file descriptor ``fd`` (1: stdout, 2: stderr) inside the
-    block."""
+    block. Thread-safe: the first thread in swaps ``fd`` to /dev/null, the last one out
+    restores it; meanwhile every thread's writes to ``fd`` are silenced (a descriptor is
+    the process's, not a thread's)."""
     stream = sys.stdout if fd == 1 else sys.stderr
+    with _SILENCED_LOCK:
+        state = _SILENCED.get(fd)
+        if state is None:
+            try:
+                stream.flush()
+                saved = os.dup(fd)
+            except (OSError, ValueError, AttributeError):  # no real stream: nothing to hide
+                saved = None
+            if saved is not None:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, fd)
+                os.close(devnull)
+            state = _SILENCED[fd] = [0, saved]
+        state[0] += 1
     try:
-        stream.flush()
-        saved = os.dup(fd)
-    except (OSError, ValueError, AttributeError):  # no real stream: nothing to hide
         yield
-        return
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), fd)
-            yield
     finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+        with _SILENCED_LOCK:
+            state[0] -= 1
+            if state[0] == 0:
+                del _SILENCED[fd]
+                if state[1] is not None:
+                    os.dup2(state[1], fd)
+                    os.close(state[1])
 
 
 def _import_without_banner():

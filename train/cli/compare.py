@@ -187,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.compare import check_comparison
+    from observer_gym.train.reports.outputs import check_folder_kind
 
     options = {
         "env_id": args.env,
@@ -203,6 +204,8 @@ def run(args: argparse.Namespace) -> int:
     }
     try:
         check_comparison(**options)
+        if args.out is not None:
+            check_folder_kind(args.out, "compare")
     except ValueError as exc:
         return _error(str(exc))
     try:

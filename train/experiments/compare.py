@@ -39,7 +39,12 @@ from observer_gym.train.reports.compare_stats import (
     analyse_pairs,
     compare_metrics,
 )
-from observer_gym.train.reports.outputs import VERSIONED_PACKAGES, output_folder, package_versions
+from observer_gym.train.reports.outputs import (
+    VERSIONED_PACKAGES,
+    check_folder_kind,
+    output_folder,
+    package_versions,
+)
 from observer_gym.train.rl.run_dir import SEED_PREFIX
 
 
@@ -326,6 +331,7 @@ def run_comparison(
     task, seeds = request.task, list(request.seeds)
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
+    check_folder_kind(out_dir, "compare")
 
     with output_folder(out_dir, "compare"):
         runs = run_pairs(request, progress)

@@ -24,6 +24,7 @@ from observer_gym.train.reports.consistency import (
     nees_flag,
 )
 from observer_gym.train.reports.outputs import (
+    check_folder_kind,
     format_table,
     json_text,
     output_folder,
@@ -110,6 +111,7 @@ def run_experiment(
         controller_entry.options, seed,
     )  # fmt: skip
     out_dir = Path(out_dir)
+    check_folder_kind(out_dir, "run")
     with output_folder(out_dir, "run"):
         return _run_into(
             out_dir, request, reset_options, cli_args, progress,

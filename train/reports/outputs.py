@@ -274,6 +274,46 @@ def remove_if_empty(created: Sequence[Path]) -> None:
             return
 
 
+def folder_kind(path: str | os.PathLike) -> str | None:
+    """Which command's results ``path`` holds, from the files they leave: "sweep"
+    (``sweep.json`` or ``cells/``), "train" (a run's ``config.json``, or ``seeds.json`` of
+    ``train --seeds``), "compare" (a ``results.json`` with pairs), "run" (one of ``run`` or
+    ``evaluate``), "demo" (``summary.json``); None for a new or empty folder, or one
+    holding none of these."""
+    path = Path(path)
+    if (path / "sweep.json").exists() or (path / "cells").is_dir():
+        return "sweep"
+    if (path / "config.json").exists() or (path / "seeds.json").exists():
+        return "train"
+    results = path / "results.json"
+    if results.exists():
+        try:
+            data = json.loads(results.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return "unknown"
+        if isinstance(data, dict) and "pairs" in data:
+            return "compare"
+        if isinstance(data, dict) and "cells" in data:
+            return "sweep"
+        return "run"
+    if (path / "summary.json").exists():
+        return "demo"
+    return None
+
+
+def check_folder_kind(path: str | os.PathLike, command: str) -> None:
+    """ValueError, one line, if ``path`` holds another command's results than
+    ``command``'s ("run" and "evaluate" write the same kind): writing there would mix
+    the two or overwrite the other's."""
+    kind = folder_kind(path)
+    same = {"run": "run", "evaluate": "run"}.get(command, command)
+    if kind is not None and kind != same:
+        other = (
+            "an unreadable results.json" if kind == "unknown" else f"'observer-gym {kind}' results"
+        )
+        raise ValueError(f"{path} holds {other}; use another output folder")
+
+
 @contextmanager
 def output_folder(
     path: str | os.PathLike, command: str, marker: bool = True, all_temps: bool = False
