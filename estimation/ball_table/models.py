@@ -12,14 +12,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M
+from observer_gym.envs.ball_table.geometry import BALL_RADIUS_M, BALL_TRAVEL_M
 from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation.models import LinearModel, readonly
 
-__all__ = ["ROLLING_ACCEL_FACTOR", "RollingBallModel", "RollingBallParams", "TiltLagModel"]
+__all__ = [
+    "BALL_CENTRE_HEIGHT_M",
+    "ROLLING_ACCEL_FACTOR",
+    "RollingBallModel",
+    "RollingBallParams",
+    "TiltLagModel",
+]
 
 # A solid sphere rolling without slipping: a = (5/7) g sin(theta) (docs/spec/table_ball.md).
 ROLLING_ACCEL_FACTOR = 5.0 / 7.0
+# The ball's centre above the table's rotation axis: the arm tilts the table about the
+# centre of its top surface (envs/ball_table/scene.py, command_tilt; table.urdf's frame),
+# and the ball's centre rests one radius above it.
+BALL_CENTRE_HEIGHT_M = BALL_RADIUS_M
 
 
 @dataclass(frozen=True)
@@ -103,6 +113,32 @@ class RollingBallModel(LinearModel):
         """
         Z = np.asarray(Z_gnd_table, dtype=float)
         return -ROLLING_ACCEL_FACTOR * GRAVITY_MPS2 * Z[:2]
+
+    @staticmethod
+    def rotation_increment(
+        rate_before: np.ndarray,
+        rate_after: np.ndarray,
+        tilt_change: np.ndarray,
+        dt_s: float,
+        height_m: float = BALL_CENTRE_HEIGHT_M,
+    ) -> np.ndarray:
+        """What the table's angular acceleration adds to the state (6,) over an interval.
+
+        The ball's centre rides ``height_m`` (h) above the table's rotation axis. Per
+        tilt axis, the Lagrangian of a ball rolling without slipping on a plane turning by
+        theta about an axis in it gives (7/5)(p'' - h theta'') = -g sin(theta) + p
+        theta'^2: the angular acceleration moves the ball as h theta'' in full (not 5/7 of
+        it). In the table frame, with (theta_x, theta_y) the tilts (geometry.py): p_x'' =
+        -h theta_y'', p_y'' = +h theta_x'' (a positive tilt_y lowers the +x side).
+        Integrated over the interval from the rate just before it (``rate_before``) to
+        the rate at its end (``rate_after``) with the tilt moving by ``tilt_change``:
+        dv = h (rate_after - rate_before) and dp = h (tilt_change - rate_before dt), each
+        with the axes' signs; w is untouched. (The table's translation, when the arm's
+        joints lag, and the centrifugal p theta'^2 are left out.)
+        """
+        dv = height_m * (np.asarray(rate_after, float) - np.asarray(rate_before, float))
+        dp = height_m * (np.asarray(tilt_change, float) - np.asarray(rate_before, float) * dt_s)
+        return np.array([-dp[1], dp[0], -dv[1], dv[0], 0.0, 0.0])
 
     @staticmethod
     def clamp_to_border(

@@ -16,9 +16,13 @@ Per frame:
 3. The rolling-ball filter (RollingBallModel: position, velocity and a Gauss-Markov
    disturbance per axis) predicts with the gravity input computed from the estimated
    table rotation (B(t) recomputed every frame), applies the border constraint, and
-   updates with the ball's measured position, behind a chi-square gate. After
-   ``reacquire_after`` consecutive rejections it restarts from the measurement (the
-   estimate was lost, not the measurement wrong).
+   updates with the ball's measured position, behind a chi-square gate. The table's
+   angular acceleration moves the ball too (the ball's centre rides r above the tilt
+   axis): its increment comes from the tilt rate g (u - theta) at the interval's two ends
+   (RollingBallModel.rotation_increment). After ``reacquire_after`` consecutive
+   rejections it restarts from the rejected measurements (the estimate was lost, not the
+   measurements wrong): position and velocity by weighted least squares on the run's
+   measurements, with the lost filter's velocity as a loose prior (:func:`restart_from`).
 Both filters' R and the ball's process noise come from the noise rule
 (estimation/ball_table/noise.py): from the declared pixel noise through the geometry
 stage's Jacobian (measurements), or the rgb detector's measured error, and for ``kf`` a
@@ -139,8 +143,12 @@ class TiltBallFilters:
         self.tilt_cmd = np.zeros(2) if tilt_cmd is None else np.asarray(tilt_cmd, dtype=float)
         self.rejections_in_a_row = 0
         self.reacquisitions = 0
-        # The ball's prediction still to make: (dt, tilt at the interval's start), or None.
-        self._pending: tuple[float, np.ndarray] | None = None
+        # The current run of rejected ball measurements: (time, position, R, the filter's
+        # velocity then), for a restart.
+        self._rejected: tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...] = ()
+        # The ball's prediction still to make: (dt, tilt at the interval's start, tilt rate
+        # just before it), or None.
+        self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
         self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tilt_kf = self._start_tilt(tilt, start_R[0])
         self.ball_kf = self._start_ball(ball, start_R[1])
@@ -154,20 +162,26 @@ class TiltBallFilters:
         return KalmanFilter(x0, P0, converged_rtol=self.params.converged_rtol)
 
     def _start_ball(
-        self, ball_pos_table_m: np.ndarray | None, R: np.ndarray | None = None
+        self,
+        ball_pos_table_m: np.ndarray | None,
+        R: np.ndarray | None = None,
+        start: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> KalmanFilter:
+        """The ball filter started from a measurement (None: unseen) and its R, at rest
+        (speed std ``start_speed_std_mps``), or from ``start``: (p, v) (4,) and its
+        covariance (4, 4) (a restart)."""
         p = self.params
         P0 = np.diag([0.0] * 2 + [p.start_speed_std_mps**2] * 2 + [p.ball.sigma_w**2] * 2)
-        if ball_pos_table_m is None:
-            pos0 = np.zeros(2)
+        x0 = np.zeros(6)
+        if start is not None:
+            x0[:4], P0[:4, :4] = start
+        elif ball_pos_table_m is None:
             P0[:2, :2] = p.start_pos_std_m**2 * np.eye(2)
         else:
-            pos0 = np.asarray(ball_pos_table_m, dtype=float)
+            x0[:2] = ball_pos_table_m
             P0[:2, :2] = self.ball_model.R if R is None else R
         gate = ChiSquareGate(probability=p.gate_probability)
-        return KalmanFilter(
-            np.concatenate([pos0, np.zeros(4)]), P0, gate=gate, converged_rtol=p.converged_rtol
-        )
+        return KalmanFilter(x0, P0, gate=gate, converged_rtol=p.converged_rtol)
 
     @classmethod
     def at_state(
@@ -197,12 +211,14 @@ class TiltBallFilters:
         if dt_s <= 0.0:
             return
         self._settle()
+        tilt_before = self.tilt_kf.x
+        # the tilt rate just before the new command (the rate the last interval ended at)
+        rate_before = self.tilt_model.rate(tilt_before, self.tilt_cmd)
         if action is not None:
             self.tilt_cmd = np.asarray(action, dtype=float)
-        tilt_before = self.tilt_kf.x
         Phi, Gamma, Q = self.tilt_model.matrices(dt_s)
         self.tilt_kf.predict(Phi, Q, Gamma, self.tilt_cmd)
-        self._pending = (dt_s, tilt_before)
+        self._pending = (dt_s, tilt_before, rate_before)
         self.time_s = time_s
 
     def update(self, measurement: Fused) -> bool:
@@ -236,13 +252,15 @@ class TiltBallFilters:
             self._pending,
             self.rejections_in_a_row,
             self.reacquisitions,
+            self._rejected,
         )
 
     def restore(self, snapshot: tuple) -> None:
-        time_s, tilt_cmd, tilt_kf, ball_kf, pending, rejections, reacquisitions = snapshot
+        time_s, tilt_cmd, tilt_kf, ball_kf, pending, rejections, reacquisitions, rejected = snapshot
         self.time_s, self.tilt_cmd, self._pending = time_s, tilt_cmd, pending
         self.tilt_kf, self.ball_kf = copy_filter(tilt_kf), copy_filter(ball_kf)
         self.rejections_in_a_row, self.reacquisitions = rejections, reacquisitions
+        self._rejected = rejected
 
     # --- the two filters ----------------------------------------------------------------
     def _settle(self) -> None:
@@ -250,15 +268,19 @@ class TiltBallFilters:
         now."""
         if self._pending is None:
             return
-        dt_s, tilt_before = self._pending
+        dt_s, tilt_before, rate_before = self._pending
         self._pending = None
         model = self.ball_model
+        tilt_after = self.tilt_kf.x
         # B(t) from the table's rotation over the interval (trapezoid of the two ends).
-        u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + self.tilt_kf.x))))
+        u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + tilt_after))))
         Phi, Gamma, Q = model.matrices(dt_s)
         kf = self.ball_kf
         kf.predict(Phi, Q, Gamma, u)
-        kf.x, kf.P = model.clamp_to_border(kf.x, kf.P)
+        # the table's angular acceleration: the tilt rate from the lag model at both ends
+        rate_after = self.tilt_model.rate(tilt_after, self.tilt_cmd)
+        turned = model.rotation_increment(rate_before, rate_after, tilt_after - tilt_before, dt_s)
+        kf.x, kf.P = model.clamp_to_border(kf.x + turned, kf.P)
 
     def _update_ball(
         self, ball_pos_table_m: np.ndarray, R: np.ndarray | None, measurement: Fused
@@ -272,13 +294,21 @@ class TiltBallFilters:
         result = self.ball_kf.update(ball_pos_table_m, model.C, R)
         if result.accepted:
             measurement.add_nis(result.nis, 2)
-        self.rejections_in_a_row = 0 if result.accepted else self.rejections_in_a_row + 1
+            self.rejections_in_a_row, self._rejected = 0, ()
+            return True
+        self.rejections_in_a_row += 1
+        kf = self.ball_kf
+        z = np.array(ball_pos_table_m, dtype=float)
+        self._rejected = (*self._rejected, (self.time_s, z, np.array(R), kf.x[2:4].copy()))
         if self.rejections_in_a_row >= self.params.reacquire_after:
-            self.ball_kf = self._start_ball(ball_pos_table_m, R)
-            self.rejections_in_a_row = 0
+            # the lost filter's velocity, loosened by the prior's speed std
+            prior_cov = kf.P[2:4, 2:4] + self.params.start_speed_std_mps**2 * np.eye(2)
+            start = restart_from(self._rejected, kf.x[2:4], prior_cov)
+            self.ball_kf = self._start_ball(z, R, start)
+            self.rejections_in_a_row, self._rejected = 0, ()
             self.reacquisitions += 1
             return True
-        return result.accepted
+        return False
 
     # --- output in the env's state layout ---------------------------------------------
     def mean(self) -> np.ndarray:
@@ -303,6 +333,41 @@ class TiltBallFilters:
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
+
+
+def restart_from(
+    rejected: tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...],
+    prior_velocity: np.ndarray,
+    prior_cov: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ball's (p, v) (4,) and covariance (4, 4) at the last of a run of rejected
+    measurements ``rejected`` = ((time, position z_i, R_i, the filter's velocity w_i), ...),
+    by weighted least squares.
+
+    Over the run the ball moved by what the filter's model predicted plus a constant
+    velocity error: with a_i = t_n - t_i, z_i = p - a_i v + a_i (w_n - w_i) / 2 + e_i (the
+    trapezoid of the modelled velocity change), e_i ~ N(0, R_i); and v ~ N(prior_velocity,
+    prior_cov). Two or more measurements give the velocity a finite difference supports;
+    one gives the prior's."""
+    t_n, _, _, w_n = rejected[-1]
+    rows, targets, weights = [], [], []
+    for t_i, z_i, R_i, w_i in rejected:
+        a_i = t_n - t_i
+        rows.append(np.hstack([np.eye(2), -a_i * np.eye(2)]))
+        targets.append(z_i - 0.5 * a_i * (w_n - w_i))
+        weights.append(R_i)
+    rows.append(np.hstack([np.zeros((2, 2)), np.eye(2)]))
+    targets.append(np.asarray(prior_velocity, dtype=float))
+    weights.append(np.asarray(prior_cov, dtype=float))
+    info = np.zeros((4, 4))
+    info_mean = np.zeros(4)
+    for H, y, W in zip(rows, targets, weights, strict=True):
+        HtWinv = np.linalg.solve(W, H).T  # H^T W^-1 (W symmetric)
+        info += HtWinv.dot(H)
+        info_mean += HtWinv.dot(y)
+    cov = np.linalg.inv(info)
+    cov = 0.5 * (cov + cov.T)
+    return cov.dot(info_mean), cov
 
 
 # How far the arm's tilt rate departs from the lag model's g (u - theta): measured RMS 5.4

@@ -71,6 +71,7 @@ from observer_gym.estimation.ball_table.frames import FrameReader
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector, model_corners_table
 from observer_gym.estimation.ball_table.models import (
+    BALL_CENTRE_HEIGHT_M,
     ROLLING_ACCEL_FACTOR,
     RollingBallModel,
     TiltLagModel,
@@ -90,6 +91,7 @@ __all__ = ["BallTablePixelEKF", "PixelEKFParams", "PixelMeasurement", "project"]
 
 BALL = slice(0, 6)  # the ball's states in the EKF's state
 POS = slice(0, 2)
+VEL = slice(2, 4)
 TILT = slice(6, 8)
 N_STATES = 8
 MEASUREMENT_FLOOR_PX = 0.05
@@ -174,6 +176,21 @@ def gravity_jacobian(tilt_x: float, tilt_y: float) -> np.ndarray:
     return k * np.array([[-sy * sx, cy * cx], [-cx, 0.0]])
 
 
+def _rotation_jacobians(gain_per_s: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """d(increment)/d(tilt before), d(increment)/d(tilt after), each (6, 2), of
+    RollingBallModel.rotation_increment with the rates g (u - theta) at both ends:
+    dv = h (g (u1 - theta1) - g (u0 - theta0)), dp = h (theta1 - theta0 - g (u0 - theta0)
+    dt), each axis turned into the table's (p_x by -theta_y, p_y by +theta_x)."""
+    h, g = BALL_CENTRE_HEIGHT_M, gain_per_s
+    S = np.array([[0.0, -1.0], [1.0, 0.0]])
+    D0, D1 = np.zeros((6, 2)), np.zeros((6, 2))
+    D0[POS] = h * (g * dt_s - 1.0) * S
+    D0[VEL] = h * g * S
+    D1[POS] = h * S
+    D1[VEL] = -h * g * S
+    return D0, D1
+
+
 def corner_pixels(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
     """h and H of the corners' pixels (2n,), (2n, 8) at the state ``x``."""
     R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
@@ -247,25 +264,33 @@ class PixelEKF:
         dt_s = round(time_s - self.time_s, 9)  # to the nanosecond, as kf's
         if dt_s <= 0.0:
             return
+        x = self.ekf.x
+        tilt_model = self.tilt_model
+        rate_before = tilt_model.rate(x[TILT], self.tilt_cmd)  # before the new command
         if action is not None:
             self.tilt_cmd = np.asarray(action, dtype=float)
-        x = self.ekf.x
-        Phi_t, Gamma_t, Q_t = self.tilt_model.matrices(dt_s)
+        Phi_t, Gamma_t, Q_t = tilt_model.matrices(dt_s)
         Phi_b, Gamma_b, Q_b = self.ball_model.matrices(dt_s)
         # theta' = Phi_t theta + Gamma_t u
         tilt_next = Phi_t @ x[TILT] + Gamma_t @ self.tilt_cmd
-        # b' = Phi_b b + Gamma_b a((theta + theta') / 2), clamped at the border
+        # b' = Phi_b b + Gamma_b a((theta + theta') / 2) + the table's angular
+        # acceleration's increment (as kf's), clamped at the border
         mid = 0.5 * (x[TILT] + tilt_next)
         accel = self.ball_model.gravity_acceleration(geo.up_in_table(mid[0], mid[1]))
-        ball_next, _ = self.ball_model.clamp_to_border(Phi_b @ x[BALL] + Gamma_b @ accel)
+        turned = self.ball_model.rotation_increment(
+            rate_before, tilt_model.rate(tilt_next, self.tilt_cmd), tilt_next - x[TILT], dt_s
+        )
+        ball_next, _ = self.ball_model.clamp_to_border(Phi_b @ x[BALL] + Gamma_b @ accel + turned)
         # d(ball')/d(mid tilt); d(mid)/d(theta) = (I + Phi_t) / 2; the tilt's noise w
-        # enters mid as w / 2 (first order), hence Q's coupled part.
+        # enters mid as w / 2 (first order), hence Q's coupled part. The increment is
+        # linear in the tilts at both ends (rates g (u - theta)): D0 and D1 below.
         ball_per_mid = Gamma_b @ gravity_jacobian(mid[0], mid[1])
+        D0, D1 = _rotation_jacobians(tilt_model.rate_gain_per_s, dt_s)
         F = np.zeros((N_STATES, N_STATES))
         F[BALL, BALL] = Phi_b
         F[TILT, TILT] = Phi_t
-        F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t))
-        G = np.vstack([0.5 * ball_per_mid, np.eye(2)])
+        F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t)) + D0 + D1 @ Phi_t
+        G = np.vstack([0.5 * ball_per_mid + D1, np.eye(2)])
         Q = G @ Q_t @ G.T
         Q[BALL, BALL] += Q_b
         self.ekf.predict_nonlinear(np.concatenate([ball_next, tilt_next]), F, Q)
