@@ -15,7 +15,6 @@ import sys
 import tempfile
 import threading
 
-
 # The descriptors silenced now: fd -> [threads inside, the real descriptor's copy]. One
 # swap per fd however many threads are inside (each entering thread would otherwise save
 # /dev/null as "the real one" and restore it last), under a lock.

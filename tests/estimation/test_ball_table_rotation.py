@@ -16,7 +16,7 @@ from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table.geometry import up_in_table
 from observer_gym.estimation.ball_table.models import RollingBallModel, TiltLagModel
 from observer_gym.estimation.ball_table.observer import restart_from
-from observer_gym.train.run import EpisodeSpec, run_episode
+from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 
 ENV_ID = "observer_gym/BallTable-v0"
 
