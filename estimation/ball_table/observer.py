@@ -146,8 +146,13 @@ class TiltBallFilters:
         # The current run of rejected ball measurements: (time, position, R, the filter's
         # velocity then), for a restart.
         self._rejected: tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...] = ()
-        # The ball's prediction still to make: (dt, tilt at the interval's start, tilt rate
-        # just before it), or None.
+        # The table's tilt as the lag model makes it from the commands alone: its rates
+        # give the ball's share of the table's angular acceleration without the tilt
+        # measurements' noise (the estimated tilt's noise, times the lag's gain g, would
+        # shake the ball's velocity every frame).
+        self._lag_tilt = np.zeros(2) if tilt is None else np.array(tilt, dtype=float)
+        # The ball's prediction still to make: (dt, the lag model's tilt at the interval's
+        # start and its rate just before it), or None.
         self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
         self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tilt_kf = self._start_tilt(tilt, start_R[0])
@@ -212,13 +217,15 @@ class TiltBallFilters:
             return
         self._settle()
         tilt_before = self.tilt_kf.x
-        # the tilt rate just before the new command (the rate the last interval ended at)
-        rate_before = self.tilt_model.rate(tilt_before, self.tilt_cmd)
+        lag_before = self._lag_tilt
+        # the lag model's tilt rate just before the new command (where the last interval ended)
+        rate_before = self.tilt_model.rate(lag_before, self.tilt_cmd)
         if action is not None:
             self.tilt_cmd = np.asarray(action, dtype=float)
         Phi, Gamma, Q = self.tilt_model.matrices(dt_s)
         self.tilt_kf.predict(Phi, Q, Gamma, self.tilt_cmd)
-        self._pending = (dt_s, tilt_before, rate_before)
+        self._lag_tilt = Phi @ lag_before + Gamma @ self.tilt_cmd
+        self._pending = (dt_s, tilt_before, lag_before, rate_before)
         self.time_s = time_s
 
     def update(self, measurement: Fused) -> bool:
@@ -253,10 +260,12 @@ class TiltBallFilters:
             self.rejections_in_a_row,
             self.reacquisitions,
             self._rejected,
+            self._lag_tilt,
         )
 
     def restore(self, snapshot: tuple) -> None:
-        time_s, tilt_cmd, tilt_kf, ball_kf, pending, rejections, reacquisitions, rejected = snapshot
+        (time_s, tilt_cmd, tilt_kf, ball_kf, pending, rejections, reacquisitions, rejected,
+         self._lag_tilt) = snapshot  # fmt: skip
         self.time_s, self.tilt_cmd, self._pending = time_s, tilt_cmd, pending
         self.tilt_kf, self.ball_kf = copy_filter(tilt_kf), copy_filter(ball_kf)
         self.rejections_in_a_row, self.reacquisitions = rejections, reacquisitions
@@ -268,7 +277,7 @@ class TiltBallFilters:
         now."""
         if self._pending is None:
             return
-        dt_s, tilt_before, rate_before = self._pending
+        dt_s, tilt_before, lag_before, rate_before = self._pending
         self._pending = None
         model = self.ball_model
         tilt_after = self.tilt_kf.x
@@ -277,9 +286,11 @@ class TiltBallFilters:
         Phi, Gamma, Q = model.matrices(dt_s)
         kf = self.ball_kf
         kf.predict(Phi, Q, Gamma, u)
-        # the table's angular acceleration: the tilt rate from the lag model at both ends
-        rate_after = self.tilt_model.rate(tilt_after, self.tilt_cmd)
-        turned = model.rotation_increment(rate_before, rate_after, tilt_after - tilt_before, dt_s)
+        # the table's angular acceleration: the lag model's tilt rates at both ends
+        rate_after = self.tilt_model.rate(self._lag_tilt, self.tilt_cmd)
+        turned = model.rotation_increment(
+            rate_before, rate_after, self._lag_tilt - lag_before, dt_s
+        )
         kf.x, kf.P = model.clamp_to_border(kf.x + turned, kf.P)
 
     def _update_ball(
