@@ -18,8 +18,9 @@ Per frame:
    table rotation (B(t) recomputed every frame), applies the border constraint, and
    updates with the ball's measured position, behind a chi-square gate. The table's
    angular acceleration moves the ball too (the ball's centre rides r above the tilt
-   axis): its increment comes from the tilt rate g (u - theta) at the interval's two ends
-   (RollingBallModel.rotation_increment). After ``reacquire_after`` consecutive
+   axis): its increment comes from the tilt rates g (u - theta_lag) at the interval's two
+   ends, theta_lag the tilt the lag model makes from the commands alone, free of the tilt
+   measurements' noise (RollingBallModel.rotation_increment). After ``reacquire_after`` consecutive
    rejections it restarts from the rejected measurements (the estimate was lost, not the
    measurements wrong): position and velocity by weighted least squares on the run's
    measurements, with the lost filter's velocity as a loose prior (:func:`restart_from`).
