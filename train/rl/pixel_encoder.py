@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -133,8 +134,18 @@ def encoder_sha256(name: str) -> str:
 
 
 def load_encoder(name: str) -> Encoder:
-    """The encoder ``name`` (:func:`encoder_path`), on the CPU."""
-    saved = torch.load(encoder_path(name), map_location="cpu", weights_only=False)
+    """The encoder ``name`` (:func:`encoder_path`), on the CPU. The file is read with
+    ``weights_only=True``: tensors and plain data only, so a crafted file runs no code;
+    ValueError for a file that holds anything else."""
+    path = encoder_path(name)
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise ValueError(
+            f"encoder file {path} holds more than tensors and plain data; refusing to load "
+            f"it ({reason})"
+        ) from None
     meta = saved["meta"]
     net = FrameEncoderNet(meta["channels"], meta["image"]["size_px"], len(meta["targets"]))
     net.load_state_dict(saved["state_dict"])
