@@ -71,7 +71,6 @@ from observer_gym.estimation.ball_table.frames import FrameReader
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector, model_corners_table
 from observer_gym.estimation.ball_table.models import (
-    BALL_CENTRE_HEIGHT_M,
     ROLLING_ACCEL_FACTOR,
     RollingBallModel,
     TiltLagModel,
@@ -176,21 +175,6 @@ def gravity_jacobian(tilt_x: float, tilt_y: float) -> np.ndarray:
     return k * np.array([[-sy * sx, cy * cx], [-cx, 0.0]])
 
 
-def _rotation_jacobians(gain_per_s: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """d(increment)/d(tilt before), d(increment)/d(tilt after), each (6, 2), of
-    RollingBallModel.rotation_increment with the rates g (u - theta) at both ends:
-    dv = h (g (u1 - theta1) - g (u0 - theta0)), dp = h (theta1 - theta0 - g (u0 - theta0)
-    dt), each axis turned into the table's (p_x by -theta_y, p_y by +theta_x)."""
-    h, g = BALL_CENTRE_HEIGHT_M, gain_per_s
-    S = np.array([[0.0, -1.0], [1.0, 0.0]])
-    D0, D1 = np.zeros((6, 2)), np.zeros((6, 2))
-    D0[POS] = h * (g * dt_s - 1.0) * S
-    D0[VEL] = h * g * S
-    D1[POS] = h * S
-    D1[VEL] = -h * g * S
-    return D0, D1
-
-
 def corner_pixels(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
     """h and H of the corners' pixels (2n,), (2n, 8) at the state ``x``."""
     R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
@@ -246,6 +230,10 @@ class PixelEKF:
         self.detector = detector
         self.time_s = time_s
         self.tilt_cmd = np.zeros(2)  # the arm is commanded level at reset
+        # the tilt the lag model makes from the commands alone: the rotation term's rates
+        # come from it, free of the tilt estimate's noise and of a calibration error's bias
+        # (as kf's, estimation/ball_table/observer.py)
+        self._lag_tilt = np.zeros(2)
         self.ball_seen = False
         self.rejections_in_a_row = 0
         self.reacquisitions = 0
@@ -266,7 +254,8 @@ class PixelEKF:
             return
         x = self.ekf.x
         tilt_model = self.tilt_model
-        rate_before = tilt_model.rate(x[TILT], self.tilt_cmd)  # before the new command
+        lag_before = self._lag_tilt
+        rate_before = tilt_model.rate(lag_before, self.tilt_cmd)  # before the new command
         if action is not None:
             self.tilt_cmd = np.asarray(action, dtype=float)
         Phi_t, Gamma_t, Q_t = tilt_model.matrices(dt_s)
@@ -277,20 +266,23 @@ class PixelEKF:
         # acceleration's increment (as kf's), clamped at the border
         mid = 0.5 * (x[TILT] + tilt_next)
         accel = self.ball_model.gravity_acceleration(geo.up_in_table(mid[0], mid[1]))
+        self._lag_tilt = Phi_t @ lag_before + Gamma_t @ self.tilt_cmd
         turned = self.ball_model.rotation_increment(
-            rate_before, tilt_model.rate(tilt_next, self.tilt_cmd), tilt_next - x[TILT], dt_s
+            rate_before,
+            tilt_model.rate(self._lag_tilt, self.tilt_cmd),
+            self._lag_tilt - lag_before,
+            dt_s,
         )
         ball_next, _ = self.ball_model.clamp_to_border(Phi_b @ x[BALL] + Gamma_b @ accel + turned)
         # d(ball')/d(mid tilt); d(mid)/d(theta) = (I + Phi_t) / 2; the tilt's noise w
-        # enters mid as w / 2 (first order), hence Q's coupled part. The increment is
-        # linear in the tilts at both ends (rates g (u - theta)): D0 and D1 below.
+        # enters mid as w / 2 (first order), hence Q's coupled part. The rotation term is
+        # an input (from the commands), not a function of the state.
         ball_per_mid = Gamma_b @ gravity_jacobian(mid[0], mid[1])
-        D0, D1 = _rotation_jacobians(tilt_model.rate_gain_per_s, dt_s)
         F = np.zeros((N_STATES, N_STATES))
         F[BALL, BALL] = Phi_b
         F[TILT, TILT] = Phi_t
-        F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t)) + D0 + D1 @ Phi_t
-        G = np.vstack([0.5 * ball_per_mid + D1, np.eye(2)])
+        F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t))
+        G = np.vstack([0.5 * ball_per_mid, np.eye(2)])
         Q = G @ Q_t @ G.T
         Q[BALL, BALL] += Q_b
         self.ekf.predict_nonlinear(np.concatenate([ball_next, tilt_next]), F, Q)
@@ -320,11 +312,13 @@ class PixelEKF:
             self.ball_seen,
             self.rejections_in_a_row,
             self.reacquisitions,
+            self._lag_tilt,
         )
 
     def restore(self, snapshot: tuple) -> None:
-        time_s, tilt_cmd, ekf, seen, rejections, reacquisitions = snapshot
+        time_s, tilt_cmd, ekf, seen, rejections, reacquisitions, lag_tilt = snapshot
         self.time_s, self.tilt_cmd, self.ekf = time_s, tilt_cmd, copy_filter(ekf)
+        self._lag_tilt = lag_tilt
         self.ball_seen, self.rejections_in_a_row = seen, rejections
         self.reacquisitions = reacquisitions
 

@@ -324,6 +324,7 @@ def test_ekf_predicts_as_kf_does():
         obs, info = env.reset(seed=0)
         kf.observe(obs, info, None), ekf.observe(obs, info, None)
         ekf.core.ekf.x = np.concatenate([kf.core.ball_kf.x, kf.core.tilt_kf.x])
+        ekf.core._lag_tilt = kf.core._lag_tilt.copy()  # the rotation term's command-driven tilt
         rng = np.random.default_rng(0)
         for k in range(1, 40):
             blind = {"time_s": k * DT_S, "frames": []}
@@ -436,5 +437,7 @@ def test_oracle_visible_is_the_truth_while_the_ball_is_seen_and_predicts_it_othe
             assert not e.covariance.any()
     errors = [np.linalg.norm(oracle[k].mean[0:2] - truth[k, 0:2]) for k in blind]
     variances = [oracle[k].covariance[0, 0] for k in blind]
-    assert max(errors) < 2e-3  # 0.6 s on the models alone
+    # 0.6 s on the models alone: 3.0 mm at most, measured with the rotation term driven
+    # by the lag model's open-loop tilt (below 2 mm without the term)
+    assert max(errors) < 4e-3
     assert np.all(np.diff(variances) > 0)
