@@ -375,3 +375,21 @@ def test_the_tutorials_sweep_runs_from_python(tmp_path):
         "mylab.filters:make_observer-measurements",
     }
     assert len(results["cells"]) == 24
+
+
+def test_an_agent_trains_on_an_outside_observers_estimate(outside, tmp_path):
+    out = tmp_path / "agent"
+    argv = [
+        "train", "--env", ENV, "--algo", "ppo", "--obs", "estimate", "--observer", OBSERVER,
+        "--timesteps", "64", "--n-envs", "1", "--hyperparam", "n_steps=32",
+        "--hyperparam", "batch_size=32", "--hyperparam", "eval_freq=10000",
+        "--out", str(out), "--no-progress",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["observer"] == OBSERVER
+    # and the agent runs behind the same outside observer
+    result = observer_gym.run(
+        ENV, OBSERVER, f"ppo:{out}", episodes=1, steps=10, out_dir=tmp_path / "eval"
+    )
+    assert result.results["config"]["entry"]["import_path"] == f"{PACKAGE}.filters:make_observer"

@@ -268,7 +268,8 @@ def check_env_options(
 def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | None = None) -> str:
     """The observer that feeds an agent trained with ``obs`` (as
     :func:`observer_gym.train.rl.agent_env.observer_for`): ``observer`` if given (with
-    ``obs="estimate"`` only, one of the system's observers that estimate), else the one
+    ``obs="estimate"`` only, one of the system's observers that estimate or an outside
+    observer, :mod:`observer_gym.train.experiments.entries`), else the one
     ``estimate_from`` picks."""
     names = names_for(env_id)
     if observer is not None:
@@ -280,10 +281,14 @@ def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | No
         if obs != "estimate":
             raise ValueError(f"an observer ({observer!r}) applies to --obs estimate only")
         if observer not in estimating:
-            raise ValueError(
-                f"unknown estimating observer {observer!r} for {system_for_id(env_id).short_id}; "
-                f"allowed: {', '.join(estimating)}"
-            )
+            plugin = entries.find_plugin("observer", observer)
+            if plugin is None:
+                raise ValueError(
+                    f"unknown estimating observer {observer!r} for "
+                    f"{system_for_id(env_id).short_id}; allowed: {', '.join(estimating)}, or "
+                    "an import path package.module:factory or installed entry point"
+                )
+            entries.load_factory(plugin)  # an outside observer: its factory must import
         return observer
     if obs == "state":
         return "oracle"
@@ -326,7 +331,7 @@ def check_training_request(
     env_id = system_for_id(env_id).env_id
     params = resolve_hyperparams(env_id, algo, obs, overrides)
     env_kwargs = {**params["env_kwargs"], **dict(env_options)}
-    obs_mode = names_for(env_id).observers[agent_observer(env_id, obs, estimate_from, observer)]
+    obs_mode = observer_mode(env_id, agent_observer(env_id, obs, estimate_from, observer))
     check_env_options(env_id, obs_mode, env_kwargs, decided_by="--obs")
     if (Path(out_dir) / CONFIG_FILE).exists():
         raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")

@@ -74,7 +74,8 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help=(
             "for --obs estimate: the observer by name, as run and compare take it (e.g. "
-            "kf-latency-measurements; default: the system's filter on --estimate-from)"
+            "kf-latency-measurements, or an import path package.module:factory; default: the "
+            "system's filter on --estimate-from)"
         ),
     )
     parser.add_argument(
