@@ -34,8 +34,7 @@ Example::
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -127,11 +126,11 @@ def _listed(value: Entry | Sequence[Entry]) -> list[Entry]:
     return [value]
 
 
-@contextlib.contextmanager
-def _out_dir(out_dir: str | Path | None, command: str) -> Iterator[Path]:
+def _out_dir(out_dir: str | Path | None, command: str) -> Path:
+    """``out_dir``, or a new folder under the default place for ``command``."""
     from observer_gym.train.reports.outputs import default_out_dir
 
-    yield Path(out_dir) if out_dir is not None else default_out_dir(command)
+    return Path(out_dir) if out_dir is not None else default_out_dir(command)
 
 
 def run(
@@ -160,7 +159,8 @@ def run(
     from observer_gym.train.experiments.run import results_text, run_experiment
 
     found = _names([observer], [controller], workers, "local")
-    with _out_dir(out_dir, "run") as folder, entries.objects_in_use(found.objects):
+    folder = _out_dir(out_dir, "run")
+    with entries.objects_in_use(found.objects):
         results = run_experiment(
             env_id=env,
             observer=found.observers[0],
@@ -216,7 +216,8 @@ def compare(
     from observer_gym.train.reports.compare_report import comparison_text
 
     found = _names(_listed(observers), _listed(controllers), workers, backend)
-    with _out_dir(out_dir, "compare") as folder, entries.objects_in_use(found.objects):
+    folder = _out_dir(out_dir, "compare")
+    with entries.objects_in_use(found.objects):
         results = run_comparison(
             env_id=env,
             observers=found.observers,
@@ -333,7 +334,8 @@ def evaluate(
     from observer_gym.train.experiments.run import results_text
 
     found = _names([] if observer is None else [observer], [], workers, "local")
-    with _out_dir(out_dir, "evaluate") as folder, entries.objects_in_use(found.objects):
+    folder = _out_dir(out_dir, "evaluate")
+    with entries.objects_in_use(found.objects):
         results = evaluate_agent(
             model,
             episodes,

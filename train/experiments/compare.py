@@ -94,8 +94,6 @@ def check_pairs_once(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     (:func:`observer_gym.train.experiments.episode.check_entries`)."""
     for controller in request.controllers:
         for observer in request.observers:
-            if observer.plugin is None and controller.kind in ("design", "agent"):
-                continue
             check_entries(
                 request.env_id, observer.name, controller.name, env_kwargs, observer.options,
                 controller.options, request.seeds[0],

@@ -35,21 +35,6 @@ def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] |
     return plugin.obs_mode, None, plugin
 
 
-def observer_record(
-    env_id: str, observer: str, options: Mapping[str, Any] | None = None
-) -> dict[str, Any]:
-    """What results record of ``observer``: its env mode, its default pipeline's options
-    (a task observer) or its entry (an outside one: import path, package, version and
-    ``options``)."""
-    obs_mode, pipeline_options, plugin = observer_setup(env_id, observer)
-    record: dict[str, Any] = {"obs_mode": obs_mode, "pipeline_options": pipeline_options}
-    if plugin is not None:
-        record["entry"] = plugin.describe(options)
-    elif options:
-        record["observer_options"] = dict(options)
-    return record
-
-
 def make_env(
     env_id: str,
     observer: str,

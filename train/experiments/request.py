@@ -39,7 +39,6 @@ from observer_gym.train.experiments.entries import (
     Plugin,
     find_plugin,
     load_factory,
-    unknown_message,
 )
 from observer_gym.train.experiments.observer_env import observer_setup
 from observer_gym.train.experiments.systems import resolve_env_id
@@ -179,21 +178,18 @@ def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
     return names
 
 
-def _observer_entry(system: System, task: ModuleType, name: str, options: dict) -> ObserverEntry:
-    if name in task.OBSERVERS:
-        obs_mode, pipeline_options = task.OBSERVERS[name]
-        return ObserverEntry(name, obs_mode, pipeline_options, None, {})
-    plugin = find_plugin("observer", name)
+def _observer_entry(system: System, name: str, options: dict) -> ObserverEntry:
+    obs_mode, pipeline_options, plugin = observer_setup(system.env_id, name)
     if plugin is None:
-        raise ValueError(unknown_message("observer", name, system.env_id, list(task.OBSERVERS)))
+        return ObserverEntry(name, obs_mode, pipeline_options, None, {})
     load_factory(plugin)  # ValueError naming the entry if it does not import
-    return ObserverEntry(name, plugin.obs_mode, None, plugin, options)
+    return ObserverEntry(name, obs_mode, None, plugin, options)
 
 
 def _controller_entry(system: System, name: str, options: dict) -> ControllerEntry:
     spec = parse_agent_spec(name)
     if spec is not None:
-        kind = "policy" if spec[1].suffix == ".zip" or spec[1].is_file() else "agent"
+        kind = "policy" if is_policy_file(spec[1]) else "agent"
         return ControllerEntry(name, kind, None, {})
     if name in controllers_of(system):
         return ControllerEntry(name, "design", None, {})
@@ -244,7 +240,7 @@ def resolve_request(
     )
     observer_names = names_of("observers", observers, ", ".join(task.OBSERVERS))
     observer_entries = tuple(
-        _observer_entry(system, task, name, observer_options) for name in observer_names
+        _observer_entry(system, name, observer_options) for name in observer_names
     )
     named = names_of("controllers", controllers, "a controller name or ALGO:DIR")
     seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}

@@ -176,7 +176,7 @@ def analyse_pairs(
     the statistics of every metric of :func:`compare_metrics` and, with "oracle" among
     the observers, the paired difference of the primary metric from the oracle with the
     same controller; each pair also carries ``observed[observer]``
-    (:func:`observer_gym.train.experiments.observer_env.observer_record`: obs_mode, pipeline
+    (:meth:`observer_gym.train.experiments.request.ObserverEntry.record`: obs_mode, pipeline
     options,
     an outside observer's entry)."""
     metrics = compare_metrics(task)
