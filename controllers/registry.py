@@ -69,7 +69,25 @@ def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
     """The controller ``name`` of ``env``'s system designed from ``env``'s nominal model;
     ``options`` go to its constructor. A controller of another system, an unknown name, an
     unknown option or an ``env`` that is no gymnasium env raise ValueError naming what is
-    allowed (as does a bad option value, from the constructor)."""
+    allowed (as does a bad option value, from the constructor).
+
+    Example, the LQR on the kf's estimate of BallTable:
+        >>> import gymnasium as gym
+        >>> import numpy as np
+        >>> from observer_gym.controllers import make_controller
+        >>> from observer_gym.estimation import VisionObserver
+        >>> env = VisionObserver(gym.make("observer_gym/BallTable-v0", obs_mode="measurements"),
+        ...                      observer="kf")
+        >>> controller = make_controller("lqr", env)
+        >>> estimate, info = env.reset(seed=0)
+        >>> for _ in range(150):  # 3 s
+        ...     action, _ = controller.predict(estimate, deterministic=True)
+        ...     estimate, reward, terminated, truncated, info = env.step(action)
+        >>> distance_m = np.hypot(*info["state"][:2])  # the ball from the table's centre
+        >>> bool(distance_m < 1e-3)
+        True
+        >>> env.close()
+    """
     if not isinstance(name, str):
         raise ValueError(f"make_controller: name = {name!r}, must be a controller's name (str)")
     if not isinstance(env, gym.Env):

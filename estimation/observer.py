@@ -163,6 +163,23 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Every estimate is checked against the env's state layout: ``observe`` must return an
     :class:`Estimate` whose mean (n,) and covariance (n, n) are finite, else ValueError
     naming the observer and what is wrong.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> import numpy as np
+        >>> from observer_gym.estimation import VisionObserver
+        >>> env = VisionObserver(gym.make("observer_gym/BallTable-v0"), observer="kf")
+        >>> estimate, info = env.reset(seed=0)
+        >>> for _ in range(50):  # one second of frames with the table level
+        ...     estimate, reward, terminated, truncated, info = env.step(np.zeros(2, np.float32))
+        >>> estimate.shape == env.unwrapped.state_space.shape  # the true state's layout
+        True
+        >>> error_m = np.abs(estimate[:2] - info["state"][:2]).max()  # ball x, y on the table
+        >>> bool(error_m < 1e-3)
+        True
+        >>> info["estimate"]["covariance"].shape
+        (8, 8)
+        >>> env.close()
     """
 
     def __init__(

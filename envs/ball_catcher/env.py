@@ -138,6 +138,21 @@ class BallCatcherEnv(CameraEnv):
     :class:`BallCatcherConfig` (``BallCatcherConfig.describe()`` lists them). A bad value
     or an unknown option raises ``ValueError``.
 
+    ## Example
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import observer_gym.envs
+    >>> env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs.shape, bool(info["ball_in_flight"])
+    ((12,), True)
+    >>> terminated = truncated = False
+    >>> while not (terminated or truncated):  # the box held still
+    ...     obs, reward, terminated, truncated, info = env.step(np.zeros(3, np.float32))
+    >>> info["outcome"]
+    'missed'
+    >>> env.close()
+
     ## Version History
     - v0: initial version; the shaping stops at the ball's first touch of the box since
       2026-11-23 (Rewards); since 2026-11-24 the sensor draws its timing

@@ -108,6 +108,21 @@ class BallTableEnv(CameraEnv):
     :class:`BallTableConfig` (``BallTableConfig.describe()`` lists them with their ranges).
     A bad value or an unknown option raises ``ValueError``.
 
+    ## Example
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import observer_gym.envs
+    >>> env = gym.make("observer_gym/BallTable-v0", obs_mode="state")
+    >>> obs, info = env.reset(seed=0, options={"ball_pos_table_m": (0.05, 0.0),
+    ...                                        "ball_vel_table_mps": (0.0, 0.0)})
+    >>> obs.shape
+    (8,)
+    >>> for _ in range(25):  # 0.5 s with the +x edge raised by 0.05 rad
+    ...     obs, reward, terminated, truncated, info = env.step(np.array([0.0, -0.05], np.float32))
+    >>> bool(obs[2] < -0.1)  # the ball rolls towards -x (5/7 g sin 0.05 = 0.35 m/s^2)
+    True
+    >>> env.close()
+
     ## Version History
     - v0: initial version; since 2026-11-24 the sensor draws its timing
       (jitters, drops) from a stream of its own, so a seed's world no longer depends on

@@ -121,6 +121,22 @@ class TargetFollowerEnv(CameraEnv):
     of :class:`TargetFollowerConfig` (``TargetFollowerConfig.describe()`` lists them).
     A bad value or an unknown option raises ``ValueError``.
 
+    ## Example
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import observer_gym.envs
+    >>> env = gym.make("observer_gym/TargetFollower-v0")
+    >>> frame, info = env.reset(seed=0)
+    >>> frame.shape, frame.dtype
+    ((240, 320, 3), dtype('uint8'))
+    >>> x_px, y_px, width_px = info["state"][:3]  # the target in the image (ground truth)
+    >>> bool(20 < width_px < 50)  # a 0.12 m target 1.1-1.7 m away, at fx = 393 px
+    True
+    >>> frame, reward, terminated, truncated, info = env.step(np.zeros(3, np.float32))
+    >>> len(info["frames"])  # one frame per step at the default sensor
+    1
+    >>> env.close()
+
     ## Version History
     - v0: initial version; since 2026-11-24 the sensor draws its timing
       (jitters, drops) from a stream of its own, so a seed's world no longer depends on

@@ -155,7 +155,21 @@ def run(
     under runs/). ``observer_options`` and ``controller_options`` go to an outside
     observer's and controller's factory. ValueError for a bad input, before anything
     runs; :class:`observer_gym.train.experiments.episode.EpisodeError` for an episode that fails
-    part-way (nothing is written)."""
+    part-way (nothing is written).
+
+    Example:
+        >>> import tempfile
+        >>> import observer_gym
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     result = observer_gym.run("BallTable-v0", "kf-measurements", "lqr",
+        ...                               episodes=2, steps=150, out_dir=out)
+        >>> result.summary["fraction_settled"]  # both balls within 1 cm of the centre in 3 s
+        1.0
+        >>> bool(result.summary["position_rmse_m"] < 1e-3)  # the estimate's error
+        True
+        >>> sorted(result.files)
+        ['error.png', 'estimate.png', 'path.png', 'results.json']
+    """
     from observer_gym.train.experiments.run import results_text, run_experiment
 
     found = _names([observer], [controller], workers, "local")
@@ -211,7 +225,20 @@ def compare(
     """Every (observer, controller) pair on the same ``seeds``, with intervals, paired
     differences from the oracle and NEES/NIS
     (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
-    processes or as Ray tasks (``backend="ray"``), with the same records."""
+    processes or as Ray tasks (``backend="ray"``), with the same records.
+
+    Example:
+        >>> import tempfile
+        >>> import observer_gym
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     result = observer_gym.compare("BallTable-v0", ["oracle", "kf-measurements"],
+        ...                                   "lqr", seeds=range(3), steps=150, out_dir=out)
+        >>> [(pair.observer, pair.controller) for pair in result.pairs]
+        [('oracle', 'lqr'), ('kf-measurements', 'lqr')]
+        >>> oracle_m, kf_m = (p.statistics["mean_distance_m"]["mean"] for p in result.pairs)
+        >>> bool(abs(kf_m - oracle_m) < 1e-3)  # the filter costs under a millimetre here
+        True
+    """
     from observer_gym.train.experiments.compare import run_comparison
     from observer_gym.train.reports.compare_report import comparison_text
 
@@ -276,7 +303,20 @@ def sweep(
     cli_args: Mapping[str, Any] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
-    resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`)."""
+    resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`).
+
+    Example:
+        >>> import tempfile
+        >>> import observer_gym
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     outcome = observer_gym.sweep("BallTable-v0", {"latency_s": [0.0, 0.05]},
+        ...                                  "kf-measurements", "lqr", episodes=2, steps=100,
+        ...                                  out_dir=out)
+        >>> [cell["point"] for cell in outcome.cells]
+        [{'latency_s': 0.0}, {'latency_s': 0.05}]
+        >>> outcome.cells_run, outcome.cells_reused
+        (2, 0)
+    """
     from observer_gym.train.experiments.sweep import run_sweep
     from observer_gym.train.reports.sweep_report import sweep_text
 
@@ -329,7 +369,18 @@ def evaluate(
 ) -> RunResult:
     """Episodes of the agent trained in the folder ``model`` (one seed's run) on its env
     with its training options, reading what it was trained on or ``observer``
-    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`)."""
+    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`).
+
+    Example, a shipped agent (PPO on the kf's estimate of BallTable):
+        >>> import tempfile
+        >>> import observer_gym
+        >>> from observer_gym.train.rl.shipped import shipped_path
+        >>> with tempfile.TemporaryDirectory() as out:
+        ...     result = observer_gym.evaluate(shipped_path("ball_table-estimate"),
+        ...                                    episodes=2, steps=150, out_dir=out)
+        >>> result.summary["fraction_settled"]
+        1.0
+    """
     from observer_gym.train.experiments.evaluate import evaluate_agent
     from observer_gym.train.experiments.run import results_text
 
