@@ -13,8 +13,6 @@ import pkgutil
 
 import pytest
 
-import observer_gym
-
 PACKAGES = ("envs", "estimation", "controllers", "train")
 
 REQUIRED = (
