@@ -39,7 +39,7 @@ class ControllerDesign(NamedTuple):
 
 def controllers_of(system: System) -> Mapping[str, ControllerDesign]:
     """The controllers of ``system``: the ``CONTROLLERS`` of its package."""
-    return importlib.import_module(f"{__package__}.{system.name}").CONTROLLERS
+    return importlib.import_module(system.module("controllers")).CONTROLLERS
 
 
 def controllers_for(env_id: str) -> Mapping[str, ControllerDesign]:

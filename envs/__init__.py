@@ -9,13 +9,16 @@ from observer_gym.envs.registration import (
     SYSTEMS,
     System,
     register_envs,
+    register_system,
     system_for_id,
     system_named,
     system_of,
+    unregister_system,
 )
 
 register_envs()
 
+# the package's own env ids (a system added by register_system is in SYSTEMS only)
 ENV_IDS = tuple(system.env_id for system in SYSTEMS)
 
 __all__ = [
@@ -23,7 +26,9 @@ __all__ = [
     "SYSTEMS",
     "System",
     "register_envs",
+    "register_system",
     "system_for_id",
     "system_named",
     "system_of",
+    "unregister_system",
 ]

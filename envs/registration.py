@@ -3,8 +3,10 @@
 Each system has one record in :data:`SYSTEMS`. Its ``name`` is the name of its package in
 every layer (``envs/<name>/``, ``estimation/<name>/``, ``controllers/<name>/``,
 ``train/experiments/tasks/<name>.py``); each layer finds its own part of a system there by that
-name.
-Adding a system is one package per layer and one record here.
+name (:meth:`System.module`), or where the record's ``modules`` say for a system kept
+outside the package.
+Adding a system to the package is one package per layer and one record here; a system
+from outside is one :func:`register_system` call.
 """
 
 from __future__ import annotations
@@ -15,6 +17,13 @@ from typing import NamedTuple
 import gymnasium as gym
 
 NAMESPACE = "observer_gym"
+# where each layer keeps a system's part, under the package: <layer package>.<system name>
+LAYERS = {
+    "envs": "observer_gym.envs",
+    "estimation": "observer_gym.estimation",
+    "controllers": "observer_gym.controllers",
+    "task": "observer_gym.train.experiments.tasks",
+}
 
 
 class System(NamedTuple):
@@ -24,6 +33,16 @@ class System(NamedTuple):
     env_id: str  # registered id, "observer_gym/BallTable-v0"
     entry_point: str  # "module:EnvClass"
     max_episode_steps: int
+    # (layer, module) pairs for a system kept outside the package: e.g.
+    # (("estimation", "mylab.toy.estimation"), ...); a layer not named is looked up under
+    # the package (LAYERS)
+    modules: tuple[tuple[str, str], ...] = ()
+
+    def module(self, layer: str) -> str:
+        """The module of this system's part in ``layer`` (one of :data:`LAYERS`)."""
+        if layer not in LAYERS:
+            raise ValueError(f"unknown layer {layer!r}; allowed: {', '.join(LAYERS)}")
+        return dict(self.modules).get(layer, f"{LAYERS[layer]}.{self.name}")
 
     @property
     def short_id(self) -> str:
@@ -36,7 +55,8 @@ class System(NamedTuple):
         return getattr(importlib.import_module(module_name), class_name)
 
 
-SYSTEMS: tuple[System, ...] = (
+# the systems in order: the package's three, then any added by register_system
+SYSTEMS: list[System] = [
     System(
         "ball_table",
         f"{NAMESPACE}/BallTable-v0",
@@ -55,7 +75,10 @@ SYSTEMS: tuple[System, ...] = (
         "observer_gym.envs.target_follower:TargetFollowerEnv",
         600,
     ),
-)
+]
+
+
+BUILT_IN_COUNT = len(SYSTEMS)
 
 
 def register_envs() -> None:
@@ -67,6 +90,34 @@ def register_envs() -> None:
                 entry_point=system.entry_point,
                 max_episode_steps=system.max_episode_steps,
             )
+
+
+def register_system(system: System) -> None:
+    """Add ``system`` to :data:`SYSTEMS` and register its env with Gymnasium, so every
+    layer and command takes it by name. ValueError if its name or env id is taken, or its
+    ``modules`` name an unknown layer."""
+    if not isinstance(system, System):
+        raise ValueError(f"register_system takes a System record, got {type(system).__name__}")
+    for taken in SYSTEMS:
+        if system.name == taken.name or system.env_id == taken.env_id:
+            raise ValueError(
+                f"system {system.name!r} ({system.env_id}) clashes with the registered "
+                f"{taken.name!r} ({taken.env_id}): name and env id must be new"
+            )
+    for layer, _ in system.modules:
+        system.module(layer)  # ValueError for an unknown layer
+    SYSTEMS.append(system)
+    register_envs()
+
+
+def unregister_system(name: str) -> None:
+    """Remove the system ``name`` added by :func:`register_system` (and its Gymnasium id);
+    the package's own systems stay. ValueError for an unknown or built-in name."""
+    system = system_named(name)
+    if system in SYSTEMS[:BUILT_IN_COUNT]:
+        raise ValueError(f"{name!r} is one of the package's systems; only added ones go")
+    SYSTEMS.remove(system)
+    gym.registry.pop(system.env_id, None)
 
 
 def system_named(name: str) -> System:

@@ -85,7 +85,7 @@ def observers_of_system(system: System) -> Mapping[str, PipelineFactory]:
     """The observers of ``system``: the ``OBSERVERS`` of its package
     ``observer_gym.estimation.<system>`` (observer name -> pipeline factory; the first is
     the default)."""
-    return importlib.import_module(f"{__package__}.{system.name}").OBSERVERS
+    return importlib.import_module(system.module("estimation")).OBSERVERS
 
 
 def observers_of(env: gym.Env) -> Mapping[str, PipelineFactory]:

@@ -45,12 +45,15 @@ def error_line(prog: str, message: object) -> str:
 # Placeholders in help texts for the installed packages' entry points, filled in only
 # when --help is shown (reading the installed packages takes ~0.1 s).
 INSTALLED = {"observer": "<installed observers>", "controller": "<installed controllers>"}
+# and for every system's observers and controllers, read from the layers (~1.5 s)
+PER_ENV = {"observers": "<observers per env>", "controllers": "<controllers per env>"}
 
 
 class HelpFormatter(argparse.HelpFormatter):
     """argparse's help formatter, with :data:`INSTALLED`'s placeholders replaced by the
     names of the installed entry points
-    (:func:`observer_gym.train.experiments.entries.entry_points`)."""
+    (:func:`observer_gym.train.experiments.entries.entry_points`) and :data:`PER_ENV`'s by
+    every system's observers or controllers."""
 
     def _expand_help(self, action: argparse.Action) -> str:
         text = super()._expand_help(action)
@@ -60,6 +63,11 @@ class HelpFormatter(argparse.HelpFormatter):
 
                 names = ", ".join(sorted(entry_points(kind))) or "none"
                 text = text.replace(marker, f"installed: {names}")
+        for field, marker in PER_ENV.items():
+            if marker in text:
+                from observer_gym.train.experiments.systems import per_env
+
+                text = text.replace(marker, per_env(field))
         return text
 
 

@@ -1,16 +1,12 @@
 """The up-front checks of the ``observer-gym`` command: a request's env options,
 observers, controllers, trained agents and training settings, checked without importing
-the estimation or controller layers, PyTorch or stable-baselines3, and without building
-an env.
+PyTorch or stable-baselines3 and without building an env.
 
-:data:`SYSTEM_NAMES` holds, per system of :data:`observer_gym.envs.SYSTEMS` (by package
-name), the names the command takes from the layers: its task's observers with the
-``obs_mode`` each makes the env give, the task's ``ESTIMATE_OBSERVERS`` and the system's
-controllers. It is a copy, so that parsing and checking import only the registry
-(Gymnasium); tests/train/test_cli_errors.py holds it equal to the layers
-(:func:`observer_gym.train.experiments.systems.system_entries`), and the library checks every
-request
-again against the layers themselves, with the same messages
+The names a system takes (its task's observers with the ``obs_mode`` each makes the env
+give, the task's ``ESTIMATE_OBSERVERS`` and the system's controllers) are read from its
+packages in every layer (:mod:`observer_gym.train.experiments.systems`), so a system added
+to :data:`observer_gym.envs.SYSTEMS` is taken with no edit here. The library checks every
+request again against the layers, with the same messages
 (:func:`observer_gym.train.experiments.request.check_pair`).
 
 Env options are checked by the env's configuration class (``config_class.from_kwargs``,
@@ -23,7 +19,7 @@ from __future__ import annotations
 import importlib.util
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +28,9 @@ from observer_gym.envs.config import check_render_mode
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.rl.hyperparams import ALGOS, resolve_hyperparams
+
+if TYPE_CHECKING:
+    from observer_gym.train.experiments.systems import SystemEntry
 from observer_gym.train.rl.run_dir import (
     CONFIG_FILE,
     SEEDS_FILE,
@@ -41,77 +40,6 @@ from observer_gym.train.rl.run_dir import (
     seed_run_dirs,
 )
 
-
-class SystemNames(NamedTuple):
-    """What the command takes for one system."""
-
-    observers: Mapping[str, str]  # the task's OBSERVERS: name -> the env's obs_mode
-    frame_observers: tuple[str, ...]  # those giving the camera frames unfiltered
-    estimate_observers: Mapping[str, str]  # the task's ESTIMATE_OBSERVERS
-    controllers: tuple[str, ...]  # CONTROLLERS of observer_gym.controllers.<system>
-
-
-_OBSERVERS = {"oracle": "state", "kf": "rgb", "kf-measurements": "measurements", "pixels": "rgb"}
-SYSTEM_NAMES: dict[str, SystemNames] = {
-    "ball_table": SystemNames(
-        {
-            "oracle": "state",
-            "kf": "rgb",
-            "kf-measurements": "measurements",
-            "kf-latency": "rgb",
-            "kf-latency-measurements": "measurements",
-            "ekf": "rgb",
-            "ekf-measurements": "measurements",
-            "raw": "rgb",
-            "raw-measurements": "measurements",
-            "oracle-visible": "rgb",
-            "oracle-visible-measurements": "measurements",
-            "pixels": "rgb",
-        },
-        ("pixels",),
-        {"measurements": "kf-measurements", "rgb": "kf"},
-        ("lqr", "mpc", "pid"),
-    ),
-    "ball_catcher": SystemNames(
-        {
-            **_OBSERVERS,
-            "raw": "rgb",
-            "raw-measurements": "measurements",
-            "kf-latency": "rgb",
-            "kf-latency-measurements": "measurements",
-            "ekf": "rgb",
-            "ekf-measurements": "measurements",
-            "oracle-visible": "rgb",
-            "oracle-visible-measurements": "measurements",
-        },
-        ("pixels",),
-        {"measurements": "kf-measurements", "rgb": "kf"},
-        ("intercept",),
-    ),
-    "target_follower": SystemNames(
-        {
-            "oracle": "state",
-            "kf": "rgb",
-            "stkf": "rgb",
-            "kf-measurements": "measurements",
-            "stkf-measurements": "measurements",
-            "pixels": "rgb",
-            "raw": "rgb",
-            "raw-measurements": "measurements",
-            "kf-latency": "rgb",
-            "kf-latency-measurements": "measurements",
-            "stkf-latency": "rgb",
-            "stkf-latency-measurements": "measurements",
-            "ekf": "rgb",
-            "ekf-measurements": "measurements",
-            "oracle-visible": "rgb",
-            "oracle-visible-measurements": "measurements",
-        },
-        ("pixels",),
-        {"measurements": "stkf-measurements", "rgb": "stkf"},
-        ("vtc",),
-    ),
-}
 # a trained agent, wherever a controller is taken: "ppo:DIR, sac:DIR, td3:DIR"
 AGENT_FORMS = ", ".join(f"{algo}:DIR" for algo in ALGOS)
 # what else a controller can be: a saved stable-baselines3 model or an outside factory
@@ -123,31 +51,27 @@ RAY_INSTALL_HINT = "pip install 'observer-gym[distributed]'"
 GYM_MAKE_OPTIONS = ("max_episode_steps", "disable_env_checker")
 
 
-def names_for(env_id: str) -> SystemNames:
-    """The names of the system registered as ``env_id``; ValueError for an unknown env."""
-    return SYSTEM_NAMES[system_for_id(env_id).name]
+def names_for(env_id: str) -> SystemEntry:
+    """The names of the system registered as ``env_id``, read from its layers
+    (:func:`observer_gym.train.experiments.systems.entry_for`); ValueError for an unknown
+    env."""
+    from observer_gym.train.experiments.systems import entry_for
 
-
-def _union(groups: list[tuple[str, ...]]) -> tuple[str, ...]:
-    return tuple(dict.fromkeys(name for group in groups for name in group))
-
-
-def observer_choices() -> tuple[str, ...]:
-    """Every system's observers, each name once, in order of first appearance."""
-    return _union([tuple(SYSTEM_NAMES[s.name].observers) for s in SYSTEMS])
+    return entry_for(env_id)
 
 
 def controller_choices() -> tuple[str, ...]:
-    """Every system's controllers, each name once, in order of first appearance."""
-    return _union([SYSTEM_NAMES[s.name].controllers for s in SYSTEMS])
+    """Every system's controllers, each name once (read from the layers)."""
+    from observer_gym.train.experiments import systems
+
+    return systems.controller_choices()
 
 
-def per_env(field: str) -> str:
-    """``field`` ("observers" or "controllers") of every system, as help text:
-    "BallTable-v0: lqr, mpc, pid; BallCatcher-v0: intercept; ..."."""
-    return "; ".join(
-        f"{s.short_id}: {', '.join(getattr(SYSTEM_NAMES[s.name], field))}" for s in SYSTEMS
-    )
+def observer_choices() -> tuple[str, ...]:
+    """Every system's observers, each name once (read from the layers)."""
+    from observer_gym.train.experiments import systems
+
+    return systems.observer_choices()
 
 
 def check_observer(env_id: str, observer: str) -> str:
@@ -155,7 +79,7 @@ def check_observer(env_id: str, observer: str) -> str:
     task's observers, or an outside observer (:mod:`observer_gym.train.experiments.entries`) whose
     factory imports; ValueError naming what is allowed otherwise."""
     env_id = system_for_id(env_id).env_id
-    if observer not in names_for(env_id).observers:
+    if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
     return env_id
 
@@ -171,7 +95,7 @@ def _observer_plugin(env_id: str, observer: str) -> entries.Plugin:
 def observer_mode(env_id: str, observer: str) -> str:
     """The ``obs_mode`` of the env ``observer`` reads: a task observer's, or an outside
     observer's ("measurements" with the ``-measurements`` suffix, else "rgb")."""
-    modes = names_for(env_id).observers
+    modes = names_for(env_id).observer_modes
     return modes[observer] if observer in modes else _observer_plugin(env_id, observer).obs_mode
 
 
@@ -184,7 +108,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
     folder holds a run of ``env_id`` with a model to load, trained on what ``observer``
     gives."""
     system = system_for_id(env_id)
-    names = SYSTEM_NAMES[system.name]
+    names = names_for(system.env_id)
     reads_frames = observer in names.frame_observers
     agent_spec = parse_agent_spec(controller)
     if agent_spec is not None and is_policy_file(agent_spec[1]):
@@ -199,7 +123,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
         if controller not in names.controllers and not _outside(controller):
             fits = ", ".join([*names.controllers, AGENT_FORMS, OUTSIDE_FORMS])
             for other in SYSTEMS:
-                if other != system and controller in SYSTEM_NAMES[other.name].controllers:
+                if other != system and controller in names_for(other.env_id).controllers:
                     raise ValueError(
                         f"controller {controller!r} does not fit {system.short_id}: it is made "
                         f"for a {other.short_id} env; {system.short_id} takes: {fits}"
@@ -275,7 +199,7 @@ def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | No
     if observer is not None:
         estimating = [
             name
-            for name, mode in names.observers.items()
+            for name, mode in names.observer_modes.items()
             if mode != "state" and name not in names.frame_observers
         ]
         if obs != "estimate":

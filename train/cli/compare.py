@@ -16,6 +16,7 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
+    PER_ENV,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -42,7 +43,6 @@ def name_list(text: str) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``observer-gym compare``."""
-    from observer_gym.train.cli.checks import per_env
 
     parser.add_argument(
         "--env",
@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated observers: oracle (the true state), kf (Kalman filter on the "
             "camera pixels), kf-measurements (the same on perfect-detector measurements); "
-            "per env: " + per_env("observers") + "; " + OUTSIDE_OBSERVERS_HELP
+            "per env: " + PER_ENV["observers"] + "; " + OUTSIDE_OBSERVERS_HELP
         ),
     )
     parser.add_argument(
@@ -68,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=(
             "comma-separated controllers of the env, per env: "
-            + per_env("controllers")
+            + PER_ENV["controllers"]
             + "; or a trained agent ALGO:DIR (ppo:runs/ppo-balltable; a multi-seed run's "
             "DIR: every seed's agent, with the primary metric across seeds) or a shipped one "
             "ALGO:NAME (ppo:ball_table-estimate); " + OUTSIDE_CONTROLLERS_HELP

@@ -8,6 +8,7 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
+    PER_ENV,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -23,7 +24,6 @@ from observer_gym.train.cli.args import (
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
-    from observer_gym.train.cli.checks import per_env
 
     parser.add_argument(
         "--env",
@@ -39,7 +39,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
             "what the controller sees: oracle (the true state), kf (Kalman-filter estimate "
             "from camera pixels), kf-measurements (the same from perfect-detector pixel "
             "measurements, no rendering); per env: "
-            + per_env("observers")
+            + PER_ENV["observers"]
             + "; "
             + OUTSIDE_OBSERVERS_HELP
         ),
@@ -51,7 +51,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="CONTROLLER",
         help=(
             "the env's controller, per env: "
-            + per_env("controllers")
+            + PER_ENV["controllers"]
             + "; any env: a trained agent as ALGO:DIR (ppo:runs/x) or a shipped one as "
             "ALGO:NAME (ppo:ball_table-estimate); " + OUTSIDE_CONTROLLERS_HELP
         ),

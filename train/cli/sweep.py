@@ -18,6 +18,7 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
+    PER_ENV,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -37,7 +38,6 @@ DEFAULT_EPISODES = 10
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``observer-gym sweep``."""
-    from observer_gym.train.cli.checks import per_env
 
     parser.add_argument(
         "--env", type=env_name, default="BallTable-v0", help="environment (default: %(default)s)"
@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="LIST",
         help="comma-separated observers, per env: "
-        + per_env("observers")
+        + PER_ENV["observers"]
         + "; "
         + OUTSIDE_OBSERVERS_HELP,
     )
@@ -71,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=(
             "comma-separated controllers, per env: "
-            + per_env("controllers")
+            + PER_ENV["controllers"]
             + "; or a trained agent ALGO:DIR; "
             + OUTSIDE_CONTROLLERS_HELP
         ),

@@ -5,12 +5,14 @@ env id, the observers of its task (what ``run`` and ``compare`` take as ``--obse
 the pipelines of ``observer_gym.estimation.<system>``, the controllers of
 ``observer_gym.controllers.<system>`` and the task module
 ``observer_gym.train.experiments.tasks.<system>``.
-Reading them imports every layer; the command line takes its choices and help texts from
-the light copy in :mod:`observer_gym.train.cli.checks`, which the tests hold equal to these.
+Reading them imports every layer (about 1.5 s); the command line reads them when it
+checks a request or shows ``--help``, not to parse its arguments.
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Mapping
 from types import ModuleType
 from typing import NamedTuple
 
@@ -33,9 +35,30 @@ class SystemEntry(NamedTuple):
     def env_id(self) -> str:
         return self.system.env_id
 
+    @property
+    def observer_modes(self) -> Mapping[str, str]:
+        """The task's observers: name -> the ``obs_mode`` each makes the env give."""
+        return {name: mode for name, (mode, _) in self.task.OBSERVERS.items()}
 
+    @property
+    def frame_observers(self) -> tuple[str, ...]:
+        """The observers that give the camera frames unfiltered ("pixels")."""
+        return tuple(
+            name
+            for name, (mode, pipeline) in self.task.OBSERVERS.items()
+            if pipeline is None and mode != "state"
+        )
+
+    @property
+    def estimate_observers(self) -> Mapping[str, str]:
+        """The task's ``ESTIMATE_OBSERVERS``: what an agent trained with ``--obs estimate``
+        reads, by where the estimate comes from."""
+        return dict(self.task.ESTIMATE_OBSERVERS)
+
+
+@functools.cache
 def system_entry(system: System) -> SystemEntry:
-    """``system``'s entry, read from its package in every layer."""
+    """``system``'s entry, read from its package in every layer (once per process)."""
     task = task_of(system)
     return SystemEntry(
         system,

@@ -55,7 +55,7 @@ class Task(Protocol):
 
 def task_of(system: System) -> ModuleType:
     """The task module of ``system``: ``observer_gym.train.experiments.tasks.<system name>``."""
-    return importlib.import_module(f"{__name__}.{system.name}")
+    return importlib.import_module(system.module("task"))
 
 
 def task_for(env_id: str) -> ModuleType:
