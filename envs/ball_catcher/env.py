@@ -24,6 +24,7 @@ from observer_gym.envs.camera_rig import CameraTiming, Frame
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sensor import SensorSpec
 from observer_gym.envs.sim import GRAVITY_MPS2, Simulation
+from observer_gym.envs.suite_knobs import SuiteKnobs
 from observer_gym.envs.transforms import norm
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
@@ -163,6 +164,11 @@ class BallCatcherEnv(CameraEnv):
     """
 
     config_class = BallCatcherConfig
+    suite_knobs = SuiteKnobs(
+        disturbed={"camera_preset": "random_offsets", "jitter_s": 0.002, "frame_drop_prob": 0.1},
+        measurement_noise={"measurement_noise_px": 0.5},
+        paired={"image_width_px": 80, "image_height_px": 60},
+    )
     model_holds_key = "ball_in_flight"
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 100}  # noqa: RUF012
     clipping_planes_m = (NEAR_M, FAR_M)

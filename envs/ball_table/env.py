@@ -23,6 +23,7 @@ from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.config import real_array
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sim import Simulation
+from observer_gym.envs.suite_knobs import SuiteKnobs
 from observer_gym.envs.transforms import norm
 
 RESET_OPTIONS = ("ball_pos_table_m", "ball_vel_table_mps")
@@ -133,6 +134,16 @@ class BallTableEnv(CameraEnv):
 
     world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame
     config_class = BallTableConfig
+    suite_knobs = SuiteKnobs(
+        disturbed={"push_rate_hz": 2.0, "frame_drop_prob": 0.1},
+        measurement_noise={"measurement_noise_px": 0.5},
+        paired={
+            "occluder_rate_hz": 1.0,
+            "image_noise_std": 8.0,
+            "image_width_px": 80,
+            "image_height_px": 60,
+        },
+    )
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012
     clipping_planes_m = (0.05, 3.0)
 

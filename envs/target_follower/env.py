@@ -13,6 +13,7 @@ from observer_gym.envs.config import real_array, real_number
 from observer_gym.envs.core import CameraEnv
 from observer_gym.envs.sensor import SensorSpec
 from observer_gym.envs.sim import Simulation
+from observer_gym.envs.suite_knobs import SuiteKnobs
 from observer_gym.envs.target_follower import geometry as geo
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
 from observer_gym.envs.target_follower.drive import DriveLimits
@@ -147,6 +148,11 @@ class TargetFollowerEnv(CameraEnv):
 
     world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame
     config_class = TargetFollowerConfig
+    suite_knobs = SuiteKnobs(
+        disturbed={"push_rate_hz": 2.0, "frame_drop_prob": 0.1, "occluder_rate_hz": 0.2},
+        measurement_noise={"measurement_noise_px": 0.5},
+        paired={"image_noise_std": 8.0},  # its image size sets the focal length in pixels
+    )
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
     clipping_planes_m = (0.05, FAR_PLANE_M)
     # v0 drew one uniform per frame (one frame per step) from np_random for its drop,

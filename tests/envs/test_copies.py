@@ -15,16 +15,18 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import observer_gym.envs
 
-ENV_IDS = observer_gym.envs.ENV_IDS
+# every registered system's env (the toy of tests/toy_system too)
+ENV_IDS = tuple(system.env_id for system in observer_gym.envs.SYSTEMS)
 OBS_MODES = ("rgb", "state", "measurements")
 CASES = [(env_id, mode) for env_id in ENV_IDS for mode in OBS_MODES]
 SMALL = {"image_width_px": 80, "image_height_px": 60}
-# Disturbances on, so that a copy must also carry the generators' states.
-DISTURBED = {
-    "observer_gym/BallTable-v0": {"push_rate_hz": 2.0, "measurement_noise_px": 0.5},
-    "observer_gym/BallCatcher-v0": {"camera_preset": "random_offsets", "jitter_s": 0.002},
-    "observer_gym/TargetFollower-v0": {"push_rate_hz": 2.0, "occluder_rate_hz": 0.2},
-}
+
+
+def _disturbed(env_id: str) -> dict:
+    """Disturbances and sensor noise on (the env's ``suite_knobs``), so that a copy must
+    also carry the generators' states."""
+    suite = observer_gym.envs.system_for_id(env_id).env_class().suite_knobs
+    return {**suite.disturbed, **suite.measurement_noise}
 
 
 def _actions(env, n: int, seed: int = 0) -> list[np.ndarray]:
@@ -56,7 +58,7 @@ def test_pickle_env(make_env, env_id, obs_mode):
 def test_a_copy_mid_episode_steps_on_like_the_original_and_a_fresh_env(
     make_env, env_id, obs_mode, copier
 ):
-    options = {"obs_mode": obs_mode, **SMALL, **DISTURBED[env_id]}
+    options = {"obs_mode": obs_mode, **SMALL, **_disturbed(env_id)}
     env = make_env(env_id, **options)
     fresh = make_env(env_id, **options)
     actions = _actions(env, 8)

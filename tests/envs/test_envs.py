@@ -15,32 +15,18 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import observer_gym.envs
 
-ENV_IDS = observer_gym.envs.ENV_IDS
+# every registered system's env (the toy of tests/toy_system too)
+ENV_IDS = tuple(system.env_id for system in observer_gym.envs.SYSTEMS)
 OBS_MODES = ("rgb", "state", "measurements")
 CASES = [(env_id, mode) for env_id in ENV_IDS for mode in OBS_MODES]
 # SB3 recommends a [-1, 1] action space; our envs keep physical units (radians) and the
 # training code rescales them, so this one warning is expected on the raw env.
 SB3_RESCALE_HINT = "symmetric and normalized Box action space"
-# Per env: options that switch its random disturbances on, so that their draws are part of
-# what must repeat, and the measurement-noise option of its "measurements" mode.
-DISTURBED = {
-    "observer_gym/BallTable-v0": {"push_rate_hz": 2.0, "frame_drop_prob": 0.1},
-    "observer_gym/BallCatcher-v0": {
-        "camera_preset": "random_offsets",
-        "jitter_s": 0.002,
-        "frame_drop_prob": 0.1,
-    },
-    "observer_gym/TargetFollower-v0": {
-        "push_rate_hz": 2.0,
-        "frame_drop_prob": 0.1,
-        "occluder_rate_hz": 0.2,
-    },
-}
-MEASUREMENT_NOISE = {
-    "observer_gym/BallTable-v0": {"measurement_noise_px": 0.5},
-    "observer_gym/BallCatcher-v0": {"measurement_noise_px": 0.5},
-    "observer_gym/TargetFollower-v0": {"measurement_noise_px": 0.5},
-}
+
+
+def knobs(env_id: str):
+    """The options the env declares for the suite (``suite_knobs``, envs/suite_knobs.py)."""
+    return observer_gym.envs.system_for_id(env_id).env_class().suite_knobs
 
 
 def _warnings_of(check, env) -> list[str]:
@@ -60,7 +46,10 @@ def test_gymnasium_check_env_passes_without_warnings(make_env, env_id, obs_mode)
 def test_sb3_check_env_passes(make_env, env_id, obs_mode):
     env = make_env(env_id, obs_mode=obs_mode)
     raw = _warnings_of(lambda e: sb3_check_env(e.unwrapped), env)
-    assert len(raw) == 1 and SB3_RESCALE_HINT in raw[0], raw
+    if np.array_equal(env.action_space.high, np.ones(env.action_space.shape)):
+        assert raw == []  # already in [-1, 1]
+    else:
+        assert len(raw) == 1 and SB3_RESCALE_HINT in raw[0], raw
     one = np.ones(env.action_space.shape, np.float32)
     rescaled = _warnings_of(lambda e: sb3_check_env(RescaleAction(e.unwrapped, -one, one)), env)
     assert rescaled == []
@@ -94,9 +83,9 @@ def _assert_same(trace_a, trace_b):
 
 @pytest.mark.parametrize(("env_id", "obs_mode"), CASES)
 def test_same_seed_same_observations_for_200_steps(make_env, env_id, obs_mode):
-    kwargs = {"obs_mode": obs_mode, **DISTURBED.get(env_id, {})}
+    kwargs = {"obs_mode": obs_mode, **knobs(env_id).disturbed}
     if obs_mode == "measurements":
-        kwargs.update(MEASUREMENT_NOISE.get(env_id, {}))
+        kwargs.update(knobs(env_id).measurement_noise)
     trace_a = _rollout(make_env(env_id, **kwargs), seed=7, steps=200)
     trace_b = _rollout(make_env(env_id, **kwargs), seed=7, steps=200)
     _assert_same(trace_a, trace_b)
@@ -136,14 +125,18 @@ def _bad_actions(n: int) -> list:
 @pytest.mark.parametrize("case", range(7))
 def test_bad_actions_raise_before_reaching_the_simulator(make_env, env_id, case):
     env = make_env(env_id, obs_mode="state")
+    fresh = make_env(env_id, obs_mode="state")
     bad_action = _bad_actions(env.action_space.shape[0])[case]
     env.reset(seed=0)
-    before = env.unwrapped.scene.ground_truth().state
+    fresh.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(bad_action)
-    np.testing.assert_array_equal(env.unwrapped.scene.ground_truth().state, before)
-    # The world is intact: a valid step still gives finite state.
-    obs, *_ = env.step(np.zeros(env.action_space.shape, np.float32))
+    # The world is as it was: the next valid step matches a fresh env's, and is finite.
+    zero = np.zeros(env.action_space.shape, np.float32)
+    obs, _, _, _, info = env.step(zero)
+    obs_fresh, _, _, _, info_fresh = fresh.step(zero)
+    np.testing.assert_array_equal(info["state"], info_fresh["state"])
+    np.testing.assert_array_equal(obs, obs_fresh)
     assert np.all(np.isfinite(obs))
 
 
@@ -157,21 +150,6 @@ def test_out_of_range_actions_are_clipped(make_env, env_id):
         obs_big, *_ = big.step(10.0 * high)
         obs_edge, *_ = edge.step(high)
     np.testing.assert_array_equal(obs_big, obs_edge)
-
-
-# What the pairing test adds to DISTURBED and MEASUREMENT_NOISE: the rest of each env's
-# disturbances, image noise for "rgb", and small images where the image size does not
-# change the world (BallTable, BallCatcher), so that rendering stays cheap.
-PAIRED = {
-    "observer_gym/BallTable-v0": {
-        "occluder_rate_hz": 1.0,
-        "image_noise_std": 8.0,
-        "image_width_px": 80,
-        "image_height_px": 60,
-    },
-    "observer_gym/BallCatcher-v0": {"image_width_px": 80, "image_height_px": 60},
-    "observer_gym/TargetFollower-v0": {"image_noise_std": 8.0},
-}
 
 
 def _world_trace(env: gym.Env, seed: int, steps: int) -> list[tuple]:
@@ -201,7 +179,8 @@ def test_disturbances_are_the_same_in_every_obs_mode(make_env, env_id):
     # observer-gym compare runs every (observer, controller) pair on the same seeds: the
     # world (ground truth, frame drops and capture times) must not depend on the obs_mode
     # or on its sensor noise.
-    kwargs = {**DISTURBED[env_id], **MEASUREMENT_NOISE[env_id], **PAIRED[env_id]}
+    suite = knobs(env_id)
+    kwargs = {**suite.disturbed, **suite.measurement_noise, **suite.paired}
     traces = {
         mode: _world_trace(make_env(env_id, obs_mode=mode, **kwargs), seed=3, steps=150)
         for mode in OBS_MODES

@@ -22,26 +22,26 @@ from observer_gym.train.experiments.systems import (
 )
 from observer_gym.train.experiments.tasks import task_for
 
-LAYERS = ("envs", "estimation", "controllers")
+LAYERS = ("envs", "estimation", "controllers", "task")
 
 
 @pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
 def test_every_layer_holds_its_part_of_the_system(system):
     for layer in LAYERS:
-        importlib.import_module(f"observer_gym.{layer}.{system.name}")
+        importlib.import_module(system.module(layer))
     spec = gym.spec(system.env_id)
     assert spec.entry_point == system.entry_point
     assert spec.max_episode_steps == system.max_episode_steps
-    assert system.env_class().__module__.startswith(f"observer_gym.envs.{system.name}")
+    assert system.env_class().__module__.startswith(system.module("envs"))
 
-    estimation = importlib.import_module(f"observer_gym.estimation.{system.name}")
+    estimation = importlib.import_module(system.module("estimation"))
     assert estimation.OBSERVERS and all(map(callable, estimation.OBSERVERS.values()))
-    controllers = importlib.import_module(f"observer_gym.controllers.{system.name}").CONTROLLERS
+    controllers = importlib.import_module(system.module("controllers")).CONTROLLERS
     assert controllers and all(isinstance(c, ControllerDesign) for c in controllers.values())
     assert controllers_for(system.env_id) is controllers
 
     task = task_for(system.env_id)
-    assert task.__name__ == f"observer_gym.train.experiments.tasks.{system.name}"
+    assert task.__name__ == system.module("task")
     assert task.OBSERVERS["oracle"] == ("state", {})
     assert set(task.ESTIMATE_OBSERVERS.values()) <= set(task.OBSERVERS)
     for name in ("SUMMARY_ROWS", "COMPARE_METRICS", "CONFIG"):
@@ -81,7 +81,7 @@ def test_a_subclass_of_an_env_finds_its_system_observers_and_controllers(system)
     try:
         assert system_of(env) is system
         assert system_of(gym.wrappers.RecordEpisodeStatistics(env)) is system
-        observers = importlib.import_module(f"observer_gym.estimation.{system.name}").OBSERVERS
+        observers = importlib.import_module(system.module("estimation")).OBSERVERS
         assert observers_of(env) is observers
         for name in observers:
             wrapped = VisionObserver(env, observer=name)

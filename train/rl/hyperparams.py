@@ -1,5 +1,7 @@
 """Hyperparameters of ``observer-gym train``: YAML files shipped with the package, one per
-algorithm (``hyperparams/ppo.yml``, ``sac.yml``, ``td3.yml``), keyed by env id.
+algorithm (``hyperparams/ppo.yml``, ``sac.yml``, ``td3.yml``), keyed by env id. An env
+without an entry there takes its task module's ``HYPERPARAMS[algo]`` (same format) or, if
+it has none, the defaults (:func:`env_entry`).
 
 An env's entry holds two kinds of keys:
 
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import importlib
 import inspect
 from collections.abc import Mapping
 from pathlib import Path
@@ -87,6 +90,21 @@ def _merge(base: dict[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
     return base
 
 
+def env_entry(env_id: str, algo: str) -> Mapping[str, Any]:
+    """The hyperparameters of ``algo`` on ``env_id`` before the defaults: the entry of
+    ``hyperparams/<algo>.yml`` for the env, else the ``HYPERPARAMS[algo]`` of its system's
+    task module (a system added from outside carries its own), else none (the training
+    defaults and the algorithm's own). ValueError for an unknown env."""
+    from observer_gym.envs import system_for_id
+
+    system = system_for_id(env_id)
+    entries = yaml.safe_load((HYPERPARAMS_DIR / f"{algo}.yml").read_text()) or {}
+    if system.env_id in entries:
+        return entries[system.env_id]
+    task = importlib.import_module(system.module("task"))
+    return getattr(task, "HYPERPARAMS", {}).get(algo, {})
+
+
 def resolve_hyperparams(
     env_id: str, algo: str, obs: str, overrides: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -96,15 +114,11 @@ def resolve_hyperparams(
     stable-baselines3 nor PyTorch.
 
     Raises:
-        ValueError: an unknown algo, an env without an entry or a bad training value.
+        ValueError: an unknown algo or env, or a bad training value.
     """
     if algo not in ALGOS:
         raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
-    path = HYPERPARAMS_DIR / f"{algo}.yml"
-    entries = yaml.safe_load(path.read_text()) or {}
-    if env_id not in entries:
-        raise ValueError(f"{path.name} has no entry for {env_id}; it has: {', '.join(entries)}")
-    entry = copy.deepcopy(entries[env_id])
+    entry = copy.deepcopy(env_entry(env_id, algo))
     by_obs = entry.pop("obs", None) or {}
     params = _merge(copy.deepcopy(TRAINING_DEFAULTS), entry)
     _merge(params, by_obs.get(obs) or {})
