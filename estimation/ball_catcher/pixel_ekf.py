@@ -33,7 +33,8 @@ Timing: every frame is fused at its capture time, frames delivered late (latency
 cameras out of order) included, by :class:`~observer_gym.estimation.latency.CaptureTimeFusion`
 (rewind to the step before the capture and replay), and the estimate reported at each step
 is the filter's at the step's time (the time the next action is applied). The kept history
-covers the largest latency the env's config gives (:func:`history_for`).
+covers the latest delivery of the declared sensor (``env.sensor_spec.history_s``: its
+latency, the preset's spread, five jitter standard deviations and two control steps).
 
 Re-acquisition, as the viewline filter's observer
 (:class:`~observer_gym.estimation.ball_catcher.observer.BallCatcherObserver`, whose module
@@ -90,10 +91,8 @@ from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import MIN_DEPTH_M
 
-__all__ = ["BallCatcherPixelEKF", "PixelEKFCore", "PixelMeasurement", "history_for", "pixel_model"]
+__all__ = ["BallCatcherPixelEKF", "PixelEKFCore", "PixelMeasurement", "pixel_model"]
 
-# The latency jitter's Gaussian tail the history covers (in standard deviations).
-JITTER_TAIL_STD = 6.0
 INITIAL_STD_POS_M = 1.0  # the prior's standard deviations (see the module docstring)
 INITIAL_STD_VEL_MPS = 3.0
 DEFAULT_ITERATIONS = 5  # linearisations per update at most (1: the plain EKF)
@@ -127,18 +126,6 @@ def pixel_model(
     # dh/dq = [[1/q3, 0, -q1/q3^2], [0, 1/q3, -q2/q3^2]]; dq/dp = K R^T
     dh_dq = np.array([[inv_q3, 0.0, -uv[0] * inv_q3], [0.0, inv_q3, -uv[1] * inv_q3]])
     return uv, dh_dq @ KRt, float(q[2])
-
-
-def history_for(config: Any) -> float:
-    """How far back (s) a late frame can be captured: the config's latency, one frame
-    period (the random_offsets preset adds up to one), JITTER_TAIL_STD latency jitters and
-    one control step (frames are read at the end of the step they arrive in)."""
-    return (
-        config.latency_s
-        + 1.0 / config.frame_rate_hz
-        + JITTER_TAIL_STD * config.latency_jitter_s
-        + config.control_dt_s
-    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -266,7 +253,7 @@ class BallCatcherPixelEKF:
         drag: model the env's air drag (default: whether the env has it).
         detector: the rgb detector (default :class:`BallCatcherDetector`).
         history_s: how far back late frames are fused at their capture time (default
-            :func:`history_for` the env's config).
+            ``env.sensor_spec.history_s(control_dt_s)``, the declared sensor's).
         iterations: linearisations per update at most (1: the plain EKF).
         initial_std_pos_m, initial_std_vel_mps: the prior's standard deviations.
         r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
@@ -303,7 +290,8 @@ class BallCatcherPixelEKF:
         self.gate_p = gate_p
         drag = cfg.air_drag if drag is None else bool(drag)
         self.flight = BallFlight(env_drag_per_m(drag), accel_noise_std)
-        self.history_s = float(history_for(cfg) if history_s is None else history_s)
+        spec_history_s = env.sensor_spec.history_s(cfg.control_dt_s)
+        self.history_s = float(spec_history_s if history_s is None else history_s)
         self.iterations = iterations
         self.x0, _ = initial_estimate(cfg)
         self.P0 = np.diag([initial_std_pos_m**2] * 3 + [initial_std_vel_mps**2] * 3)

@@ -24,7 +24,6 @@ from observer_gym.estimation.ball_catcher.models import BallFlight, BallisticMod
 from observer_gym.estimation.ball_catcher.pixel_ekf import (
     BallCatcherPixelEKF,
     PixelEKFCore,
-    history_for,
     pixel_model,
 )
 from observer_gym.estimation.ball_catcher.raw import BallCatcherRaw
@@ -363,11 +362,11 @@ def test_pixel_model_and_flight_jacobians_match_finite_differences():
     np.testing.assert_array_equal(Q, R1)
 
 
-def test_ekf_history_covers_the_config_latency_and_bad_options_raise():
+def test_ekf_history_covers_the_declared_latency_and_bad_options_raise():
     env = make_env(latency_s=0.3, latency_jitter_s=0.02, frame_rate_hz=25.0)
     try:
-        assert history_for(env.config) == pytest.approx(0.3 + 0.04 + 6 * 0.02 + 0.01)
-        assert BallCatcherPixelEKF(env).fusion.history_s == history_for(env.config)
+        # from the declared sensor: latency, 5 jitter std and two control steps of 10 ms
+        assert BallCatcherPixelEKF(env).fusion.history_s == pytest.approx(0.3 + 5 * 0.02 + 0.02)
         with pytest.raises(ValueError, match="iterations"):
             BallCatcherPixelEKF(env, iterations=0)
         with pytest.raises(ValueError, match="pixel_std_px"):
