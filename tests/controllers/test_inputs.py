@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from observer_gym.controllers import make_controller
+from observer_gym.controllers import BallTableMPC, make_controller
 from observer_gym.controllers.mpc import MAX_HORIZON, MPCController
 from observer_gym.controllers.target_follower.vtc import VisualTrackingController
 from observer_gym.envs.target_follower import IMAGE, STATE_DIM, StateIndex
@@ -112,8 +112,10 @@ def test_other_bad_options(env_for):
             make_controller("lqr", env_for("lqr"), **{option: object()})
         with pytest.raises(ValueError, match=rf"{option} = .*matrix of numbers"):
             make_controller("mpc", env_for("mpc"), **{option: "diag"})
-    with pytest.raises(ValueError, match="plant must be a BallTablePlant"):
+    with pytest.raises(ValueError, match="plant must be a ConstrainedPlant"):
         MPCController(env_for("mpc"))
+    with pytest.raises(ValueError, match="plant must be a BallTablePlant"):
+        BallTableMPC(env_for("mpc"))
     with pytest.raises(ValueError, match="plant must be a TargetFollowerPlant"):
         VisualTrackingController(None)
 

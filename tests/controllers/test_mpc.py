@@ -1,12 +1,13 @@
-"""MPC (OSQP): equal to LQR without active constraints, constraints kept when they bind,
-a finite in-bounds action and a status when the QP cannot be solved."""
+"""MPC (OSQP) on BallTable (BallTableMPC: the generic MPC with the table's bounds): equal
+to LQR without active constraints, constraints kept when they bind, a finite in-bounds
+action and a status when the QP cannot be solved."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from observer_gym.controllers import BallTablePlant, LQRController, MPCController
+from observer_gym.controllers import BallTableMPC, BallTablePlant, LQRController
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.estimation.ball_table.control_model import BallTableControlModel
 
@@ -29,7 +30,7 @@ def _random_states(count: int, scale: float) -> np.ndarray:
 @pytest.mark.parametrize("horizon", [1, 5, 20])
 def test_unconstrained_mpc_equals_lqr(plant, horizon):
     lqr = LQRController(plant)
-    mpc = MPCController(plant, horizon=horizon, constrained=False)
+    mpc = BallTableMPC(plant, horizon=horizon, constrained=False)
     for x in _random_states(10, 0.05):
         u_lqr = -lqr.K @ x[:6]  # unsaturated
         u_mpc, solved = mpc.solve(x[:6])
@@ -38,14 +39,14 @@ def test_unconstrained_mpc_equals_lqr(plant, horizon):
 
 
 def test_constrained_mpc_equals_lqr_while_no_constraint_binds(plant):
-    lqr, mpc = LQRController(plant), MPCController(plant, horizon=20)
+    lqr, mpc = LQRController(plant), BallTableMPC(plant, horizon=20)
     for x in _random_states(10, 0.005):
         np.testing.assert_allclose(mpc.predict(x)[0], lqr.predict(x)[0], atol=1e-6)
     assert mpc.failures == 0
 
 
 def test_binding_constraints_hold_over_the_plan(plant):
-    mpc = MPCController(plant, horizon=20, tilt_limit_rad=0.03, tilt_rate_limit_radps=0.5)
+    mpc = BallTableMPC(plant, horizon=20, tilt_limit_rad=0.03, tilt_rate_limit_radps=0.5)
     x = np.zeros(6)
     x[0], x[2] = 0.06, 0.05  # 6 cm out, moving outward: LQR would ask for far more tilt
     u, solved = mpc.solve(x)
@@ -61,7 +62,7 @@ def test_binding_constraints_hold_over_the_plan(plant):
 
 
 def test_infeasible_start_gives_a_finite_in_bounds_action_and_its_status(plant):
-    mpc = MPCController(plant, horizon=20)
+    mpc = BallTableMPC(plant, horizon=20)
     x = np.zeros(8)
     x[0], x[2] = 0.124, 1.0  # at the border, 1 m/s outward: it cannot stay on the table
     action, _ = mpc.predict(x)
@@ -80,4 +81,4 @@ def test_infeasible_start_gives_a_finite_in_bounds_action_and_its_status(plant):
 )
 def test_bad_options_raise(plant, option, value):
     with pytest.raises(ValueError, match=option):
-        MPCController(plant, **{option: value})
+        BallTableMPC(plant, **{option: value})
