@@ -84,7 +84,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     the file being written, if any, is complete
     (:func:`~observer_gym.train.reports.signals.signals_deferred`). A file that cannot be read or
     written (a full disk, no permission: ``OSError``) is one line,
-    ``observer-gym COMMAND: error: ...``, and exit code 1; the file is as it was.
+    ``observer-gym COMMAND: error: ...``, and exit code 1; the file is as it was. An
+    output folder another command holds (its lock:
+    :mod:`observer_gym.train.reports.folder_lock`) is one line naming that command,
+    ``observer-gym COMMAND: error: DIR is in use by 'observer-gym sweep' (pid ...)``, and
+    exit code 75 (``FOLDER_BUSY_EXIT_CODE``); nothing is written.
     What a command finds left by a killed run in a folder it uses (an
     :class:`~observer_gym.train.reports.outputs.OutputFolderWarning`), and any other
     :class:`~observer_gym.train.reports.outputs.OneLineWarning`, is one line on stderr,
@@ -112,5 +116,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{prog}: interrupted", file=sys.stderr)
             return INTERRUPTED_EXIT_CODE
         except OSError as exc:  # a file that could not be read or written (a full disk)
+            # deferred: the error comes from folder_lock, loaded by then
+            from observer_gym.train.reports.folder_lock import (
+                FOLDER_BUSY_EXIT_CODE,
+                FolderBusyError,
+            )
+
             print(error_line(prog, exc), file=sys.stderr)
-            return 1
+            return FOLDER_BUSY_EXIT_CODE if isinstance(exc, FolderBusyError) else 1

@@ -179,7 +179,11 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
         type=folder_path,
         default=None,
         metavar="DIR",
-        help=f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS)",
+        help=(
+            f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS); one "
+            "command at a time: while another command writes there, this one is refused "
+            "(exit code 75)"
+        ),
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
 

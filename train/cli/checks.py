@@ -32,12 +32,11 @@ from observer_gym.train.rl.hyperparams import ALGOS, resolve_hyperparams
 if TYPE_CHECKING:
     from observer_gym.train.experiments.systems import SystemEntry
 from observer_gym.train.rl.run_dir import (
-    CONFIG_FILE,
-    SEEDS_FILE,
+    check_new_run_folder,
+    check_new_seeds_folder,
     model_files,
     parse_agent_spec,
     read_config,
-    seed_run_dirs,
 )
 
 # a trained agent, wherever a controller is taken: "ppo:DIR, sac:DIR, td3:DIR"
@@ -257,8 +256,7 @@ def check_training_request(
     env_kwargs = {**params["env_kwargs"], **dict(env_options)}
     obs_mode = observer_mode(env_id, agent_observer(env_id, obs, estimate_from, observer))
     check_env_options(env_id, obs_mode, env_kwargs, decided_by="--obs")
-    if (Path(out_dir) / CONFIG_FILE).exists():
-        raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")
+    check_new_run_folder(out_dir)
     if tensorboard and importlib.util.find_spec("tensorboard") is None:
         raise ValueError(
             "--tensorboard needs the tensorboard package: pip install 'observer-gym[tensorboard]'"
@@ -304,11 +302,6 @@ def check_backend(backend: str, workers: int | None, address: str | None) -> Non
 
 
 def check_seeds_folder(out_dir: str | Path) -> None:
-    """ValueError if ``out_dir`` already holds a run, single or multi-seed."""
-    out_dir = Path(out_dir)
-    if (out_dir / CONFIG_FILE).exists():
-        raise ValueError(f"{out_dir} already holds a training run; continue it with --resume")
-    if (out_dir / SEEDS_FILE).exists() or seed_run_dirs(out_dir):
-        raise ValueError(
-            f"{out_dir} already holds a multi-seed training run; continue it with --resume"
-        )
+    """ValueError if ``out_dir`` already holds a run, single or multi-seed
+    (:func:`~observer_gym.train.rl.run_dir.check_new_seeds_folder`)."""
+    check_new_seeds_folder(out_dir)

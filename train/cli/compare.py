@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.compare import check_comparison
-    from observer_gym.train.reports.outputs import check_folder_kind
+    from observer_gym.train.reports.outputs import OutputFolderError, check_folder_kind
 
     options = {
         "env_id": args.env,
@@ -219,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             cli_args=recorded_args(args),
         )
+    except OutputFolderError as exc:  # another command wrote the folder since the check
+        return _error(str(exc))
     except ValueError as exc:  # an episode failed, or results cannot be written: nothing written
         print(error_line("observer-gym compare", exc), file=sys.stderr)
         return 1

@@ -96,7 +96,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=folder_path,
         required=True,
         metavar="DIR",
-        help="output folder; run again with the same arguments to resume it",
+        help=(
+            "output folder; run again with the same arguments to resume it (its finished "
+            "cells are checked and reused). One command at a time: while a sweep runs, "
+            "another command into DIR is refused (exit code 75)"
+        ),
     )
     parser.add_argument(
         "--workers",
@@ -143,9 +147,11 @@ def _error(message: object) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sweep of ``args``; 0 on success, 2 (with a one-line message on stderr) for
-    an input rejected before anything runs, 1 for cells that cannot be summarised (no
-    output written), 130 for Ctrl-C or SIGTERM (the cells written are kept, each whole).
-    The progress bar shows only on a terminal."""
+    an input rejected before anything runs (an ``--out`` holding another sweep included,
+    also when that sweep wrote it after the first check), 75 for an ``--out`` another
+    command holds (:mod:`observer_gym.train.reports.folder_lock`; nothing written), 1 for
+    cells that cannot be summarised (no output written), 130 for Ctrl-C or SIGTERM (the
+    cells written are kept, each whole). The progress bar shows only on a terminal."""
     from observer_gym.train.cli.checks import observer_mode
     from observer_gym.train.experiments.sweep_grid import check_grid
 
@@ -160,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     # deferred: PyBullet's worlds, the controllers, SciPy, matplotlib
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.sweep_plan import check_sweep
+    from observer_gym.train.reports.outputs import OutputFolderError
 
     options = {
         "env_id": args.env,
@@ -200,6 +207,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return INTERRUPTED_EXIT_CODE
+    except OutputFolderError as exc:  # another sweep wrote the folder since it was checked
+        return _error(exc)
     except ValueError as exc:  # a failed episode, or cells that cannot be summarised
         print(error_line("observer-gym sweep", exc), file=sys.stderr)
         return 1
@@ -215,7 +224,10 @@ COMMAND = Command(
         "combination) on the same seeds: episode i of every cell resets with seed S + i. "
         "Locally in worker processes (--workers) or as Ray tasks (--backend ray). Each "
         "finished cell is saved under DIR/cells/ at once; running the same command again "
-        "skips the finished cells (another command into the same --out is refused). Writes "
+        "skips the finished cells (each checked against the plan: its grid point, seeds "
+        "and the sha256 of its episode records; one that does not match runs again, with "
+        "a warning). Another command into the same --out is refused: with other "
+        "arguments (exit code 2), or while a command runs there (exit code 75). Writes "
         "results.json, episodes.csv (one row per episode), table.md (per cell: the env's "
         "primary metric and a second one with 95 % intervals, and the paired difference "
         "from the first grid point) and <key>.png per varied key into --out, and prints "

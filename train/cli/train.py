@@ -163,7 +163,8 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
             "continue the run in DIR from its last checkpoint, with its own settings "
             "(takes only --timesteps; then --algo and --obs are not needed); for a "
             "multi-seed run, every unfinished seed (also takes --workers, --backend, "
-            "--address)"
+            "--address). One command at a time: while a run trains in DIR, another "
+            "--resume of it is refused (exit code 75)"
         ),
     )
     add_output_arguments(parser, "train")
@@ -240,10 +241,14 @@ def _train_run(args: argparse.Namespace) -> int:
         _check_train_options(args, options)
     except ValueError as exc:
         return command_error("train", exc)
+    from observer_gym.train.reports.outputs import OutputFolderError
     from observer_gym.train.rl.training import train_agent, training_text
 
     cli_args = recorded_args(args)
-    state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
+    try:
+        state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
+    except OutputFolderError as exc:  # another train wrote a run there since the check
+        return command_error("train", exc)
     print(training_text(run_dir, state))
     return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
 
@@ -342,7 +347,10 @@ COMMAND = Command(
         "(observer_gym/train/rl/hyperparams/ALGO.yml), overridable with --hyperparam. Writes "
         "config.json, periodic checkpoints, eval.csv and curve.png (the evaluation "
         "curve), logs/ and, when finished, model.zip and vecnormalize.pkl. Ctrl-C or kill "
-        "leaves the last checkpoint intact; --resume DIR continues from it. --seeds 0,1,2 "
+        "leaves the last checkpoint intact; --resume DIR continues from it. A run holds "
+        "its folder's lock while it trains (released when it ends, killed or not): "
+        "another train or --resume into the same folder is refused with one line and "
+        "exit code 75. --seeds 0,1,2 "
         "trains one agent per seed into OUT/seed_<s>/ (in parallel processes, or Ray "
         "tasks with --backend ray) and writes their aggregate into OUT: "
         "learning_curves.png, aggregate.json and aggregate.md (final evaluation return: "

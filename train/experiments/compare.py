@@ -285,8 +285,9 @@ def run_comparison(
     Episode i of every pair resets with ``seeds[i]``. Every input is checked first
     (:func:`check_comparison`); then all episodes run in one batch.
 
-    Writes into ``out_dir`` (created; removed again if the comparison fails before
-    writing anything: :func:`~observer_gym.train.reports.outputs.output_folder`): ``table.md``
+    Writes into ``out_dir`` (created and locked, one command at a time; removed again if the
+    comparison fails before writing anything:
+    :func:`~observer_gym.train.reports.outputs.output_folder`): ``table.md``
     (one row per pair: mean ± 95 % half-width of each of the task's
     ``COMPARE_METRICS``, rates with their Wilson interval, and, with "oracle" among the
     observers, the paired difference of the primary metric observer − oracle),
@@ -330,8 +331,10 @@ def run_comparison(
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "compare")
-
-    with output_folder(out_dir, "compare"):
+    # and again once the folder is this comparison's alone
+    with output_folder(
+        out_dir, "compare", check=lambda folder: check_folder_kind(folder, "compare")
+    ):
         runs = run_pairs(request, progress)
         observed = {entry.name: entry.record() for entry in request.observers}
         analysis = analyse_pairs(

@@ -58,10 +58,11 @@ def run_experiment(
     ``workers`` > 1 the episodes run in that many spawned processes, with results
     identical to ``workers=1``.
 
-    Writes into ``out_dir`` (created; see :func:`~observer_gym.train.reports.outputs.output_folder`
-    for what is removed and reported there before, and the folder removed again if the
-    run fails before writing anything) the task's plots (BallTable: ``path.png``,
-    ``error.png``, ``estimate.png`` for the observers) and, last, ``results.json``:
+    Writes into ``out_dir`` (created and locked, one command at a time; see
+    :func:`~observer_gym.train.reports.outputs.output_folder` for what is removed and
+    reported there before, and the folder removed again if the run fails before writing
+    anything) the task's plots (BallTable: ``path.png``, ``error.png``, ``estimate.png`` for
+    the observers) and, last, ``results.json``:
     ``config``, ``seed``, ``versions``, ``episodes`` (per-episode metrics of the task's
     ``episode_metrics``), ``summary``, ``files``; as a set
     (:func:`~observer_gym.train.reports.outputs.output_set`): all of them or, if one fails, none.
@@ -112,7 +113,8 @@ def run_experiment(
     )  # fmt: skip
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "run")
-    with output_folder(out_dir, "run"):
+    # and again once the folder is this run's alone (another command may have written it)
+    with output_folder(out_dir, "run", check=lambda folder: check_folder_kind(folder, "run")):
         return _run_into(
             out_dir, request, reset_options, cli_args, progress,
         )  # fmt: skip

@@ -13,13 +13,19 @@ with
 the task's metrics (:func:`~observer_gym.train.reports.compare_stats.episode_values`) and
 summarised with compare's intervals and paired differences.
 
-Resuming: ``sweep.json`` in the output folder records the arguments that decide the
-numbers; each finished cell is written at once, atomically, to ``cells/<id>.json``. A run
-into a folder with the same ``sweep.json`` skips the cells found there; a run with other
-arguments is refused before anything is written. The outputs are assembled from the cell
-files alone (:func:`assemble_results`, then :mod:`observer_gym.train.reports.sweep_report`), so a
-resumed sweep writes the bytes of an uninterrupted one; wall-clock times go to
-``timing.json`` only.
+Resuming: ``sweep.json`` in the output folder records the arguments that decide the numbers;
+each finished cell is written at once, atomically, to ``cells/<id>.json``
+(:mod:`observer_gym.train.experiments.sweep_cells`). A run into a folder with the same
+``sweep.json`` skips the cells found there that are the plan's cells as written (their grid
+point, observer, controller, seeds, the sha256 of their records and their summary checked;
+any other runs again, with a :class:`SweepWarning`); a run with other arguments is refused
+before anything is written. A sweep holds its folder's lock while it runs
+(:func:`~observer_gym.train.reports.outputs.output_folder`): a second command into it is
+refused (:class:`~observer_gym.train.reports.folder_lock.FolderBusyError`), and the folder's
+arguments are checked again under the lock before ``sweep.json`` is written. The outputs are
+assembled from the cell files alone (:func:`assemble_results`, then
+:mod:`observer_gym.train.reports.sweep_report`), so a resumed sweep writes the bytes of an
+uninterrupted one; wall-clock times go to ``timing.json`` only.
 """
 
 from __future__ import annotations
@@ -37,12 +43,14 @@ from typing import Any
 from tqdm import tqdm
 
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
+from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
 from observer_gym.train.experiments.sweep_grid import VaryInput, world_draw_notes
 from observer_gym.train.experiments.sweep_plan import (
     ARGUMENTS_FILE,
     CELLS_DIR,
     Cell,
     SweepPlan,
+    check_out_dir,
     check_sweep,
 )
 from observer_gym.train.experiments.tasks import task_for
@@ -56,7 +64,6 @@ from observer_gym.train.reports.compare_stats import (
 from observer_gym.train.reports.consistency import nees_flag
 from observer_gym.train.reports.outputs import (
     VERSIONED_PACKAGES,
-    OneLineWarning,
     output_folder,
     package_versions,
     to_jsonable,
@@ -65,11 +72,6 @@ from observer_gym.train.reports.outputs import (
 from observer_gym.train.reports.sweep_report import write_outputs
 
 TIMING_FILE = "timing.json"
-CELL_FORMAT = 1
-
-
-class SweepWarning(OneLineWarning):
-    """Something about a sweep's pairing or its output folder worth knowing."""
 
 
 @dataclass(frozen=True)
@@ -100,54 +102,6 @@ def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
         "controller": to_jsonable(record["controller"]),
         "time_s": time.perf_counter() - tic_s,
     }
-
-
-def _cell_file(plan: SweepPlan, cell: Cell, episodes: Sequence[Mapping[str, Any]]) -> dict:
-    """What ``cells/<id>.json`` holds for a finished cell."""
-    return {
-        "format": CELL_FORMAT,
-        "sweep": plan.digest(),
-        "id": cell.id,
-        "point": dict(cell.point),
-        "observer": cell.observer,
-        "controller": cell.controller,
-        "controller_config": episodes[0]["controller"],
-        "episodes": [
-            {"episode": i, "seed": seed, **episode["metrics"]}
-            for i, (seed, episode) in enumerate(zip(plan.seeds, episodes, strict=True))
-        ],
-        "starts": [episode["start"] for episode in episodes],
-        "timing": {"episode_s": [episode["time_s"] for episode in episodes]},
-    }
-
-
-def finished_cells(out_dir: Path, plan: SweepPlan) -> dict[str, dict]:
-    """The plan's cells already in ``out_dir/cells`` (by id), written for these arguments
-    with all their episodes; a cell file that is unreadable or from other arguments is
-    left out with a :class:`SweepWarning` (the cell runs again)."""
-    found = {}
-    for cell in plan.cells:
-        path = out_dir / CELLS_DIR / f"{cell.id}.json"
-        if not path.exists():
-            continue
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            ok = (
-                data["format"] == CELL_FORMAT
-                and data["sweep"] == plan.digest()
-                and len(data["episodes"]) == len(plan.seeds)
-            )
-        except (OSError, ValueError, KeyError, TypeError):
-            ok = False
-        if not ok:
-            warnings.warn(
-                f"{path} is not a finished cell of this sweep; it runs again",
-                SweepWarning,
-                stacklevel=3,
-            )
-            continue
-        found[cell.id] = data
-    return found
 
 
 # --- running -------------------------------------------------------------------------------
@@ -190,7 +144,7 @@ def run_cells(
             missing[k] -= 1
             if missing[k] == 0:
                 # as read back from the file: the outputs are the same from either
-                data = json.loads(json.dumps(_cell_file(plan, cells[k], results[k])))
+                data = cell_file(plan, cells[k], results[k])
                 write_json_atomic(out_dir / CELLS_DIR / f"{cells[k].id}.json", data)
                 written[cells[k].id] = data
                 bar.set_postfix_str(f"cells {len(written)}/{len(cells)}")
@@ -328,10 +282,12 @@ def run_sweep(
     resuming from the cells ``out_dir`` already holds; write its outputs.
 
     Every input is checked first (:func:`check_sweep`; nothing is written for a bad one).
-    Then, in ``out_dir``: ``sweep.json`` (the arguments, written once), ``cells/<id>.json``
-    for each cell as it finishes (the cells found there from an earlier run with the same
-    arguments are not run again), and from the cell files ``table.md``, ``episodes.csv``,
-    ``<key>.png`` per varied key and, last and atomically, ``results.json``
+    Then, holding ``out_dir``'s lock, in ``out_dir``: ``sweep.json`` (the arguments,
+    written once), ``cells/<id>.json`` for each cell as it finishes (the cells found there
+    from an earlier run with the same arguments are not run again if each is the plan's
+    cell as written: :func:`~observer_gym.train.experiments.sweep_cells.finished_cells`),
+    and from the cell files ``table.md``, ``episodes.csv``, ``<key>.png`` per varied key
+    and, last and atomically, ``results.json``
     (:func:`assemble_results`; the same bytes whether or not the sweep was resumed);
     ``timing.json`` gets this call's wall-clock times, the episodes' times, the backend
     and ``cli_args``.
@@ -361,8 +317,12 @@ def run_sweep(
 
     Raises:
         ValueError: a bad input, or an ``out_dir`` holding another sweep
-            (:func:`check_out_dir`), before anything runs; cells that cannot be summarised
-            (a value that is not a finite number), before any output is written.
+            (:func:`check_out_dir`: an
+            :class:`~observer_gym.train.reports.outputs.OutputFolderError`), before
+            anything runs; cells that cannot be summarised (a value that is not a finite
+            number), before any output is written.
+        FolderBusyError: another command holds ``out_dir``
+            (:mod:`observer_gym.train.reports.folder_lock`); nothing was written.
         WriteError: an output could not be written (the earlier outputs are kept).
         KeyboardInterrupt: Ctrl-C; the cells written stay, each whole.
     """
@@ -376,7 +336,9 @@ def run_sweep(
     out_dir = Path(out_dir)
     versions = _versions(plan)
     checked_s = time.perf_counter()
-    with output_folder(out_dir, "sweep"):
+    # the folder checked again once it is this sweep's alone: another sweep may have
+    # written its sweep.json since check_sweep read the folder
+    with output_folder(out_dir, "sweep", check=lambda folder: check_out_dir(folder, plan)):
         arguments_path = out_dir / ARGUMENTS_FILE
         if arguments_path.exists():
             stored = json.loads(arguments_path.read_text(encoding="utf-8")).get("versions")

@@ -26,7 +26,7 @@ from observer_gym.train.experiments.request import Request, resolve_request
 from observer_gym.train.experiments.sweep_grid import Grid, VaryInput, check_grid, value_text
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import compare_metrics
-from observer_gym.train.reports.outputs import to_jsonable
+from observer_gym.train.reports.outputs import OutputFolderError, to_jsonable
 from observer_gym.train.reports.sweep_report import ROW_COLUMNS
 
 # The output folder: the arguments (written once), a file per finished cell.
@@ -271,9 +271,12 @@ def _shown(value: Any) -> str:
 
 
 def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
-    """ValueError unless ``out_dir`` is new, or holds a sweep with the plan's arguments
-    (``sweep.json``; the message names every argument that differs), or holds neither
-    a ``results.json`` nor ``cells/`` of something else."""
+    """:class:`~observer_gym.train.reports.outputs.OutputFolderError` (a ValueError)
+    unless ``out_dir`` is new, or holds a sweep with the plan's arguments (``sweep.json``;
+    the message names every argument that differs), or holds neither a ``results.json``
+    nor ``cells/`` of something else. :func:`check_sweep` runs it before anything runs,
+    and :func:`~observer_gym.train.experiments.sweep.run_sweep` again once it holds the
+    folder's lock, before it writes there."""
     out_dir = Path(out_dir)
     path = out_dir / ARGUMENTS_FILE
     if path.exists():
@@ -282,7 +285,7 @@ def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
             if not isinstance(stored, dict):
                 raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
-            raise ValueError(
+            raise OutputFolderError(
                 f"{path} is not readable as a sweep's arguments; use another output folder"
             ) from None
         here = plan.arguments()
@@ -291,12 +294,12 @@ def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
             shown = "; ".join(
                 f"{k} {_shown(stored.get(k))} there, {_shown(here.get(k))} here" for k in differs
             )
-            raise ValueError(
+            raise OutputFolderError(
                 f"{out_dir} holds a sweep with other arguments ({shown}); run with the same "
                 "arguments to resume it, or use another output folder"
             )
     elif (out_dir / "results.json").exists() or (out_dir / CELLS_DIR).exists():
-        raise ValueError(
+        raise OutputFolderError(
             f"{out_dir} holds results but no {ARGUMENTS_FILE}: not a sweep's folder; use "
             "another output folder"
         )

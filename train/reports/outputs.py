@@ -11,6 +11,13 @@ when a command starts writing into a folder, removes the temps there whose write
 is gone and reports any earlier run into the folder that never finished (its marker file
 remains), with an :class:`OutputFolderWarning` each.
 
+One command at a time: :func:`output_folder` first takes the folder's lock
+(:func:`~observer_gym.train.reports.folder_lock.folder_lock`; a second command into the
+folder gets :class:`~observer_gym.train.reports.folder_lock.FolderBusyError`), then runs
+the command's check of what the folder holds (``check``: :func:`check_folder_kind`, a
+sweep's arguments, no training run yet), so a check and the writes it allows are never
+separated by another command's writes.
+
 Whether a writer is gone (:func:`writer_alive`): each writer records its PID, its host
 name and, on Linux, its process start time (:func:`writer_identity`). On the same host it
 is alive while a process with that PID exists, is not a zombie and (when both are known)
@@ -37,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.signals import signals_deferred
 
 # The distributions that decide what an experiment computes.
@@ -122,6 +130,12 @@ def json_text(data: Any) -> str:
 class OneLineWarning(UserWarning):
     """A warning the ``observer-gym`` command shows as one line,
     ``observer-gym COMMAND: warning: ...`` (without Python's file and line)."""
+
+
+class OutputFolderError(ValueError):
+    """An output folder that cannot take a command's results: another command's, another
+    sweep's, a training run already there. The command line says so in one line, exit
+    code 2."""
 
 
 class OutputFolderWarning(OneLineWarning):
@@ -302,62 +316,79 @@ def folder_kind(path: str | os.PathLike) -> str | None:
 
 
 def check_folder_kind(path: str | os.PathLike, command: str) -> None:
-    """ValueError, one line, if ``path`` holds another command's results than
-    ``command``'s ("run" and "evaluate" write the same kind): writing there would mix
-    the two or overwrite the other's."""
+    """:class:`OutputFolderError` (a ValueError), one line, if ``path`` holds another
+    command's results than ``command``'s ("run" and "evaluate" write the same kind):
+    writing there would mix the two or overwrite the other's."""
     kind = folder_kind(path)
     same = {"run": "run", "evaluate": "run"}.get(command, command)
     if kind is not None and kind != same:
         other = (
             "an unreadable results.json" if kind == "unknown" else f"'observer-gym {kind}' results"
         )
-        raise ValueError(f"{path} holds {other}; use another output folder")
+        raise OutputFolderError(f"{path} holds {other}; use another output folder")
 
 
 @contextmanager
 def output_folder(
-    path: str | os.PathLike, command: str, marker: bool = True, all_temps: bool = False
+    path: str | os.PathLike,
+    command: str,
+    marker: bool = True,
+    all_temps: bool = False,
+    check: Callable[[Path], None] | None = None,
 ) -> Iterator[Path]:
-    """The folder a command writes into, for the ``with`` block's duration.
+    """The folder a command writes into, for the ``with`` block's duration, held by this
+    process alone.
 
-    Creates ``path`` (and missing parents), reports earlier runs into it that were killed
-    (their marker remains) and removes stale temps (:func:`remove_stale_temps`, with
-    ``all_temps``), each with an :class:`OutputFolderWarning`. With ``marker``, keeps
-    ``.observer-gym-running-<PID>.json`` (:func:`writer_identity`, ``command``, the start
-    time) in it until the block ends, however it ends. If the block raises (an error,
-    Ctrl-C), the empty subfolders made in it during the block (a run's ``frames/``) and
-    then the folders this created are removed while empty, so a run that fails before
-    writing anything leaves no folder behind; a folder that was there stays.
+    Creates ``path`` (and missing parents) and takes its lock
+    (:func:`~observer_gym.train.reports.folder_lock.folder_lock`, ``command`` recorded in
+    it; :class:`~observer_gym.train.reports.folder_lock.FolderBusyError` if another
+    process holds it), held until the block ends, however it ends. Then, before anything
+    is written, ``check(path)`` if given (it raises to refuse the folder: what it holds
+    cannot change until the lock is released); reports earlier runs into it that were
+    killed (their marker remains) and removes stale temps (:func:`remove_stale_temps`,
+    with ``all_temps``), each with an :class:`OutputFolderWarning`. With ``marker``,
+    keeps ``.observer-gym-running-<PID>.json`` (:func:`writer_identity`, ``command``, the
+    start time) in it until the block ends, however it ends. If the lock, the check or
+    the block raises (an error, Ctrl-C), the empty subfolders made in the block (a run's
+    ``frames/``) and then the folders this created are removed while empty, so a run
+    that fails before writing anything leaves no folder behind; a folder that was there
+    stays.
     """
     path = Path(path)
     created = make_dirs(path)
-    existing = {p for p in path.rglob("*") if p.is_dir()}
-    _report_killed_runs(path)
-    remove_stale_temps(path, all_temps)
-    marker_path = path / f".observer-gym-running-{os.getpid()}.json"
-    if marker:
-        record = {
-            **writer_identity(),
-            "command": command,
-            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
-        }
-        write_json_atomic(marker_path, record)
     try:
-        yield path
+        with folder_lock(path, command):
+            if check is not None:
+                check(path)
+            existing = {p for p in path.rglob("*") if p.is_dir()}
+            _report_killed_runs(path)
+            remove_stale_temps(path, all_temps)
+            marker_path = path / f".observer-gym-running-{os.getpid()}.json"
+            if marker:
+                record = {
+                    **writer_identity(),
+                    "command": command,
+                    "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+                }
+                write_json_atomic(marker_path, record)
+            try:
+                yield path
+            except BaseException:
+                if marker:
+                    marker_path.unlink(missing_ok=True)
+                for parent, folders, _ in os.walk(path, topdown=False):
+                    for folder in (Path(parent) / name for name in folders):
+                        if folder not in existing:
+                            try:
+                                folder.rmdir()
+                            except OSError:  # not empty: something was written there
+                                pass
+                raise
+            if marker:
+                marker_path.unlink(missing_ok=True)
     except BaseException:
-        if marker:
-            marker_path.unlink(missing_ok=True)
-        for parent, folders, _ in os.walk(path, topdown=False):
-            for folder in (Path(parent) / name for name in folders):
-                if folder not in existing:
-                    try:
-                        folder.rmdir()
-                    except OSError:  # not empty: something was written there
-                        pass
         remove_if_empty(created)
         raise
-    if marker:
-        marker_path.unlink(missing_ok=True)
 
 
 class WriteError(OSError):

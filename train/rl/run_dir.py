@@ -18,7 +18,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic, writer_alive
+from observer_gym.train.reports.outputs import (
+    OutputFolderError,
+    to_jsonable,
+    write_json_atomic,
+    writer_alive,
+)
 from observer_gym.train.rl.hyperparams import ALGOS
 from observer_gym.train.rl.shipped import shipped_path
 
@@ -73,6 +78,27 @@ def expand_agent(name: str) -> list[str]:
     if spec is None or not is_multi_seed(spec[1]):
         return [name]
     return [f"{spec[0]}:{path}" for path in seed_run_dirs(spec[1]).values()]
+
+
+def check_new_run_folder(run_dir: str | Path) -> None:
+    """:class:`~observer_gym.train.reports.outputs.OutputFolderError` (a ValueError) if
+    ``run_dir`` already holds a training run (its config.json). ``train`` checks it before
+    anything runs and again once it holds the folder's lock, before it writes there."""
+    if (Path(run_dir) / CONFIG_FILE).exists():
+        raise OutputFolderError(
+            f"{run_dir} already holds a training run; continue it with --resume"
+        )
+
+
+def check_new_seeds_folder(out_dir: str | Path) -> None:
+    """:class:`~observer_gym.train.reports.outputs.OutputFolderError` (a ValueError) if
+    ``out_dir`` already holds a run, single or multi-seed (``train --seeds`` checks it
+    before anything runs and again under the folder's lock)."""
+    check_new_run_folder(out_dir)
+    if (Path(out_dir) / SEEDS_FILE).exists() or seed_run_dirs(out_dir):
+        raise OutputFolderError(
+            f"{out_dir} already holds a multi-seed training run; continue it with --resume"
+        )
 
 
 def config_sha256(config: Mapping[str, Any]) -> str:

@@ -47,6 +47,7 @@ from observer_gym.train.reports.aggregate import (
     check_rliable,
     statistics_text,
 )
+from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.outputs import (
     OutputFolderWarning,
     output_folder,
@@ -57,6 +58,7 @@ from observer_gym.train.reports.outputs import (
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
     SEEDS_FILE,
+    check_new_seeds_folder,
     latest_checkpoint,
     read_config,
     read_state,
@@ -170,8 +172,15 @@ def train_seeds(
         options: the other keywords of ``train_agent`` (timesteps, estimate_from,
             observer, n_envs, vec_env, hyperparams, env_kwargs, tensorboard).
 
+    Holds ``out_dir``'s lock (:mod:`observer_gym.train.reports.folder_lock`) from before
+    it writes seeds.json until the aggregate is written; each seed's training holds its
+    own folder's.
+
     Raises:
-        ValueError: a bad argument or hyperparameter, before anything is written.
+        ValueError: a bad argument or hyperparameter, or a run already in ``out_dir``
+            (also one written there by another command since the first check), before
+            anything is written.
+        FolderBusyError: another command holds ``out_dir``; nothing was written.
         ImportError: rliable, which the aggregate needs, is not installed (checked first).
         RuntimeError: a seed's training raised (the others run to their end first).
     """
@@ -196,11 +205,13 @@ def train_seeds(
         target_timesteps=int(first["hyperparams"]["n_timesteps"]),
         cli_args=cli_args,
     )
-    with output_folder(out_dir, "train", marker=False):
+    # the folder is this run's alone from before seeds.json is written until the aggregate
+    # is; whether it holds a run is checked again under the lock
+    with output_folder(out_dir, "train", marker=False, check=check_new_seeds_folder):
         write_json_atomic(out_dir / SEEDS_FILE, record.as_dict())
-    for seed, config in configs.items():
-        write_run_config(seed_dir(out_dir, seed), config)
-    return _train(out_dir, seeds, None, workers, backend, address, progress, reps)
+        for seed, config in configs.items():
+            write_run_config(seed_dir(out_dir, seed), config)
+        return _train(out_dir, seeds, None, workers, backend, address, progress, reps)
 
 
 def resume_seeds(
@@ -218,8 +229,12 @@ def resume_seeds(
     aggregate. A seed found killed is reported with an
     :class:`~observer_gym.train.reports.outputs.OutputFolderWarning`.
 
+    Holds ``out_dir``'s lock (:mod:`observer_gym.train.reports.folder_lock`) while it
+    checks, trains and aggregates; each seed's training holds its own folder's.
+
     Raises:
         ValueError: no multi-seed run there, a seed still running, or a bad argument.
+        FolderBusyError: another command holds ``out_dir`` or a seed's folder.
         ImportError: rliable is not installed.
     """
     check_rliable()
@@ -227,6 +242,21 @@ def resume_seeds(
     if timesteps is not None and (int(timesteps) != timesteps or timesteps < 1):
         raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
     out_dir = Path(out_dir)
+    SeedsConfig.read(out_dir)  # no multi-seed run there: said before the lock
+    with folder_lock(out_dir, "train --resume"):
+        return _resume(out_dir, timesteps, workers, backend, address, progress, reps)
+
+
+def _resume(
+    out_dir: Path,
+    timesteps: int | None,
+    workers: int | None,
+    backend: str,
+    address: str | None,
+    progress: bool,
+    reps: int | None,
+) -> SeedsResult:
+    """:func:`resume_seeds`'s work, under the folder's lock."""
     record = SeedsConfig.read(out_dir)
     todo = []
     for seed in record.seeds:

@@ -32,6 +32,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.outputs import (
     OneLineWarning,
     OutputFolderWarning,
@@ -46,6 +47,7 @@ from observer_gym.train.rl.run_dir import (
     CHECKPOINTS,
     LATEST,
     STATE_FILE,
+    check_new_run_folder,
     check_resumable,
     intact_checkpoint,
     killed_text,
@@ -97,8 +99,15 @@ def train_agent(
         progress: show SB3's progress bar.
         cli_args: the command line, recorded in config.json.
 
+    The run holds ``out_dir``'s lock (:mod:`observer_gym.train.reports.folder_lock`) from
+    before it writes config.json until it ends, however it ends.
+
     Raises:
-        ValueError: any bad argument or hyperparameter, before anything is written.
+        ValueError: any bad argument or hyperparameter, or a run already in ``out_dir``
+            (also one written there by another command since the first check: an
+            :class:`~observer_gym.train.reports.outputs.OutputFolderError`), before anything
+            is written.
+        FolderBusyError: another command holds ``out_dir``; nothing was written.
     """
     config = run_config(
         env_id,
@@ -117,8 +126,11 @@ def train_agent(
         cli_args=cli_args,
     )
     out_dir = Path(out_dir)
-    write_run_config(out_dir, config)
-    return learn(out_dir, config, progress=progress)
+    # the folder is this run's alone from before config.json is written until training
+    # ends; whether it holds a run is checked again under the lock
+    with output_folder(out_dir, "train", marker=False, check=check_new_run_folder):
+        write_config(out_dir, config)
+        return learn(out_dir, config, progress=progress)
 
 
 def run_config(
@@ -195,8 +207,9 @@ def run_config(
 def write_run_config(run_dir: Path, config: Mapping[str, Any]) -> None:
     """Create ``run_dir`` (removing stale temps there) and write ``config`` as its
     config.json, atomically, with its sha256 (:func:`~observer_gym.train.rl.run_dir.
-    write_config`)."""
-    with output_folder(run_dir, "train", marker=False):
+    write_config`), holding the folder's lock; :class:`~observer_gym.train.reports.
+    outputs.OutputFolderError` if it holds a run already."""
+    with output_folder(run_dir, "train", marker=False, check=check_new_run_folder):
         write_config(run_dir, config)
 
 
@@ -299,12 +312,24 @@ def resume_training(
     (:func:`~observer_gym.train.rl.run_dir.intact_checkpoint`); each newer one passed over
     (a file missing or damaged) is reported with a :class:`CheckpointWarning`.
 
+    The resumed run holds ``run_dir``'s lock (:mod:`observer_gym.train.reports.folder_lock`)
+    from before it checks the folder until it ends, however it ends.
+
     Raises:
         ValueError: no run or no intact checkpoint there, a config.json changed since the
             run wrote it, a run still writing there, a bad ``timesteps``, or a checkpoint
             that cannot be loaded.
+        FolderBusyError: another command holds ``run_dir`` (another ``--resume`` of it, a
+            ``train --seeds`` training it); nothing was written.
     """
     run_dir = Path(run_dir)
+    read_config(run_dir)  # no run there: said before the lock, which needs the folder
+    with folder_lock(run_dir, "train --resume"):
+        return _resume(run_dir, timesteps, progress)
+
+
+def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, Any]:
+    """:func:`resume_training`'s work, under the folder's lock."""
     state = check_resumable(run_dir)
     config = read_config(run_dir)
     checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
@@ -339,16 +364,26 @@ def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str,
     finished run is left as it is. Returns the final ``state.json``; the one function a
     worker process or a Ray task of ``train --seeds`` runs.
 
+    Holds ``run_dir``'s lock while it checks and trains.
+
     Raises:
         ValueError: no run in ``run_dir``, one still writing there, or a bad ``timesteps``.
+        FolderBusyError: another command holds ``run_dir``; nothing was written.
     """
     run_dir = Path(run_dir)
+    read_config(run_dir)  # no run there: said before the lock, which needs the folder
+    with folder_lock(run_dir, "train --seeds"):
+        return _continue(run_dir, timesteps)
+
+
+def _continue(run_dir: Path, timesteps: int | None) -> dict[str, Any]:
+    """:func:`continue_run`'s work, under the folder's lock."""
     config = read_config(run_dir)
     state = read_state(run_dir)
     if state is not None and state["status"] == "finished" and timesteps is None:
         return state
     if (run_dir / CHECKPOINTS / LATEST).exists():  # resumed from its newest intact one
-        return resume_training(run_dir, timesteps, progress=False)
+        return _resume(run_dir, timesteps, progress=False)
     if state is not None and state["status"] == "running":
         raise ValueError(f"the training run in {run_dir} is still running; stop it first")
     left = [run_dir / name for name in ("eval.csv", "curve.png", STATE_FILE, "monitor", "logs")]
