@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 import toy_system
 from observer_gym.envs import SYSTEMS
