@@ -100,6 +100,12 @@ def learn(
         save_checkpoint,
     )
     from observer_gym.train.rl.hyperparams import algorithm_class, build_algo_kwargs, split
+    from observer_gym.train.rl.normalizer_file import (
+        build_vec_normalize,
+        read_stats,
+        record_final_files,
+        save_normalizer,
+    )
 
     training, algo_kwargs = split(config["hyperparams"])
     cls = algorithm_class(config["algo"])
@@ -120,11 +126,11 @@ def learn(
         if normalize:
             options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
             if checkpoint:
+                stats = read_stats(checkpoint["vecnormalize"])  # plain arrays, no pickle
                 try:
-                    venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
-                except Exception as exc:  # a damaged set saved before hashes were recorded
+                    venv = build_vec_normalize(stats, venv, training=True)
+                except ValueError as exc:  # statistics of another observation
                     raise _unloadable(run_dir, start_steps, exc) from exc
-                venv.training = True
             else:
                 venv = VecNormalize(venv, **options)
             eval_env = VecNormalize(
@@ -185,8 +191,9 @@ def learn(
             if status == "finished":
                 save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
                 if normalize:
-                    replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+                    save_normalizer(venv, run_dir / FINAL_VECNORMALIZE)
                 replace_atomically(run_dir / FINAL_MODEL, model.save)
+                record_final_files(run_dir)  # final.json: their sha256, checked on load
             latest = latest_checkpoint(run_dir / "checkpoints")
             state = {
                 "status": status,
