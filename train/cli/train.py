@@ -243,7 +243,10 @@ def _train_run(args: argparse.Namespace) -> int:
     from observer_gym.train.rl.training import train_agent, training_text
 
     cli_args = recorded_args(args)
-    state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
+    try:
+        state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
+    except ValueError as exc:  # the algorithm refused its hyperparameters, before training
+        return command_error("train", exc)
     print(training_text(run_dir, state))
     return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
 

@@ -80,6 +80,14 @@ def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
     )
 
 
+def _refused(name: str, run_dir: Path, exc: Exception) -> ValueError:
+    reason = " ".join(str(exc).split()) or type(exc).__name__
+    return ValueError(
+        f"{name} refuses the hyperparameters: {reason}; nothing was trained ({run_dir} holds "
+        "only its config.json: remove it before training there again)"
+    )
+
+
 def learn(
     run_dir: Path,
     config: dict[str, Any],
@@ -146,7 +154,10 @@ def learn(
         else:
             policy = training["policy"] or default_policy(venv.observation_space)
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
-            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+            try:
+                model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+            except (AssertionError, ValueError, TypeError) as exc:  # past the up-front checks
+                raise _refused(cls.__name__, run_dir, exc) from exc
         segment = f"resume-{start_steps}" if resume else "start"
         formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])
         model.set_logger(configure(str(run_dir / "logs" / segment), formats))
