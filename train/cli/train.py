@@ -163,7 +163,10 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
             "continue the run in DIR from its last checkpoint, with its own settings "
             "(takes only --timesteps; then --algo and --obs are not needed); for a "
             "multi-seed run, every unfinished seed (also takes --workers, --backend, "
-            "--address)"
+            "--address). The checkpoint's model (a stable-baselines3 zip) and, for SAC and "
+            "TD3, its replay buffer are pickles, loaded after their sha256 is checked: "
+            "resume only runs from a source you trust; VecNormalize statistics are read as "
+            "plain arrays"
         ),
     )
     add_output_arguments(parser, "train")
