@@ -183,6 +183,22 @@ def test_a_crafted_npz_is_refused_and_runs_nothing(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.parametrize(
+    "content",
+    [b"", b"not a zip", pickle.dumps({"format": 1}), b"\x93NUMPY"],
+    ids=["empty", "text", "pickle", "npy header"],
+)
+def test_a_file_that_is_no_statistics_is_one_value_error(tmp_path, content):
+    path = tmp_path / "vecnormalize.npz"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match="is not a statistics file"):
+        normalizer_file.read_stats(path)
+    np.save(path.with_suffix(".npy"), np.zeros(3))
+    path.write_bytes(path.with_suffix(".npy").read_bytes())  # one array, no archive
+    with pytest.raises(ValueError, match=r"one array, not an \.npz archive"):
+        normalizer_file.read_stats(path)
+
+
 def test_the_statistics_round_trip_into_a_vec_normalize(tmp_path):
     """Saved and rebuilt, the statistics normalise as the VecNormalize they came from,
     for a Box and a Dict observation."""

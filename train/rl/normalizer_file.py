@@ -195,7 +195,10 @@ def read_stats(path: str | Path) -> NormalizerStats:
     if path.suffix == ".pkl":
         raise ValueError(pickled_stats_message(path))
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a single .npy array
+            raise ValueError("one array, not an .npz archive")
+        with loaded as npz:
             arrays = {name: npz[name] for name in npz.files}
     except FileNotFoundError:
         raise ValueError(f"{path} is missing") from None
