@@ -26,8 +26,8 @@ FILES = [
     "checkpoints/checkpoint_128.json",
     "checkpoints/model_64.zip",
     "checkpoints/model_128.zip",
-    "checkpoints/vecnormalize_64.pkl",
-    "checkpoints/vecnormalize_128.pkl",
+    "checkpoints/vecnormalize_64.npz",
+    "checkpoints/vecnormalize_128.npz",
 ]
 
 

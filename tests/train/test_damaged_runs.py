@@ -63,7 +63,7 @@ DAMAGED = "is damaged (not the file that was saved)"
 DAMAGES = {
     "model truncated": ("model_128.zip", _truncate, DAMAGED),
     "model missing": ("model_128.zip", Path.unlink, "is missing"),
-    "statistics flipped": ("vecnormalize_128.pkl", _flip_a_byte, DAMAGED),
+    "statistics flipped": ("vecnormalize_128.npz", _flip_a_byte, DAMAGED),
 }
 
 
@@ -75,7 +75,7 @@ def test_the_newest_intact_checkpoint_is_chosen(run, damage):
         {
             "timesteps": 128,
             "model": checkpoints / "model_128.zip",
-            "vecnormalize": checkpoints / "vecnormalize_128.pkl",
+            "vecnormalize": checkpoints / "vecnormalize_128.npz",
         },
         [],
     )
@@ -104,12 +104,12 @@ def test_no_intact_checkpoint_is_one_line(run, capsys):
     """Both sets damaged, latest.json too: one line naming each, exit code 2."""
     checkpoints = run / "checkpoints"
     (checkpoints / "model_64.zip").unlink()
-    _flip_a_byte(checkpoints / "vecnormalize_128.pkl")
+    _flip_a_byte(checkpoints / "vecnormalize_128.npz")
     (checkpoints / "latest.json").write_text("{")
     assert main(["train", "--resume", str(run), "--no-progress"]) == 2
     assert capsys.readouterr().err.splitlines() == [
         f"observer-gym train: error: {run} has no intact checkpoint to resume from: "
-        f"{checkpoints / 'latest.json'} is damaged; {checkpoints / 'vecnormalize_128.pkl'} is "
+        f"{checkpoints / 'latest.json'} is damaged; {checkpoints / 'vecnormalize_128.npz'} is "
         f"damaged (not the file that was saved); {checkpoints / 'model_64.zip'} is missing"
     ]
 

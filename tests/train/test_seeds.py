@@ -171,7 +171,7 @@ def test_resume_trains_only_the_unfinished_seeds(seeds_run, tmp_path):
     alone, and aggregates again."""
     out = tmp_path / "out"
     shutil.copytree(seeds_run, out)
-    for file in ("model.zip", "vecnormalize.pkl", "aggregate.json"):
+    for file in ("model.zip", "vecnormalize.npz", "final.json", "aggregate.json"):
         for path in [out / "seed_1" / file, out / "seed_2" / file, out / file]:
             path.unlink(missing_ok=True)
     checkpoints = out / "seed_1" / "checkpoints"

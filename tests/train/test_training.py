@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 import torch
 from stable_baselines3 import PPO
-from stable_baselines3.common.vec_env import VecNormalize
 
 from observer_gym.train.cli import main
 from observer_gym.train.experiments.evaluate import evaluate_agent
@@ -67,7 +66,7 @@ def test_run_writes_what_it_promises(ppo_run):
     assert {"stable-baselines3", "torch", "gymnasium"} <= set(config["versions"])
     # PPO collects whole rollouts of n_envs x n_steps = 512 steps: 4 of them pass 2,000.
     assert state["timesteps"] == 2048 and state["status"] == "finished"
-    for name in ("model.zip", "vecnormalize.pkl", "curve.png", "eval.csv"):
+    for name in ("model.zip", "vecnormalize.npz", "final.json", "curve.png", "eval.csv"):
         assert (ppo_run / name).is_file(), name
     assert len(list((ppo_run / "monitor").glob("*.monitor.csv"))) == 2
     assert (ppo_run / "logs" / "start" / "progress.csv").stat().st_size > 0
@@ -80,11 +79,17 @@ def test_run_writes_what_it_promises(ppo_run):
 
 def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
     """Agent.load (VecNormalize statistics + model + action map) against SB3's own
-    loaders, on observations of the observer's env."""
+    loader and VecNormalize's formula on the saved arrays, on observations of the
+    observer's env."""
     agent = Agent.load(ppo_run)
     model = PPO.load(ppo_run / "model.zip", device="cpu")
-    with open(ppo_run / "vecnormalize.pkl", "rb") as f:
-        stats = VecNormalize.load(f.name, venv=_DummyVenv(model))
+    with np.load(ppo_run / "vecnormalize.npz", allow_pickle=False) as stats:
+        mean, var = stats["obs.mean"], stats["obs.var"]
+        clip, epsilon = float(stats["clip_obs"]), float(stats["epsilon"])
+
+    def normalize_obs(obs):
+        return np.clip((obs - mean) / np.sqrt(var + epsilon), -clip, clip).astype(np.float32)
+
     checkpoint = Agent.load(ppo_run)  # a second load: same weights, same actions
     env = make_env("observer_gym/BallTable-v0", "kf-measurements")
     try:
@@ -92,7 +97,7 @@ def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
         low, high = env.action_space.low, env.action_space.high
         for _ in range(20):
             action, _ = agent.predict(obs)
-            raw, _ = model.predict(stats.normalize_obs(obs), deterministic=True)
+            raw, _ = model.predict(normalize_obs(obs), deterministic=True)
             expected = low + (np.clip(raw, -1, 1) + 1) / 2 * (high - low)
             np.testing.assert_allclose(action, expected, rtol=0, atol=1e-7)
             np.testing.assert_array_equal(checkpoint.predict(obs)[0], action)
@@ -102,15 +107,6 @@ def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
         env.close()
     for a, b in zip(_parameters(agent.model), _parameters(model), strict=True):
         np.testing.assert_array_equal(a, b)
-
-
-class _DummyVenv:
-    """The least VecNormalize.load needs: the spaces and a count."""
-
-    def __init__(self, model):
-        self.observation_space, self.action_space = model.observation_space, model.action_space
-        self.num_envs = 1
-        self.render_mode = None
 
 
 def test_evaluate_scores_like_run(ppo_run, tmp_path):

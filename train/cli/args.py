@@ -242,6 +242,15 @@ OUTSIDE_CONTROLLERS_HELP = (
     f"entry point of the group observer_gym.controllers ({INSTALLED['controller']})"
 )
 
+# What a command that loads trained agents or outside entries runs, for its --help.
+TRUST_HELP = (
+    " Trust: a trained agent (ALGO:DIR, ALGO:PATH.zip) holds a stable-baselines3 zip, "
+    "which loading partly unpickles, and an outside observer or controller is code that is "
+    "imported and run: use them only from a source you trust. An agent folder is refused if "
+    "its files differ from the sha256 the run recorded; its VecNormalize statistics are read "
+    "as plain arrays, never unpickled (docs/trust.md)."
+)
+
 
 def env_name(text: str) -> str:
     """argparse type: a registered env id, with or without its ``observer_gym/`` prefix."""

@@ -17,6 +17,7 @@ from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
     PER_ENV,
+    TRUST_HELP,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -241,7 +242,8 @@ COMMAND = Command(
         "observer - oracle of the env's primary metric per controller), bar_<metric>.png, "
         "each pair's plots under pairs/ and results.json into the output folder, and "
         "prints the table."
-    ),
+    )
+    + TRUST_HELP,
     add_arguments=add_arguments,
     run=run,
 )

@@ -7,6 +7,7 @@ import sys
 
 from observer_gym.train.cli.args import (
     OUTSIDE_OBSERVERS_HELP,
+    TRUST_HELP,
     Command,
     add_output_arguments,
     command_error,
@@ -116,7 +117,8 @@ COMMAND = Command(
         "(train --seeds), every seed's agent runs the same episodes into seed_<s>/, and "
         "across_seeds.md/.json give each seed's mean of the primary metric, their mean "
         "and their IQM with a 95 % interval."
-    ),
+    )
+    + TRUST_HELP,
     add_arguments=_evaluate_arguments,
     run=_evaluate_run,
 )

@@ -9,6 +9,7 @@ from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
     PER_ENV,
+    TRUST_HELP,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -149,7 +150,8 @@ COMMAND = Command(
         "results.json (config, versions, per-episode metrics, summary) and the plots of "
         "the env's task (with an observer also estimate.png) into the output folder, and "
         "prints a table of the task's summary."
-    ),
+    )
+    + TRUST_HELP,
     add_arguments=_run_arguments,
     run=_run_run,
 )

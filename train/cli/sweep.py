@@ -19,6 +19,7 @@ from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
     PER_ENV,
+    TRUST_HELP,
     Command,
     add_entry_option_arguments,
     add_env_option_argument,
@@ -232,7 +233,8 @@ COMMAND = Command(
         "primary metric and a second one with 95 % intervals, and the paired difference "
         "from the first grid point) and <key>.png per varied key into --out, and prints "
         "the table."
-    ),
+    )
+    + TRUST_HELP,
     add_arguments=add_arguments,
     run=run,
 )

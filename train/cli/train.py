@@ -164,7 +164,10 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
             "(takes only --timesteps; then --algo and --obs are not needed); for a "
             "multi-seed run, every unfinished seed (also takes --workers, --backend, "
             "--address). One command at a time: while a run trains in DIR, another "
-            "--resume of it is refused (exit code 75)"
+            "--resume of it is refused (exit code 75). The checkpoint's model (a "
+            "stable-baselines3 zip) and, for SAC and TD3, its replay buffer are pickles, "
+            "loaded after their sha256 is checked: resume only runs from a source you "
+            "trust; VecNormalize statistics are read as plain arrays"
         ),
     )
     add_output_arguments(parser, "train")
@@ -241,13 +244,13 @@ def _train_run(args: argparse.Namespace) -> int:
         _check_train_options(args, options)
     except ValueError as exc:
         return command_error("train", exc)
-    from observer_gym.train.reports.outputs import OutputFolderError
     from observer_gym.train.rl.training import train_agent, training_text
 
     cli_args = recorded_args(args)
     try:
         state = train_agent(**options, progress=not args.no_progress, cli_args=cli_args)
-    except OutputFolderError as exc:  # another train wrote a run there since the check
+    except ValueError as exc:  # another train wrote a run there since the check
+        # (OutputFolderError), or the algorithm refused its hyperparameters
         return command_error("train", exc)
     print(training_text(run_dir, state))
     return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
@@ -346,7 +349,8 @@ COMMAND = Command(
         "Hyperparameters come from the YAML file of the algorithm shipped with the package "
         "(observer_gym/train/rl/hyperparams/ALGO.yml), overridable with --hyperparam. Writes "
         "config.json, periodic checkpoints, eval.csv and curve.png (the evaluation "
-        "curve), logs/ and, when finished, model.zip and vecnormalize.pkl. Ctrl-C or kill "
+        "curve), logs/ and, when finished, model.zip, vecnormalize.npz and final.json (their "
+        "sha256). Ctrl-C or kill "
         "leaves the last checkpoint intact; --resume DIR continues from it. A run holds "
         "its folder's lock while it trains (released when it ends, killed or not): "
         "another train or --resume into the same folder is refused with one line and "

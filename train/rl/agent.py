@@ -3,7 +3,8 @@
 
 An :class:`Agent` keeps the controller protocol (``reset()`` and SB3's ``predict``), so
 ``observer-gym run``, ``evaluate`` and ``compare`` drive it exactly as the LQR. It
-normalises observations with the run's saved VecNormalize statistics, and maps its
+normalises observations with the run's saved VecNormalize statistics (plain arrays,
+:mod:`observer_gym.train.rl.normalizer_file`: nothing of them is unpickled), and maps its
 [-1, 1] actions back to the env's units; ``wrap_env`` adds the image preprocessing an
 rgb agent was trained with. The run folder itself (config.json, model files, ``ALGO:DIR``)
 is read by :mod:`observer_gym.train.rl.run_dir`.
@@ -11,7 +12,6 @@ is read by :mod:`observer_gym.train.rl.run_dir`.
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,7 @@ import numpy as np
 
 from observer_gym.train.rl.agent_env import ImageOptions, to_env_action, wrap_images
 from observer_gym.train.rl.features import wrap_features
+from observer_gym.train.rl.normalizer_file import normalizer_for_spaces, read_stats
 from observer_gym.train.rl.run_dir import model_files, read_config
 
 
@@ -46,18 +47,30 @@ class Agent:
     @classmethod
     def load(cls, run_dir: str | Path, algo: str | None = None) -> Agent:
         """The agent of the training run in ``run_dir`` (final model, else the latest
-        checkpoint), on the CPU."""
+        checkpoint), on the CPU.
+
+        The model and statistics are checked against the sha256 the run recorded, and the
+        statistics are read as plain arrays, before the model is loaded
+        (:func:`~observer_gym.train.rl.run_dir.model_files`). The model is a
+        stable-baselines3 zip, which SB3 partly unpickles: load only folders from a
+        trusted source.
+
+        Raises:
+            ValueError: no run there, files changed since the run saved them, or
+                statistics pickled by an earlier version (naming how to convert them).
+        """
         from observer_gym.train.rl.hyperparams import algorithm_class
 
         config = read_config(run_dir, algo)
         _check_encoder(config, run_dir)
         model_path, stats_path, steps = model_files(run_dir)
+        stats = None if stats_path is None else read_stats(stats_path)
         model = algorithm_class(config["algo"]).load(model_path, device="cpu")
         obs_normalizer = None
-        if stats_path is not None:
-            with open(stats_path, "rb") as f:
-                obs_normalizer = pickle.load(f)  # SB3's VecNormalize, saved by the run
-            obs_normalizer.training = False
+        if stats is not None:  # SB3's VecNormalize, rebuilt from the arrays
+            obs_normalizer = normalizer_for_spaces(
+                stats, model.observation_space, model.action_space
+            )
         return cls(model, obs_normalizer, config, Path(run_dir), steps)
 
     def wrap_env(self, env: gym.Env) -> gym.Env:

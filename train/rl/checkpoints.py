@@ -1,7 +1,8 @@
 """Checkpoints of a training run that survive an interruption at any instant.
 
 A checkpoint is ``checkpoints/model_<N>.zip`` (the SB3 model, N its timestep count), with
-``vecnormalize_<N>.pkl`` if the run normalises and ``replay_buffer_<N>.pkl`` for the
+``vecnormalize_<N>.npz`` (plain arrays: :mod:`~observer_gym.train.rl.normalizer_file`)
+if the run normalises and ``replay_buffer_<N>.pkl`` for the
 off-policy algorithms. Each file is written to a temporary name and renamed into place;
 then ``checkpoint_<N>.json`` records the set's files and their sha256, and
 ``checkpoints/latest.json`` (the same record) names the newest complete set, replaced
@@ -26,6 +27,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from observer_gym.train.reports.outputs import replace_atomically, write_json_atomic
 from observer_gym.train.reports.signals import signals_deferred
 from observer_gym.train.rl.callbacks import EveryStepsCallback
+from observer_gym.train.rl.normalizer_file import save_normalizer
 from observer_gym.train.rl.run_dir import (  # noqa: F401  (latest_checkpoint: read here too)
     LATEST,
     MANIFEST,
@@ -46,8 +48,8 @@ def save_checkpoint(
         replace_atomically(directory / entry["model"], model.save)
         vec_normalize = model.get_vec_normalize_env()
         if vec_normalize is not None:
-            entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
-            replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
+            entry["vecnormalize"] = f"vecnormalize_{steps}.npz"
+            save_normalizer(vec_normalize, directory / entry["vecnormalize"])
         if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
             entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
             replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)
@@ -67,7 +69,8 @@ def _prune(directory: Path, keep: int) -> None:
         for name in (
             MANIFEST.format(old),  # first: a set without its manifest is never picked
             f"model_{old}.zip",
-            f"vecnormalize_{old}.pkl",
+            f"vecnormalize_{old}.npz",
+            f"vecnormalize_{old}.pkl",  # written by earlier versions
             f"replay_buffer_{old}.pkl",
         ):
             (directory / name).unlink(missing_ok=True)

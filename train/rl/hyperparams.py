@@ -16,7 +16,10 @@ An env's entry holds two kinds of keys:
   or extends a state or estimate observation);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
   against its signature (:func:`algorithm_parameters`: its public parameters but those
-  ``observer-gym train`` sets itself). Two values are written as text and built on use:
+  ``observer-gym train`` sets itself) and its value against the key's rule
+  (:data:`ALGORITHM_RULES`: ``n_steps`` an integer >= 1, ``gamma`` in [0, 1], ...), so a
+  bad value is refused naming the key and its range before stable-baselines3 sees it.
+  Two values are written as text and built on use:
   ``policy_kwargs.activation_fn`` (relu, tanh, elu) and ``action_noise``
   (``{type: normal, sigma: 0.1}``, in the [-1, 1] action units).
 
@@ -32,9 +35,10 @@ import copy
 import difflib
 import importlib
 import inspect
-from collections.abc import Mapping
+import math
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -125,6 +129,7 @@ def resolve_hyperparams(
     for dotted, value in (overrides or {}).items():
         _set_dotted(params, dotted, value)
     check_training_keys(params)
+    check_algorithm_values(params, algo)
     return params
 
 
@@ -230,6 +235,159 @@ def check_training_keys(params: Mapping[str, Any]) -> None:
         and sigma > 0
     ):
         raise ValueError(f"action_noise must be {{type: normal, sigma: > 0}}, got {noise!r}")
+
+
+class Rule(NamedTuple):
+    """What a hyperparameter's value may be: ``allowed`` says it, ``check`` tests it."""
+
+    allowed: str
+    check: Callable[[Any], bool]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _int_from(low: int) -> Rule:
+    return Rule(f"an integer >= {low}", lambda v: _is_int(v) and v >= low)
+
+
+def _real_above(low: float, inclusive: bool = False) -> Rule:
+    sign = ">=" if inclusive else ">"
+    return Rule(
+        f"a finite number {sign} {low:g}",
+        lambda v: _is_real(v) and (v >= low if inclusive else v > low),
+    )
+
+
+def _optional(rule: Rule) -> Rule:
+    return Rule(f"null or {rule.allowed}", lambda v: v is None or rule.check(v))
+
+
+def _sac_ent_coef(value: Any) -> bool:
+    if isinstance(value, str) and (value == "auto" or value.startswith("auto_")):
+        try:
+            return value == "auto" or float(value.removeprefix("auto_")) > 0
+        except ValueError:
+            return False
+    return _is_real(value) and value >= 0
+
+
+def _train_freq(value: Any) -> bool:
+    if isinstance(value, list | tuple):
+        return len(value) == 2 and _is_int(value[0]) and value[0] >= 1 and value[1] in TRAIN_UNITS
+    return _is_int(value) and value >= 1
+
+
+TRAIN_UNITS = ("step", "episode")
+_BOOL = Rule("true or false", lambda v: isinstance(v, bool))
+_UNIT = Rule("a number in [0, 1]", lambda v: _is_real(v) and 0 <= v <= 1)
+_POSITIVE = _real_above(0)
+_NONNEGATIVE = _real_above(0, inclusive=True)
+_COMMON_RULES = {
+    "learning_rate": _POSITIVE,
+    "gamma": _UNIT,
+    "batch_size": _int_from(1),
+    "n_steps": _int_from(1),
+    "use_sde": _BOOL,
+    "sde_sample_freq": _int_from(-1),
+    "stats_window_size": _int_from(1),
+    "policy_kwargs": Rule("a mapping", lambda v: isinstance(v, Mapping)),
+    "tensorboard_log": Rule("null or a folder", lambda v: v is None or isinstance(v, str)),
+}
+_OFF_POLICY_RULES = {
+    "buffer_size": _int_from(1),
+    "learning_starts": _int_from(0),
+    "tau": Rule("a number in (0, 1]", lambda v: _is_real(v) and 0 < v <= 1),
+    "train_freq": Rule("an integer >= 1 or [integer >= 1, step|episode]", _train_freq),
+    "gradient_steps": Rule("an integer >= 1, or -1", lambda v: _is_int(v) and (v >= 1 or v == -1)),
+    "optimize_memory_usage": _BOOL,
+}
+# The rule of each algorithm key that takes a plain value (classes and objects such as
+# replay_buffer_class are left to stable-baselines3, whose refusal is one line too).
+ALGORITHM_RULES: dict[str, dict[str, Rule]] = {
+    "ppo": {
+        **_COMMON_RULES,
+        "n_epochs": _int_from(1),
+        "gae_lambda": _UNIT,
+        "clip_range": _POSITIVE,
+        "clip_range_vf": _optional(_POSITIVE),
+        "normalize_advantage": _BOOL,
+        "ent_coef": _NONNEGATIVE,
+        "vf_coef": _NONNEGATIVE,
+        "max_grad_norm": _POSITIVE,
+        "target_kl": _optional(_POSITIVE),
+    },
+    "sac": {
+        **_COMMON_RULES,
+        **_OFF_POLICY_RULES,
+        "ent_coef": Rule("auto, auto_<number > 0> or a finite number >= 0", _sac_ent_coef),
+        "target_update_interval": _int_from(1),
+        "target_entropy": Rule("auto or a finite number", lambda v: v == "auto" or _is_real(v)),
+        "use_sde_at_warmup": _BOOL,
+    },
+    "td3": {
+        **_COMMON_RULES,
+        **_OFF_POLICY_RULES,
+        "policy_delay": _int_from(1),
+        "target_policy_noise": _NONNEGATIVE,
+        "target_noise_clip": _NONNEGATIVE,
+    },
+}
+# VecNormalize's options (the training key normalize), and their rules.
+NORMALIZE_RULES = {
+    "norm_obs": _BOOL,
+    "norm_reward": _BOOL,
+    "clip_obs": _POSITIVE,
+    "clip_reward": _POSITIVE,
+    "gamma": _UNIT,
+    "epsilon": _POSITIVE,
+    "norm_obs_keys": Rule(
+        "null or a list of observation keys",
+        lambda v: v is None or (isinstance(v, list) and all(isinstance(k, str) for k in v)),
+    ),
+}
+
+
+def check_algorithm_values(params: Mapping[str, Any], algo: str) -> None:
+    """ValueError for a value outside its key's rule (:data:`ALGORITHM_RULES` for
+    ``algo``'s keys, :data:`NORMALIZE_RULES` for ``normalize``'s), naming the key, what it
+    may be and the value; for PPO with ``normalize_advantage`` (its default), also a
+    ``batch_size`` of 1 or a rollout (``n_steps`` x ``n_envs``) of one step, which it
+    cannot normalise. Keys without a rule are left to the constructor."""
+    for key, rule in ALGORITHM_RULES.get(algo, {}).items():
+        if key in params and not rule.check(params[key]):
+            raise ValueError(f"hyperparameter {key} must be {rule.allowed}, got {params[key]!r}")
+    normalize = params.get("normalize")
+    if isinstance(normalize, Mapping):
+        for key, value in normalize.items():
+            if key not in NORMALIZE_RULES:
+                raise ValueError(
+                    f"unknown hyperparameter normalize.{key}; VecNormalize's options are "
+                    f"{', '.join(NORMALIZE_RULES)}"
+                )
+            rule = NORMALIZE_RULES[key]
+            if not rule.check(value):
+                raise ValueError(
+                    f"hyperparameter normalize.{key} must be {rule.allowed}, got {value!r}"
+                )
+    if algo == "ppo" and params.get("normalize_advantage", True):
+        if params.get("batch_size", 64) < 2:
+            raise ValueError(
+                "hyperparameter batch_size must be >= 2 with normalize_advantage (PPO "
+                "normalises each minibatch's advantages), got 1; or set "
+                "normalize_advantage=False"
+            )
+        rollout = params.get("n_steps", 2048) * int(params.get("n_envs", 1))
+        if rollout < 2:
+            raise ValueError(
+                "hyperparameter n_steps x n_envs must be >= 2 with normalize_advantage "
+                f"(a rollout of one step has no advantages to normalise), got {rollout}"
+            )
 
 
 def split(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -80,6 +80,14 @@ def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
     )
 
 
+def _refused(name: str, run_dir: Path, exc: Exception) -> ValueError:
+    reason = " ".join(str(exc).split()) or type(exc).__name__
+    return ValueError(
+        f"{name} refuses the hyperparameters: {reason}; nothing was trained ({run_dir} holds "
+        "only its config.json: remove it before training there again)"
+    )
+
+
 def learn(
     run_dir: Path,
     config: dict[str, Any],
@@ -100,6 +108,12 @@ def learn(
         save_checkpoint,
     )
     from observer_gym.train.rl.hyperparams import algorithm_class, build_algo_kwargs, split
+    from observer_gym.train.rl.normalizer_file import (
+        build_vec_normalize,
+        read_stats,
+        record_final_files,
+        save_normalizer,
+    )
 
     training, algo_kwargs = split(config["hyperparams"])
     cls = algorithm_class(config["algo"])
@@ -120,11 +134,11 @@ def learn(
         if normalize:
             options = {"gamma": algo_kwargs.get("gamma", 0.99), **normalize}
             if checkpoint:
+                stats = read_stats(checkpoint["vecnormalize"])  # plain arrays, no pickle
                 try:
-                    venv = VecNormalize.load(str(checkpoint["vecnormalize"]), venv)
-                except Exception as exc:  # a damaged set saved before hashes were recorded
+                    venv = build_vec_normalize(stats, venv, training=True)
+                except ValueError as exc:  # statistics of another observation
                     raise _unloadable(run_dir, start_steps, exc) from exc
-                venv.training = True
             else:
                 venv = VecNormalize(venv, **options)
             eval_env = VecNormalize(
@@ -140,7 +154,10 @@ def learn(
         else:
             policy = training["policy"] or default_policy(venv.observation_space)
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
-            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+            try:
+                model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
+            except (AssertionError, ValueError, TypeError) as exc:  # past the up-front checks
+                raise _refused(cls.__name__, run_dir, exc) from exc
         segment = f"resume-{start_steps}" if resume else "start"
         formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])
         model.set_logger(configure(str(run_dir / "logs" / segment), formats))
@@ -185,8 +202,9 @@ def learn(
             if status == "finished":
                 save_checkpoint(model, run_dir / "checkpoints", save_replay_buffer)
                 if normalize:
-                    replace_atomically(run_dir / FINAL_VECNORMALIZE, venv.save)
+                    save_normalizer(venv, run_dir / FINAL_VECNORMALIZE)
                 replace_atomically(run_dir / FINAL_MODEL, model.save)
+                record_final_files(run_dir)  # final.json: their sha256, checked on load
             latest = latest_checkpoint(run_dir / "checkpoints")
             state = {
                 "status": status,

@@ -25,12 +25,17 @@ from observer_gym.train.reports.outputs import (
     writer_alive,
 )
 from observer_gym.train.rl.hyperparams import ALGOS
+from observer_gym.train.rl.normalizer_file import (
+    FINAL_STATS,
+    check_final_files,
+    pickled_stats_message,
+)
 from observer_gym.train.rl.shipped import shipped_path
 
 CONFIG_FILE = "config.json"
 STATE_FILE = "state.json"
 FINAL_MODEL = "model.zip"
-FINAL_VECNORMALIZE = "vecnormalize.pkl"
+FINAL_VECNORMALIZE = FINAL_STATS  # plain arrays (normalizer_file); never a pickle
 CHECKPOINTS = "checkpoints"
 LATEST = "latest.json"  # in checkpoints/: the newest complete checkpoint
 MANIFEST = "checkpoint_{}.json"  # in checkpoints/: each set's files and their sha256
@@ -222,6 +227,8 @@ def check_resumable(run_dir: str | Path) -> dict[str, Any] | None:
                 f"{run_dir} has no intact checkpoint to resume from: {'; '.join(problems)}"
             )
         raise ValueError(f"{run_dir} has no checkpoint to resume from")
+    if str(checkpoint.get("vecnormalize", "")).endswith(LEGACY_STATS_SUFFIX):
+        raise ValueError(pickled_stats_message(checkpoint["vecnormalize"]))
     state = read_state(run_dir)
     if state is not None and state.get("status") == "running":
         raise ValueError(
@@ -253,8 +260,9 @@ def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
     return _entry_paths(Path(directory), entry)
 
 
-CHECKPOINT_FILES = {"model": "model_{}.zip", "vecnormalize": "vecnormalize_{}.pkl",
+CHECKPOINT_FILES = {"model": "model_{}.zip", "vecnormalize": "vecnormalize_{}.npz",
                     "replay_buffer": "replay_buffer_{}.pkl"}  # fmt: skip
+LEGACY_STATS_SUFFIX = ".pkl"  # vecnormalize_<N>.pkl of earlier versions: named, never loaded
 
 
 def _read_entry(path: Path) -> dict[str, Any] | None:
@@ -271,7 +279,9 @@ def _read_entry(path: Path) -> dict[str, Any] | None:
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         return None
     files = {k: v for k, v in entry.items() if k not in ("timesteps", "sha256")}
-    if any(CHECKPOINT_FILES.get(k, "").format(steps) != v for k, v in files.items()):
+    legacy = {"vecnormalize": f"vecnormalize_{steps}{LEGACY_STATS_SUFFIX}"}
+    allowed = {k: (name.format(steps), legacy.get(k)) for k, name in CHECKPOINT_FILES.items()}
+    if any(v not in allowed.get(k, ()) for k, v in files.items()):
         return None
     if "sha256" in entry and not isinstance(entry["sha256"], dict):
         return None
@@ -342,12 +352,19 @@ def intact_checkpoint(directory: Path) -> tuple[dict[str, Path | int] | None, li
 
 def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
     """(model, VecNormalize statistics or None, timesteps or None): the final model of a
-    finished run, else its latest checkpoint. ValueError if there is neither. The
-    timesteps of a final model without checkpoints (a shipped agent) are its
-    state.json's."""
+    finished run, else its latest checkpoint. The timesteps of a final model without
+    checkpoints (a shipped agent) are its state.json's.
+
+    Raises:
+        ValueError: neither a final model nor a checkpoint; files that are not those the
+            run recorded (a final model and statistics against final.json, a checkpoint's
+            against its sha256); statistics saved as a pickle by an earlier version
+            (:func:`~observer_gym.train.rl.normalizer_file.pickled_stats_message`).
+    """
     run_dir = Path(run_dir)
     checkpoint = latest_checkpoint(run_dir / CHECKPOINTS)
     if (run_dir / FINAL_MODEL).is_file():  # written last, after the final checkpoint
+        check_final_files(run_dir)
         stats = run_dir / FINAL_VECNORMALIZE
         if checkpoint is not None:
             steps = checkpoint["timesteps"]
@@ -356,4 +373,10 @@ def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
         return run_dir / FINAL_MODEL, stats if stats.is_file() else None, steps
     if checkpoint is None:
         raise ValueError(f"{run_dir} has neither {FINAL_MODEL} nor a checkpoint yet")
+    entry = _read_entry(run_dir / CHECKPOINTS / LATEST)  # read whole by latest_checkpoint
+    problem = None if entry is None else _problem(run_dir / CHECKPOINTS, entry)
+    if problem is not None:
+        raise ValueError(f"refusing to load the latest checkpoint: {problem}")
+    if str(checkpoint.get("vecnormalize", "")).endswith(LEGACY_STATS_SUFFIX):
+        raise ValueError(pickled_stats_message(checkpoint["vecnormalize"]))
     return checkpoint["model"], checkpoint.get("vecnormalize"), checkpoint["timesteps"]

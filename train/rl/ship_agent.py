@@ -2,8 +2,9 @@
 checking that a shipped agent still acts as it did when it was shipped.
 
 :func:`ship_agent` copies what loading needs from a finished run folder (``config.json``,
-``model.zip``, ``vecnormalize.pkl``; a ``state.json`` cut down to the status and the
-timestep count) into ``train/rl/agents/<name>/``, writes the README it is given and
+``model.zip``, ``vecnormalize.npz``; a ``state.json`` cut down to the status and the
+timestep count) into ``train/rl/agents/<name>/``, records their sha256 in ``final.json``
+(checked whenever the agent is loaded), writes the README it is given and
 ``fingerprint.json``: an observation (the first one of the env the agent reads, reset
 with :data:`FINGERPRINT_SEED`) and the agent's deterministic action for it. A test loads
 every shipped agent and compares its action on that observation with the fingerprint
@@ -23,11 +24,13 @@ import numpy as np
 from observer_gym.train.experiments.observer_env import make_env
 from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic
 from observer_gym.train.rl.agent import Agent
+from observer_gym.train.rl.normalizer_file import record_final_files
 from observer_gym.train.rl.run_dir import (
     CONFIG_FILE,
     FINAL_MODEL,
     FINAL_VECNORMALIZE,
     STATE_FILE,
+    model_files,
     read_config,
     read_state,
 )
@@ -92,8 +95,8 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
     there) with ``readme`` as its README.md and a new fingerprint; returns the folder.
 
     Raises:
-        ValueError: the run has not finished (no model.zip), or ``name`` is no plain
-            folder name.
+        ValueError: the run has not finished (no model.zip), its files are not those it
+            recorded, or ``name`` is no plain folder name.
     """
     run_dir = Path(run_dir)
     if not name or Path(name).name != name or name.startswith("."):
@@ -101,6 +104,7 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
     if not (run_dir / FINAL_MODEL).is_file():
         raise ValueError(f"{run_dir} has no {FINAL_MODEL}: only a finished run can be shipped")
     read_config(run_dir)
+    model_files(run_dir)  # its files as recorded, no pickled statistics
     state = read_state(run_dir) or {}
     target = folder / name
     if target.exists():
@@ -109,6 +113,7 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
     for file in (CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE):
         if (run_dir / file).is_file():
             shutil.copyfile(run_dir / file, target / file)
+    record_final_files(target)
     write_json_atomic(
         target / STATE_FILE,
         {"status": state.get("status"), "timesteps": state.get("timesteps")},

@@ -1,8 +1,9 @@
 """The trained agents shipped in the package: ``train/rl/agents/<system>-<obs>/``, each a run
 folder cut down to what loading needs (``config.json``, ``model.zip``,
-``vecnormalize.pkl`` if it normalises, ``state.json``), with ``README.md`` (the command
-and seed that trained it and how good it is) and ``fingerprint.json`` (an observation and
-the action the agent gives for it, which a test checks on every install).
+``vecnormalize.npz`` if it normalises, ``final.json`` with the sha256 of both, checked on
+every load, ``state.json``), with ``README.md`` (the command and seed that trained it and
+how good it is) and ``fingerprint.json`` (an observation and the action the agent gives
+for it, which a test checks on every install).
 
 Wherever a trained agent is named as ``ALGO:DIR``, ``ALGO:NAME`` names a shipped one
 (``ppo:ball_table-estimate``) when no folder ``NAME`` exists

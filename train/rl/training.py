@@ -10,7 +10,9 @@ A run's folder holds:
   episodes every time), ``curve.png`` its plot;
 - ``logs/<segment>/progress.csv`` (SB3's training log, and TensorBoard events with
   ``--tensorboard``), ``monitor/`` (every training episode's return and length);
-- when finished, ``model.zip`` and ``vecnormalize.pkl``; ``state.json`` says the status
+- when finished, ``model.zip``, ``vecnormalize.npz`` (plain arrays:
+  :mod:`.normalizer_file`) and ``final.json`` (their sha256, checked whenever the agent
+  is loaded); ``state.json`` says the status
   (running, interrupted, finished), the timestep count, the throughput and the
   ``writer`` (PID, host, process start time). A run killed with SIGKILL stays "running"
   there; readers report it as "killed" once its writer is gone
