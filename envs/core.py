@@ -27,7 +27,14 @@ sensor options, envs/sensor.py):
 Copies: ``pickle`` and ``copy.deepcopy`` give an independent env with its own client,
 rebuilt from the config and replayed from the current episode's start (the generator's
 state at that reset, its options and the actions since), so it steps on exactly as the
-original does. ``reset`` after ``close`` builds a new world.
+original does.
+
+Closing: ``close()`` disconnects the world; from then on ``step``, ``render``,
+``camera_pose`` and every read of the world (the scene's ground truth) raise
+:class:`~observer_gym.envs.sim.EnvClosedError` (a ``gymnasium.error.ClosedEnvironmentError``
+and a ``RuntimeError``) until ``reset()``, which builds a new world (as SB3's
+``check_env`` expects: it closes the env after its render check). A copy of a closed env
+is closed too.
 """
 
 from __future__ import annotations
@@ -263,7 +270,12 @@ class CameraEnv(gym.Env):
         self._after_physics()
         self._capture(due)
 
+    def _check_open(self, call: str) -> None:
+        """EnvClosedError naming ``call`` if ``close()`` came after the last reset."""
+        self.sim.check_open(call)
+
     def step(self, action):
+        self._check_open("step()")
         if self._tick is None:
             raise ResetNeeded("call reset() before step()")
         space = self.action_space
@@ -331,6 +343,7 @@ class CameraEnv(gym.Env):
         }
 
     def render(self):
+        self._check_open("render()")
         if self.render_mode != "rgb_array":
             return None
         latest = self.rig.latest[0]
@@ -351,15 +364,18 @@ class CameraEnv(gym.Env):
         return {
             "render_mode": self.render_mode,
             "config": dataclasses.asdict(self.config),
-            "episode": copy.deepcopy(self._episode),
+            "episode": None if self.sim.is_closed else copy.deepcopy(self._episode),
             "actions": [a.copy() for a in self._actions],
             "np_random": copy.deepcopy(self.np_random),  # made now if never used
             "spec": self.spec,
+            "closed": self.sim.is_closed,
         }
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(render_mode=state["render_mode"], **state["config"])
         self.spec = state["spec"]
+        if state["closed"]:
+            self.close()
         if state["episode"] is None:
             self.np_random = state["np_random"]
             return

@@ -289,6 +289,7 @@ class BallCatcherEnv(CameraEnv):
             self._outcome = self._judge()
 
     def camera_pose(self, camera_id: int) -> np.ndarray:
+        self._check_open("camera_pose()")
         return self.camera_poses[camera_id]
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray):

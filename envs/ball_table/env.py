@@ -213,6 +213,7 @@ class BallTableEnv(CameraEnv):
                 self.scene.place_occluder(occluder_pos)
 
     def camera_pose(self, camera_id: int = 0) -> np.ndarray:
+        self._check_open("camera_pose()")
         return self.disturbances.camera_pose(self.time_s)
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:

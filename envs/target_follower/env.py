@@ -334,6 +334,7 @@ class TargetFollowerEnv(CameraEnv):
         self._truth = scene.ground_truth()
 
     def camera_pose(self, camera_id: int = 0) -> np.ndarray:
+        self._check_open("camera_pose()")
         return self.scene.camera_pose()
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:
