@@ -29,8 +29,9 @@ rebuilt from the config and replayed from the current episode's start (the gener
 state at that reset, its options and the actions since), so it steps on exactly as the
 original does. Only a replay gives that: PyBullet's ``saveState``/``restoreState`` and
 ``saveBullet`` restore the bodies' poses, velocities, joint states and contact points,
-but a restored world, even one rebuilt alike, steps on differently from the original by
-1e-16 to 1e-13 on some states (benchmarks/bench_copies.py measures it). So the episode's
+but a restored world, even one rebuilt alike, steps on differently from the original:
+on BallTable states by 1e-16 to 1e-13 on some, on others by 0.3 mm in the ball's position
+and 0.48 rad/s in its spin one step on (benchmarks/bench_copies.py). So the episode's
 actions are kept, in one array (the action's bytes per step: 8 B for BallTable, 12 B for
 BallCatcher and TargetFollower), for at most ``copy_history_max_steps`` steps (10,000 by
 default: the size of a copy stays under that many actions, and its replay under that
