@@ -27,13 +27,32 @@ sensor options, envs/sensor.py):
 Copies: ``pickle`` and ``copy.deepcopy`` give an independent env with its own client,
 rebuilt from the config and replayed from the current episode's start (the generator's
 state at that reset, its options and the actions since), so it steps on exactly as the
-original does. ``reset`` after ``close`` builds a new world.
+original does. Only a replay gives that: PyBullet's ``saveState``/``restoreState`` and
+``saveBullet`` restore the bodies' poses, velocities, joint states and contact points,
+but a restored world, even one rebuilt alike, steps on differently from the original:
+on BallTable states by 1e-16 to 1e-13 on some, on others by 0.3 mm in the ball's position
+and 0.48 rad/s in its spin one step on (benchmarks/bench_copies.py). So the episode's
+actions are kept, in one array (the action's bytes per step: 8 B for BallTable, 12 B for
+BallCatcher and TargetFollower), for at most ``copy_history_max_steps`` steps (10,000 by
+default: the size of a copy stays under that many actions, and its replay under that
+many steps). Past it the episode goes on but keeps no more actions, and copying the env
+raises :class:`EpisodeTooLongToCopyError` until the next ``reset``. A copy costs the
+replay's time: about as long as stepping the env that many steps again
+(benchmarks/bench_copies.py).
+
+Closing: ``close()`` disconnects the world; from then on ``step``, ``render``,
+``camera_pose`` and every read of the world (the scene's ground truth) raise
+:class:`~observer_gym.envs.sim.EnvClosedError` (a ``gymnasium.error.ClosedEnvironmentError``
+and a ``RuntimeError``) until ``reset()``, which builds a new world (as SB3's
+``check_env`` expects: it closes the env after its render check). A copy of a closed env
+is closed too.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
+import pickle
 from collections.abc import Mapping
 from typing import Any
 
@@ -49,6 +68,57 @@ from observer_gym.envs.config import check_render_mode
 from observer_gym.envs.observations import copy_observation
 from observer_gym.envs.sensor import SensorConfig, SensorSpec
 from observer_gym.envs.sim import Simulation
+
+DEFAULT_COPY_HISTORY_MAX_STEPS = 10_000
+
+
+class EpisodeTooLongToCopyError(pickle.PicklingError):
+    """A copy (``pickle``, ``copy.deepcopy``) of an env whose episode has run past its
+    ``copy_history_max_steps``: the actions a copy would replay were not kept."""
+
+
+class ActionHistory:
+    """The actions of an episode since its reset, at most ``max_steps`` of them, in one
+    array that doubles as it fills (``shape`` and ``dtype``: the action space's).
+
+    Past ``max_steps`` it keeps counting the steps but no more actions
+    (:attr:`is_complete` turns False).
+    """
+
+    INITIAL_CAPACITY_STEPS = 64
+
+    def __init__(self, max_steps: int, shape: tuple[int, ...], dtype) -> None:
+        self.max_steps = max_steps
+        self.steps = 0
+        capacity = min(self.INITIAL_CAPACITY_STEPS, max_steps)
+        self._actions = np.empty((capacity, *shape), dtype=dtype)
+
+    @property
+    def is_complete(self) -> bool:
+        """Whether every action since the reset is kept."""
+        return self.steps <= self.max_steps
+
+    @property
+    def nbytes(self) -> int:
+        """The bytes the kept actions' array holds (its capacity)."""
+        return self._actions.nbytes
+
+    def append(self, action: np.ndarray) -> None:
+        steps = self.steps
+        self.steps = steps + 1
+        if steps >= self.max_steps:
+            return
+        if steps == len(self._actions):
+            grown = np.empty(
+                (min(2 * steps, self.max_steps), *self._actions.shape[1:]), self._actions.dtype
+            )
+            grown[:steps] = self._actions
+            self._actions = grown
+        self._actions[steps] = action
+
+    def actions(self) -> np.ndarray:
+        """The kept actions, one row per step (a view)."""
+        return self._actions[: min(self.steps, self.max_steps)]
 
 
 class CameraEnv(gym.Env):
@@ -73,14 +143,18 @@ class CameraEnv(gym.Env):
     # The info key (a bool per step) marking the steps where the observers' process model
     # holds, so that NEES and NIS are taken over those steps only (None: every step).
     model_holds_key: str | None = None
+    # The most steps of an episode a copy can replay (the module docstring); set on an
+    # instance, it applies from the next reset.
+    copy_history_max_steps: int = DEFAULT_COPY_HISTORY_MAX_STEPS
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         self.config = self.config_class.from_kwargs(**options)
         check_render_mode(render_mode, self.metadata)
         self.render_mode = render_mode
-        # (np_random before the episode's first draw, reset options): what a copy replays.
+        # (np_random before the episode's first draw, reset options) and the actions
+        # since: what a copy replays.
         self._episode: tuple[np.random.Generator, dict] | None = None
-        self._actions: list[np.ndarray] = []
+        self._history: ActionHistory | None = None
         self._tick: int | None = None  # None until the first reset
         # id(space) -> the bounds of the action and state Boxes, made once per space
         # object (see _bounds).
@@ -242,13 +316,21 @@ class CameraEnv(gym.Env):
             allowed = ", ".join(self._reset_options()) or "none"
             raise ValueError(f"unknown reset options {unknown}; allowed: {allowed}")
         options = self._checked_reset_options(options)
+        history_max_steps = self._checked_copy_history_max_steps()
         super().reset(seed=seed)
         generator = copy.deepcopy(self.np_random)  # before this episode's first draw
         self._begin_episode(options)
         self._episode = (generator, copy.deepcopy(options))
-        self._actions = []
+        space = self.action_space
+        self._history = ActionHistory(history_max_steps, space.shape, space.dtype)
         delivered = self.rig.deliver(0)
         return self._observation(), {**self._step_info(delivered), "sensor": self.sensor_spec}
+
+    def _checked_copy_history_max_steps(self) -> int:
+        value = self.copy_history_max_steps
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ValueError(f"copy_history_max_steps must be an int >= 0 (steps), got {value!r}")
+        return int(value)
 
     def _begin_episode(self, options: dict) -> None:
         rng = self.np_random
@@ -263,12 +345,17 @@ class CameraEnv(gym.Env):
         self._after_physics()
         self._capture(due)
 
+    def _check_open(self, call: str) -> None:
+        """EnvClosedError naming ``call`` if ``close()`` came after the last reset."""
+        self.sim.check_open(call)
+
     def step(self, action):
+        self._check_open("step()")
         if self._tick is None:
             raise ResetNeeded("call reset() before step()")
         space = self.action_space
         action = checked_action(action, space, self._bounds(space))
-        self._actions.append(action)
+        self._history.append(action)
         self._apply_action(action)
         end_tick = self._tick + self.ticks_per_step
         self._advance(end_tick)
@@ -331,6 +418,7 @@ class CameraEnv(gym.Env):
         }
 
     def render(self):
+        self._check_open("render()")
         if self.render_mode != "rgb_array":
             return None
         latest = self.rig.latest[0]
@@ -348,18 +436,38 @@ class CameraEnv(gym.Env):
 
     # --- copies ---------------------------------------------------------------------------
     def __getstate__(self) -> dict[str, Any]:
-        return {
+        state = {
             "render_mode": self.render_mode,
             "config": dataclasses.asdict(self.config),
-            "episode": copy.deepcopy(self._episode),
-            "actions": [a.copy() for a in self._actions],
+            "copy_history_max_steps": self.copy_history_max_steps,
             "np_random": copy.deepcopy(self.np_random),  # made now if never used
             "spec": self.spec,
+            "closed": self.sim.is_closed,
+            "episode": None,
         }
+        if self._history is None or self.sim.is_closed:
+            return state
+        history = self._history
+        if not history.is_complete:
+            raise EpisodeTooLongToCopyError(
+                f"cannot copy this env: its episode is at step {history.steps}, past "
+                f"copy_history_max_steps={history.max_steps} (a copy replays the episode "
+                "from its reset, and the env keeps no more actions than that); copy it "
+                "earlier in the episode, after a reset(), or set "
+                "env.unwrapped.copy_history_max_steps higher before the reset"
+            )
+        state["episode"] = copy.deepcopy(self._episode)
+        state["history_max_steps"] = history.max_steps
+        state["actions"] = history.actions().copy()
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(render_mode=state["render_mode"], **state["config"])
         self.spec = state["spec"]
+        if state["copy_history_max_steps"] != type(self).copy_history_max_steps:
+            self.copy_history_max_steps = state["copy_history_max_steps"]
+        if state["closed"]:
+            self.close()
         if state["episode"] is None:
             self.np_random = state["np_random"]
             return
@@ -368,6 +476,9 @@ class CameraEnv(gym.Env):
         generator, options = state["episode"]
         self.np_random = copy.deepcopy(generator)
         self._begin_episode(copy.deepcopy(options))
+        self.rig.deliver(0)  # as reset() does: the frames due at once are no longer pending
         self._episode = state["episode"]
+        space = self.action_space
+        self._history = ActionHistory(state["history_max_steps"], space.shape, space.dtype)
         for action in state["actions"]:
             self.step(action)

@@ -139,6 +139,14 @@ class BallCatcherEnv(CameraEnv):
     :class:`BallCatcherConfig` (``BallCatcherConfig.describe()`` lists them). A bad value
     or an unknown option raises ``ValueError``.
 
+    ## Copies and closing
+    ``pickle`` and ``copy.deepcopy`` give an env that steps on exactly as this one: it
+    replays the episode's actions in a world of its own (12 B a step, kept for at
+    most ``copy_history_max_steps`` steps, 10,000 by default; past them a copy raises
+    ``EpisodeTooLongToCopyError`` until the next reset). After ``close()``, ``step``,
+    ``render``, ``camera_pose`` and the scene's ground truth raise ``EnvClosedError``
+    until ``reset()``, which builds a new world (envs/core.py).
+
     ## Example
     >>> import gymnasium as gym
     >>> import numpy as np
@@ -160,7 +168,11 @@ class BallCatcherEnv(CameraEnv):
       (jitters, drops) from a stream of its own, so a seed's world no longer depends on
       them (episodes at the default options are unchanged; with jitter or drops they
       differ from before), and ``reset``'s info gives the declared sensor
-      (``info["sensor"]``).
+      (``info["sensor"]``). Since 2026-11-26 a copy keeps at most
+      ``copy_history_max_steps`` actions, a copy right after ``reset`` no longer delivers
+      the reset's frames again at its first step, and a closed env raises
+      ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
+      data.
     """
 
     config_class = BallCatcherConfig
@@ -310,6 +322,7 @@ class BallCatcherEnv(CameraEnv):
             self._outcome = self._judge()
 
     def camera_pose(self, camera_id: int) -> np.ndarray:
+        self._check_open("camera_pose()")
         return self.camera_poses[camera_id]
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray):

@@ -109,6 +109,14 @@ class BallTableEnv(CameraEnv):
     :class:`BallTableConfig` (``BallTableConfig.describe()`` lists them with their ranges).
     A bad value or an unknown option raises ``ValueError``.
 
+    ## Copies and closing
+    ``pickle`` and ``copy.deepcopy`` give an env that steps on exactly as this one: it
+    replays the episode's actions in a world of its own (8 B a step, kept for at
+    most ``copy_history_max_steps`` steps, 10,000 by default; past them a copy raises
+    ``EpisodeTooLongToCopyError`` until the next reset). After ``close()``, ``step``,
+    ``render``, ``camera_pose`` and the scene's ground truth raise ``EnvClosedError``
+    until ``reset()``, which builds a new world (envs/core.py).
+
     ## Example
     >>> import gymnasium as gym
     >>> import numpy as np
@@ -129,7 +137,11 @@ class BallTableEnv(CameraEnv):
       (jitters, drops) from a stream of its own, so a seed's world no longer depends on
       them (episodes at the default options are unchanged; with jitter or drops they
       differ from before), and ``reset``'s info gives the declared sensor
-      (``info["sensor"]``).
+      (``info["sensor"]``). Since 2026-11-26 a copy keeps at most
+      ``copy_history_max_steps`` actions, a copy right after ``reset`` no longer delivers
+      the reset's frames again at its first step, and a closed env raises
+      ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
+      data.
     """
 
     world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame
@@ -239,6 +251,7 @@ class BallTableEnv(CameraEnv):
                 self.scene.place_occluder(occluder_pos)
 
     def camera_pose(self, camera_id: int = 0) -> np.ndarray:
+        self._check_open("camera_pose()")
         return self.disturbances.camera_pose(self.time_s)
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:

@@ -202,9 +202,12 @@ class TargetFollowerScene:
     def camera_pose(self) -> np.ndarray:
         """The nominal ``T_world_cam``: where the calibration says the camera is (computed
         when the robot was last placed; do not modify)."""
+        self.sim.check_open("scene.camera_pose()")
         return self._T_world_cam
 
     def ground_truth(self) -> GroundTruth:
+        """The truth now, from this object's state (the world is kinematic); raises
+        EnvClosedError once the world is closed, as every read of the world does."""
         T = self.camera_pose()
         if self.T_nominal_true is not None:
             T = T @ self.T_nominal_true

@@ -1,6 +1,8 @@
 """Copies and closed envs: a pickled or deep-copied env is an independent env with its own
-PyBullet client that steps on exactly as the original; ``reset`` after ``close`` works
-(SB3's ``check_env`` with the render check does that)."""
+PyBullet client that steps on exactly as the original, whenever it is taken; ``reset``
+after ``close`` works (SB3's ``check_env`` with the render check does that).
+The bound on what a copy keeps: tests/envs/test_copy_history.py; closed envs:
+tests/envs/test_closed_env.py."""
 
 from __future__ import annotations
 
@@ -113,3 +115,50 @@ def test_step_before_reset_is_refused():
             env.step(np.zeros(2, np.float32))
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("copier", [copy.deepcopy, lambda e: pickle.loads(pickle.dumps(e))])
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_a_copy_right_after_reset_steps_on_like_the_original(make_env, env_id, copier):
+    # The frames reset() delivered are delivered, not pending, in the copy too (a copy
+    # with no step to replay once delivered the reset's frame again at its first step).
+    options = {"obs_mode": "measurements", **DISTURBED[env_id]}
+    env = make_env(env_id, **options)
+    env.reset(seed=2)
+    twin = copier(env)
+    try:
+        for a in _actions(env, 3):
+            assert data_equivalence(twin.step(a), env.step(a))
+    finally:
+        twin.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_copies_taken_at_every_step_continue_identically(make_env, env_id):
+    # A copy at every step of a disturbed episode, each stepped on beside the original's
+    # recorded steps. BallCatcher's zero actions leave the box in the ball's path: its
+    # episode runs through the ball's contacts with the box to the catch or the miss.
+    options = {"obs_mode": "measurements", **DISTURBED[env_id]}
+    reference = make_env(env_id, **options)
+    env = make_env(env_id, **options)
+    actions = _actions(env, 60, seed=3)
+    if env_id == "observer_gym/BallCatcher-v0":
+        actions = [np.zeros_like(a) for a in actions]
+    reference.reset(seed=5)
+    env.reset(seed=5)
+    recorded = []
+    for a in actions:
+        recorded.append(copy.deepcopy(reference.step(a)))
+        if recorded[-1][2]:  # terminated
+            break
+    if env_id == "observer_gym/BallCatcher-v0":
+        assert not recorded[-1][4]["ball_in_flight"]  # the ball has touched the box
+    for k in range(len(recorded)):
+        twin = pickle.loads(pickle.dumps(env)) if k % 2 else copy.deepcopy(env)
+        try:
+            for j in range(k, min(k + 3, len(recorded))):
+                assert data_equivalence(twin.step(actions[j]), recorded[j]), (k, j)
+        finally:
+            twin.close()
+        env.step(actions[k])
