@@ -122,7 +122,7 @@ def test_step_before_reset_is_refused():
 def test_a_copy_right_after_reset_steps_on_like_the_original(make_env, env_id, copier):
     # The frames reset() delivered are delivered, not pending, in the copy too (a copy
     # with no step to replay once delivered the reset's frame again at its first step).
-    options = {"obs_mode": "measurements", **DISTURBED[env_id]}
+    options = {"obs_mode": "measurements", **_disturbed(env_id)}
     env = make_env(env_id, **options)
     env.reset(seed=2)
     twin = copier(env)
@@ -139,7 +139,7 @@ def test_copies_taken_at_every_step_continue_identically(make_env, env_id):
     # A copy at every step of a disturbed episode, each stepped on beside the original's
     # recorded steps. BallCatcher's zero actions leave the box in the ball's path: its
     # episode runs through the ball's contacts with the box to the catch or the miss.
-    options = {"obs_mode": "measurements", **DISTURBED[env_id]}
+    options = {"obs_mode": "measurements", **_disturbed(env_id)}
     reference = make_env(env_id, **options)
     env = make_env(env_id, **options)
     actions = _actions(env, 60, seed=3)
