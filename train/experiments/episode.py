@@ -13,6 +13,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import multiprocessing
+import sys
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
@@ -296,7 +297,8 @@ def iter_episodes(
             for future in concurrent.futures.as_completed(futures):
                 error = future.exception()
                 if error is not None:  # ends the run now, not after the other episodes
-                    error.add_note(f"in the episode {specs[futures[future]]}")
+                    if sys.version_info >= (3, 11):  # add_note is 3.11's; 3.10 raises as is
+                        error.add_note(f"in the episode {specs[futures[future]]}")
                     raise error
                 yield futures[future], future.result()
         except BaseException:  # a failed episode, Ctrl-C, or the caller stopped iterating
