@@ -14,7 +14,7 @@ import concurrent.futures
 import dataclasses
 import multiprocessing
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -278,7 +278,7 @@ def iter_episodes(
     specs: Sequence[EpisodeSpec],
     workers: int = 1,
     run: Callable[[EpisodeSpec], Any] = run_episode,
-) -> Iterator[tuple[int, Any]]:
+) -> Generator[tuple[int, Any], None, None]:
     """``(index, run(specs[index]))`` for every spec, as each finishes: in order in this
     process for ``workers`` == 1, else in ``workers`` spawned processes (``run`` must then
     be a module-level function), in the order they finish. The first episode that fails

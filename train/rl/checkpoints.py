@@ -47,7 +47,8 @@ def save_checkpoint(
         vec_normalize = model.get_vec_normalize_env()
         if vec_normalize is not None:
             entry["vecnormalize"] = f"vecnormalize_{steps}.pkl"
-            replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)
+            # SB3 annotates save_path as str; it opens any path
+            replace_atomically(directory / entry["vecnormalize"], vec_normalize.save)  # type: ignore[arg-type]
         if save_replay_buffer and isinstance(model, OffPolicyAlgorithm):
             entry["replay_buffer"] = f"replay_buffer_{steps}.pkl"
             replace_atomically(directory / entry["replay_buffer"], model.save_replay_buffer)

@@ -31,10 +31,13 @@ import difflib
 import inspect
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGOS = ("ppo", "sac", "td3")
@@ -58,11 +61,11 @@ VEC_ENVS = ("subproc", "dummy")
 ACTIVATIONS = ("relu", "tanh", "elu")
 
 
-def algorithm_class(algo: str) -> type:
+def algorithm_class(algo: str) -> type[BaseAlgorithm]:
     """SB3's class for ``algo`` (ppo, sac, td3)."""
     from stable_baselines3 import PPO, SAC, TD3
 
-    classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    classes: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
     if algo not in classes:
         raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
     return classes[algo]

@@ -308,6 +308,7 @@ def resume_training(
     state = check_resumable(run_dir)
     config = read_config(run_dir)
     checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
+    assert checkpoint is not None  # check_resumable found it
     for problem in problems:
         warnings.warn(
             f"{problem}; resuming from the checkpoint at {checkpoint['timesteps']} steps",
