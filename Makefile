@@ -7,7 +7,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench lint
+.PHONY: demo test bench lint typecheck
 
 # The package and what it needs to run (the demo's install).
 $(BIN)/.installed: pyproject.toml
@@ -34,3 +34,7 @@ bench: $(BIN)/.installed
 lint: $(BIN)/.installed-dev
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+
+# mypy on the package as installed (observer_gym.envs is envs/, ...): .ci/typecheck.py
+typecheck: $(BIN)/.installed-dev
+	$(BIN)/python .ci/typecheck.py

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numbers
 import warnings
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, TypeVar, overload, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -126,7 +126,10 @@ class StateFeedbackController:
         return (actions[0] if single else actions), state
 
 
-def unwrapped_env(env: gym.Env, env_class: type, env_id: str, needed_by: str) -> gym.Env:
+EnvT = TypeVar("EnvT", bound=gym.Env)
+
+
+def unwrapped_env(env: gym.Env, env_class: type[EnvT], env_id: str, needed_by: str) -> EnvT:
     """The base env under ``env``'s wrappers; ValueError unless it is an ``env_class``."""
     base = env.unwrapped
     if not isinstance(base, env_class):
@@ -134,6 +137,42 @@ def unwrapped_env(env: gym.Env, env_class: type, env_id: str, needed_by: str) ->
     return base
 
 
+@overload
+def check_number(
+    owner: str,
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_inclusive: bool = True,
+    integer: Literal[False] = False,
+    allow_none: Literal[False] = False,
+) -> float: ...
+@overload
+def check_number(
+    owner: str,
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_inclusive: bool = True,
+    integer: Literal[True],
+    allow_none: Literal[False] = False,
+) -> int: ...
+@overload
+def check_number(
+    owner: str,
+    name: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_inclusive: bool = True,
+    integer: bool = False,
+    allow_none: bool = False,
+) -> float | int | None: ...
 def check_number(
     owner: str,
     name: str,

@@ -30,7 +30,7 @@ __all__ = [
 class ControllerDesign(NamedTuple):
     """How a controller is made: ``controller(design_input(env), **options)``."""
 
-    controller: type[Controller]
+    controller: Callable[..., Controller]  # a class: controller(plant, **options)
     # builds the controller's first argument (its plant) from an env; raises ValueError
     # for an env the controller is not made for
     design_input: Callable[[gym.Env], Any]

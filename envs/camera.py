@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from observer_gym.envs.bullet import pybullet
 from observer_gym.envs.sim import Simulation
@@ -72,7 +73,7 @@ class PinholeIntrinsics:
         return m.T.reshape(-1).tolist()
 
 
-def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0, 1.0)):
+def look_at(eye_world: ArrayLike, target_world: ArrayLike, up_world=(0.0, 0.0, 1.0)):
     """``T_world_cam`` of a camera at ``eye_world`` whose optical axis points at
     ``target_world``, with image 'up' as close to ``up_world`` as possible."""
     eye = np.asarray(eye_world, dtype=float)

@@ -287,10 +287,12 @@ class CameraRig:
 
     def next_capture_tick(self) -> int:
         """The earliest tick at which some camera captures next (its frame may be lost)."""
+        assert self.clock is not None, "reset() first"
         return self.clock.next_capture_tick()
 
     def due(self, tick: int) -> list[int]:
         """The cameras that capture a kept frame at ``tick`` (drawing jitters and drops)."""
+        assert self.clock is not None, "reset() first"
         return self.clock.captures_at(tick)
 
     def capture(
@@ -308,6 +310,7 @@ class CameraRig:
                 (used in ``obs_mode="measurements"``).
         """
         mode = self.config.obs_mode
+        assert self.clock is not None, "reset() first"
         for c in cameras:
             T_nominal = _readonly(poses(c).copy())
             T_true = T_nominal if self._exact[c] else _readonly(self.errors[c].true_pose(T_nominal))
@@ -316,6 +319,7 @@ class CameraRig:
             if mode == "rgb":
                 payload = self._noisy(camera.render(T_true))
             elif mode == "measurements":
+                assert measure is not None, "measurements mode needs a measure"
                 payload = measure(c, camera.K, T_true)
             frame = Frame(
                 c,
@@ -333,6 +337,7 @@ class CameraRig:
         std = self.config.image_noise_std
         if std <= 0.0:
             return image
+        assert self.noise_rng is not None, "reset() first"
         noise = self.noise_rng.normal(0.0, std, image.shape)
         return np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)  # rounded: unbiased
 

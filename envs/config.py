@@ -12,7 +12,8 @@ import dataclasses
 import difflib
 import math
 import reprlib
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def real_array(name: str, value: Any, shape: tuple[int, ...], bound: float) -> n
     return array
 
 
-def _checked_value(name: str, value: Any, default: Any, meta: dict) -> Any:
+def _checked_value(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
     """``value`` in its field's Python type (NumPy scalars become int, float or bool), or
     ValueError naming the field, the value and what is allowed."""
     choices = meta["choices"]
@@ -116,6 +117,8 @@ def check_render_mode(render_mode: str | None, metadata: dict) -> None:
 
 class EnvConfig:
     """Mixin for frozen dataclasses declared with :func:`config_field`."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # set by @dataclass
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -169,6 +169,10 @@ class CameraEnv(gym.Env):
         self.observation_space = self._make_observation_space()
         self._build_world(self.sim)  # builds once now, so a broken setup fails here
 
+    action_space: spaces.Box  # narrower than gym.Env's Space
+    observation_space: spaces.Space
+    state_space: spaces.Box
+
     # --- what a system defines ------------------------------------------------------------
     tick_s: float  # the physics step
     ticks_per_step: int
@@ -225,6 +229,7 @@ class CameraEnv(gym.Env):
     def _advance(self, end_tick: int) -> None:
         """The physics of one env step, up to ``end_tick``: run the ticks up to each
         :meth:`_next_stop` and call :meth:`_reach` there (captures on inner ticks)."""
+        assert self._tick is not None, "reset() first"
         while self._tick < end_tick:
             stop = self._next_stop(end_tick)
             self.sim.step(stop - self._tick)
@@ -374,6 +379,7 @@ class CameraEnv(gym.Env):
         """The next tick the physics must stop at: a camera's capture before
         ``end_tick``, else ``end_tick``."""
         capture = self.rig.next_capture_tick()
+        assert self._tick is not None, "reset() first"
         return capture if self._tick < capture < end_tick else end_tick
 
     def _reach(self, tick: int, end_tick: int) -> None:
@@ -385,6 +391,7 @@ class CameraEnv(gym.Env):
 
     def _capture(self, cameras: list[int]) -> None:
         if cameras:
+            assert self._tick is not None, "reset() first"
             self.rig.capture(cameras, self._tick, self.camera_pose, self._measure)
 
     def _step_info(
@@ -462,7 +469,7 @@ class CameraEnv(gym.Env):
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(render_mode=state["render_mode"], **state["config"])
+        type(self).__init__(self, render_mode=state["render_mode"], **state["config"])
         self.spec = state["spec"]
         if state["copy_history_max_steps"] != type(self).copy_history_max_steps:
             self.copy_history_max_steps = state["copy_history_max_steps"]

@@ -12,9 +12,12 @@ from outside is one :func:`register_system` call.
 from __future__ import annotations
 
 import importlib
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import gymnasium as gym
+
+if TYPE_CHECKING:
+    from observer_gym.envs.core import CameraEnv
 
 NAMESPACE = "observer_gym"
 # where each layer keeps a system's part, under the package: <layer package>.<system name>
@@ -49,7 +52,7 @@ class System(NamedTuple):
         """The id without its namespace: "BallTable-v0"."""
         return self.env_id.split("/", 1)[-1]
 
-    def env_class(self) -> type[gym.Env]:
+    def env_class(self) -> type[CameraEnv]:
         """The env class of ``entry_point`` (imported on first use)."""
         module_name, class_name = self.entry_point.split(":")
         return getattr(importlib.import_module(module_name), class_name)

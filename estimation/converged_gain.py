@@ -93,6 +93,7 @@ class ConvergedGain:
             return None
         self._predicted = False
         fixed = self.fixed_point
+        assert fixed is not None  # a predict on the path had it
         if C is fixed.C and R is fixed.R and R12 is None and P_pred is fixed.P_pred:
             return fixed
         return None

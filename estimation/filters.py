@@ -160,7 +160,7 @@ class KalmanFilter:
         if (Gamma is None) != (u is None):
             raise ValueError("KalmanFilter.predict: give both Gamma and u, or neither")
         x = Phi.dot(self.x)
-        if Gamma is not None:
+        if Gamma is not None and u is not None:  # both or neither, checked above
             x += Gamma.dot(u)  # (1): Phi x + Gamma u
         converged = self._converged
         if converged is not None:
@@ -280,6 +280,7 @@ class KalmanFilter:
         """(5) with the fixed point's K_f, gated with its S; a rejected measurement leaves
         the converged-gain path."""
         C, S, Kt = fixed.C, fixed.S, fixed.Kt
+        assert self._converged is not None  # a fixed point is the converged path's
         d = y - C.dot(self.x)
         if self.gate is not None and not self.gate.accepts(d, S, fixed.R, fixed.CPCt):
             self.rejected_count += 1
@@ -377,7 +378,7 @@ def predictor_step(
     if (Gamma is None) != (u is None):
         raise ValueError("predictor_step: give both Gamma and u, or neither")
     x_next = np.dot(Phi, x_pred)
-    if Gamma is not None:
+    if Gamma is not None and u is not None:  # both or neither, checked above
         x_next = x_next + np.dot(Gamma, u)
     if y is None:
         P_next = symmetrised(np.dot(np.dot(Phi, P_pred), Phi.T) + Q)

@@ -18,7 +18,7 @@ import importlib
 import reprlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
@@ -144,7 +144,7 @@ def checked_measurement(owner: str, obs: Any, space: gym.spaces.Dict) -> dict[st
             f"{type(obs).__name__}: {reprlib.repr(obs)}"
         )
     return {
-        key: checked_measurement_array(owner, key, obs.get(key), sub.shape)
+        key: checked_measurement_array(owner, key, obs.get(key), cast(tuple, sub.shape))
         for key, sub in space.spaces.items()
     }
 
@@ -196,7 +196,7 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self, pipeline=pipeline, observer=observer, name=name, **options
         )
         gym.Wrapper.__init__(self, env)
-        base = env.unwrapped
+        base: Any = env.unwrapped  # an observer-gym env, checked below
         obs_mode = getattr(getattr(base, "config", None), "obs_mode", None)
         if obs_mode not in ("rgb", "measurements"):
             raise ValueError(
@@ -231,11 +231,11 @@ class VisionObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return estimate_obs, reward, terminated, truncated, info
 
     def _estimate(self, obs, info: dict, action):
+        space = cast(gym.spaces.Box, self.observation_space)  # the env's state_space
         estimate = checked_estimate(
-            self.pipeline.observe(obs, info, action), self.observation_space.shape[0], self.name
+            self.pipeline.observe(obs, info, action), space.shape[0], self.name
         )
         info = {**info, "estimate": estimate.as_info()}
-        space = self.observation_space
         mean = np.clip(estimate.mean, space.low, space.high).astype(space.dtype)
         return mean, info
 

@@ -91,6 +91,7 @@ class SteadyStateKalmanFilter:
         x_next = self._x_spare
         Phi.dot(self.x, x_next)
         if Gamma is not None:
+            assert u is not None, "give u with Gamma"
             x_next += Gamma.dot(u, self._gamma_u)
         self._x_spare = self.x
         self.x = x_next

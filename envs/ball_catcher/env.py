@@ -12,7 +12,7 @@ from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.camera_presets import preset_timings
 from observer_gym.envs.ball_catcher.config import BallCatcherConfig
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS, BOX_VEL, STATE_HIGH
-from observer_gym.envs.ball_catcher.scene import BallCatcherScene, WorldNow
+from observer_gym.envs.ball_catcher.scene import BallCatcherScene, GroundTruth, WorldNow
 from observer_gym.envs.ball_catcher.throws import (
     MAX_THROW_SPEED_MPS,
     Throw,
@@ -192,11 +192,11 @@ class BallCatcherEnv(CameraEnv):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / cfg.control_dt_s)}
         self.num_cameras = cfg.cameras
         self.camera_poses = [geo.camera_pose(c) for c in range(self.num_cameras)]
-        self._arm_home_q = None
+        self._arm_home_q: np.ndarray | None = None
         self._box_vel_cmd = np.zeros(3)
         self._outcome = FLYING
         self._throw: Throw | None = None
-        self._truth = None
+        self._truth: GroundTruth | None = None
         self._miss_m = 0.0
         # The catch judgement: the world after the last physics (sub)step (the ball's
         # centre and velocity there, box frame, are scene.ball_in_box(it)), whether the
@@ -285,6 +285,7 @@ class BallCatcherEnv(CameraEnv):
 
     def _advance(self, end_tick: int) -> None:
         drag = self.config.air_drag
+        assert self._tick is not None, "reset() first"
         while self._tick < end_tick:
             stop = self._next_stop(end_tick)
             ticks = stop - self._tick
@@ -333,6 +334,7 @@ class BallCatcherEnv(CameraEnv):
         uv = uv[0]
         sigma = self.config.measurement_noise_px
         if sigma > 0.0:
+            assert self.rig.noise_rng is not None, "reset() first"
             uv = uv + self.rig.noise_rng.normal(0.0, sigma, 2)
         w, h = self.rig.image_size_px
         if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
@@ -340,6 +342,7 @@ class BallCatcherEnv(CameraEnv):
         return uv
 
     def _ground_truth_state(self) -> np.ndarray:
+        assert self._truth is not None, "reset() first"
         return self._truth.state
 
     def _reward(self, action: np.ndarray) -> float:
@@ -353,6 +356,7 @@ class BallCatcherEnv(CameraEnv):
 
     def _info(self) -> dict[str, Any]:
         truth, throw = self._truth, self._throw
+        assert truth is not None and throw is not None, "reset() first"
         return {
             "T_world_box": truth.T_world_box.copy(),
             "box_pos_world_m": truth.state[BOX_POS].copy(),
@@ -415,11 +419,13 @@ class BallCatcherEnv(CameraEnv):
 
     @staticmethod
     def _checked_throw(given) -> Throw:
+        pos: np.ndarray | None
+        vel: np.ndarray | None
         try:
             pos, vel = (_real_vector(v) for v in given)
         except (TypeError, ValueError):
             pos = vel = None
-        if pos is None or pos.shape != (3,) or vel.shape != (3,):
+        if pos is None or vel is None or pos.shape != (3,) or vel.shape != (3,):
             raise ValueError(
                 "reset option throw must be (launch_pos_world, launch_vel_world), two 3-vectors"
             )
@@ -478,6 +484,7 @@ class BallCatcherEnv(CameraEnv):
     def _judge(self) -> str:
         if self._entered_clean is not None:
             return CAUGHT if self._entered_clean else MISSED
+        assert self._truth is not None, "reset() first"
         state = self._truth.state
         ball = state[BALL_POS]
         T = self._truth.T_world_box
@@ -492,6 +499,7 @@ class BallCatcherEnv(CameraEnv):
         value once the ball no longer approaches it or has touched the box)."""
         if self._approach_clean is not None:  # touched the box: no free flight to predict
             return self._miss_m
+        assert self._truth is not None, "reset() first"
         # plane_crossing(ball_pos, ball_vel, box_x) in floats, the same operations.
         (px, py, pz), (vx, vy, vz), (bx, by, bz) = (
             self._truth.state[index].tolist() for index in (BALL_POS, BALL_VEL, BOX_POS)

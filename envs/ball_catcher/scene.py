@@ -130,7 +130,10 @@ class WorldNow:
         self.ball_pos, self.ball_vel = ball_pos, ball_vel
         self.box_pos, self.box_vel = box_pos, box_vel
         self.R_raw = R_raw
-        self._arrays = self._ball_in_box = self._box_centre_distance = self._speed = None
+        self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._ball_in_box: tuple[np.ndarray, np.ndarray] | None = None
+        self._box_centre_distance: float | None = None
+        self._speed: float | None = None
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ball centre, box origin, R_world_box, ball velocity relative to the box)."""

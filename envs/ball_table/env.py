@@ -18,7 +18,7 @@ from observer_gym.envs.ball_table.layout import (
     STATE_HIGH,
 )
 from observer_gym.envs.ball_table.measurements import empty_measurement, perfect_measurement
-from observer_gym.envs.ball_table.scene import BallTableScene
+from observer_gym.envs.ball_table.scene import BallTableScene, GroundTruth
 from observer_gym.envs.camera import PinholeIntrinsics
 from observer_gym.envs.config import real_array
 from observer_gym.envs.core import CameraEnv
@@ -165,10 +165,10 @@ class BallTableEnv(CameraEnv):
         self.ticks_per_step = cfg.physics_substeps
         self.metadata = {**self.metadata, "render_fps": cfg.frame_rate_hz}
         self.disturbances = Disturbances(cfg)
-        self._arm_home_q = None  # refined by IK at the first build, reused by the next ones
+        self._arm_home_q: np.ndarray | None = None  # IK refines it at the first build; reused
         self._push_impulse: np.ndarray | None = None
-        self._truth = None
-        self._truth_tick = -1  # the tick self._truth describes
+        self._truth: GroundTruth | None = None
+        self._truth_tick: int | None = -1  # the tick self._truth describes
         super().__init__(render_mode, **options)
 
     # --- the system's hooks -------------------------------------------------------------
@@ -260,6 +260,7 @@ class BallTableEnv(CameraEnv):
             centre, rotation = self.scene.occluder_pose_world
             occluder = (centre, rotation, geo.OCCLUDER_HALF_EXTENTS_M)
         truth = self._truth if self._truth_tick == self._tick else self.scene.ground_truth()
+        assert truth is not None
         return perfect_measurement(
             K,
             T_world_cam,
@@ -272,10 +273,12 @@ class BallTableEnv(CameraEnv):
         )
 
     def _ground_truth_state(self) -> np.ndarray:
+        assert self._truth is not None, "reset() first"
         return self._truth.state
 
     def _reward(self, action: np.ndarray) -> float:
         cfg = self.config
+        assert self._truth is not None, "reset() first"
         distance = norm(self._truth.state[BALL_POS])
         # np.mean((action / max_tilt_rad) ** 2) in floats: NumPy sums two terms in order.
         tilt_x, tilt_y = action.tolist()
@@ -284,6 +287,7 @@ class BallTableEnv(CameraEnv):
         return 1.0 - distance / geo.BALL_TRAVEL_M - cfg.effort_weight * effort
 
     def _terminated(self) -> bool:
+        assert self._truth is not None, "reset() first"
         x, y, _ = self._truth.ball_pos_table.tolist()
         if x != x or y != y:  # NaN: np.max gave NaN, never beyond the border
             return False
@@ -291,6 +295,7 @@ class BallTableEnv(CameraEnv):
 
     def _info(self) -> dict[str, Any]:
         T_world_cam = self.camera_pose()
+        assert self._truth is not None, "reset() first"
         return {
             "T_world_table": self._truth.T_world_table.copy(),
             "camera": {

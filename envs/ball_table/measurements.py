@@ -83,6 +83,7 @@ def perfect_measurement(
         out[DETECTED][1] = 1
     if noise_px > 0.0:
         # Always draw the same count, so the random stream does not depend on visibility.
+        assert rng is not None, "noise_px > 0 needs rng"
         corner_noise = rng.normal(0.0, noise_px, size=(4, 2))
         ball_noise = rng.normal(0.0, noise_px, size=3)
         if out[DETECTED][0]:

@@ -92,12 +92,12 @@ class BallTableScene:
             client.changeDynamics(
                 body, -1, lateralFriction=friction, rollingFriction=0.0, spinningFriction=0.0
             )
-        self.occluder = None
+        self.occluder: int | None = None
         if with_occluder:
             self.occluder = client.loadURDF(
                 asset_path("occluder.urdf"), list(OCCLUDER_PARKED_WORLD), useFixedBase=True
             )
-        self.occluder_pose_world = None  # (position, rotation) while in view
+        self.occluder_pose_world: tuple[np.ndarray, np.ndarray] | None = None  # while in view
 
     # --- commands ---------------------------------------------------------------------
     def place_ball(self, ball_pos_table, ball_vel_table) -> None:

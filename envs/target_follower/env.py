@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -26,7 +26,7 @@ from observer_gym.envs.target_follower.layout import (
 )
 from observer_gym.envs.target_follower.measurements import empty_measurement, perfect_measurement
 from observer_gym.envs.target_follower.motion import OccluderWalk, TargetMotion
-from observer_gym.envs.target_follower.scene import TargetFollowerScene
+from observer_gym.envs.target_follower.scene import GroundTruth, TargetFollowerScene
 
 FAR_PLANE_M = 8.0  # the renderer's far plane: the target stays within a few metres
 RESET_OPTIONS = ("target_pos_world_m", "tilt_rad", "occlusions_s")
@@ -185,7 +185,7 @@ class TargetFollowerEnv(CameraEnv):
         self.occluder_walk = OccluderWalk(cfg.occluder_hold_s, cfg.occluder_rate_hz)
         self._command = np.zeros(3)
         self._lost_s = 0.0
-        self._truth = None
+        self._truth: GroundTruth | None = None
         self._calibration: dict[str, float] | None = None
         super().__init__(render_mode, **options)
 
@@ -340,6 +340,7 @@ class TargetFollowerEnv(CameraEnv):
 
     def _advance(self, end_tick: int) -> None:
         start = self._tick
+        assert start is not None, "reset() first"
         if self._next_stop(end_tick) == end_tick:  # no camera captures inside the step
             self.scene.advance(self._command, self.config.dt_s, self.ticks_per_step)
         else:
@@ -363,6 +364,7 @@ class TargetFollowerEnv(CameraEnv):
         walk.update(now, cfg.dt_s, self.np_random)
         pose = None  # walk.pose's answer when no event is under way
         if walk.active_start_s is not None:
+            assert scene.motion is not None
             pose = walk.pose(now, scene.camera_pose()[:3, 3], scene.motion.pos)
         scene.place_occluder(pose)
         self._truth = scene.ground_truth()
@@ -373,6 +375,7 @@ class TargetFollowerEnv(CameraEnv):
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray) -> dict:
         cfg = self.config
+        assert self.scene.motion is not None, "reset() first"
         out = perfect_measurement(
             K,
             T_world_cam,
@@ -384,14 +387,16 @@ class TargetFollowerEnv(CameraEnv):
             rounding=cfg.measurement_rounding,
             rng=self.rig.noise_rng,
         )
-        space = self.observation_space[TARGET_PX]
+        space = cast(spaces.Box, cast(spaces.Dict, self.observation_space)[TARGET_PX])
         out[TARGET_PX] = np.clip(out[TARGET_PX], space.low, space.high).astype(np.float32)
         return out
 
     def _ground_truth_state(self) -> np.ndarray:
+        assert self._truth is not None, "reset() first"
         return self._truth.state
 
     def _reward(self, action: np.ndarray) -> float:
+        assert self._truth is not None, "reset() first"
         if not self._truth.in_image:
             return 0.0
         d_star = self.config.desired_width_px
@@ -408,12 +413,14 @@ class TargetFollowerEnv(CameraEnv):
     def _terminated(self) -> bool:
         """Called once per step: it also advances the time the target has been lost."""
         cfg = self.config
+        assert self._truth is not None, "reset() first"
         self._lost_s = 0.0 if self._truth.in_image else self._lost_s + cfg.dt_s
         too_close = self._truth.depth_m < cfg.min_distance_m
         return bool(self._lost_s >= cfg.lost_timeout_s - 1e-9 or too_close)
 
     def _info(self) -> dict[str, Any]:
         truth, scene = self._truth, self.scene
+        assert truth is not None, "reset() first"
         return {
             "camera": {
                 "K": self.rig.K_nominal[0].copy(),

@@ -71,8 +71,8 @@ def image_state(
 ) -> np.ndarray:
     """(x_i, y_i, d_x) in pixels; depth clamped at MIN_DEPTH_M (the target is then
     behind or beside the camera and the numbers only mark it as far out of view)."""
-    p = target_in_camera(T_world_cam, target_pos_world)
-    return np.array(image_state_in_camera(K, *p.tolist(), width_m))
+    x, y, z = target_in_camera(T_world_cam, target_pos_world).tolist()
+    return np.array(image_state_in_camera(K, x, y, z, width_m))
 
 
 def image_state_in_camera(

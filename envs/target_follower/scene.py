@@ -147,7 +147,8 @@ class TargetFollowerScene:
         tilt_start = self.tilt_rad
         tilt_end = min(max(tilt_start + tilt_rate_cmd * dt_s, low), high)
         omega_t = (tilt_end - tilt_start) / dt_s  # the tilt stops at its end stops
-        start = (*self.robot_xy_m.tolist(), self.yaw_rad)
+        x0, y0 = self.robot_xy_m.tolist()
+        start = (x0, y0, self.yaw_rad)
         self.applied = np.array([v, omega, omega_t])
 
         def place_robot(t_s: float, tilt_rad: float) -> None:
@@ -156,7 +157,7 @@ class TargetFollowerScene:
             self.yaw_rad = wrap_angle(yaw)
             self.tilt_rad = tilt_rad
 
-        after_substep = None
+        after_substep: Callable[[int], None] | None = None
         if stops is not None:
 
             def after_substep(k: int) -> None:
@@ -164,8 +165,10 @@ class TargetFollowerScene:
                     t_s = (k + 1) * dt_s / substeps
                     place_robot(t_s, tilt_start + omega_t * t_s)
                     self._place()
-                    on_stop(k)
+                    if on_stop is not None:
+                        on_stop(k)
 
+        assert self.motion is not None, "start an episode first"
         self.motion.advance(dt_s, substeps, after_substep)
         place_robot(dt_s, tilt_end)
         self._place()
@@ -188,6 +191,7 @@ class TargetFollowerScene:
             self.robot, [x, y, 0.0], _yaw_quaternion(self.yaw_rad)
         )
         client.resetJointState(self.robot, 0, self.tilt_rad)
+        assert self.motion is not None, "start an episode first"
         client.resetBasePositionAndOrientation(
             self.target, self.motion.pos.tolist(), [0.0, 0.0, 0.0, 1.0]
         )
@@ -211,6 +215,7 @@ class TargetFollowerScene:
         T = self.camera_pose()
         if self.T_nominal_true is not None:
             T = T @ self.T_nominal_true
+        assert self.motion is not None, "start an episode first"
         pos, vel = self.motion.pos.copy(), self.motion.velocity
         W = self.target_width_m
         # The target in the camera frame, once for the depth, the image state and its rate
@@ -219,7 +224,7 @@ class TargetFollowerScene:
         p = (R_cam_world @ (pos - T[:3, 3])).tolist()
         pdot = (R_cam_world @ vel).tolist()
         depth = p[2]
-        x_i, y_i, d_x = geo.image_state_in_camera(self.K, *p, W)
+        x_i, y_i, d_x = geo.image_state_in_camera(self.K, p[0], p[1], p[2], W)
         in_front = depth > geo.MIN_DEPTH_M
         on_image = in_front and in_image(self.K, self.image_size_px, x_i, y_i)
         occluded = fully_hidden(T, pos, 0.5 * W, self.occluder_pose)

@@ -8,7 +8,8 @@ converts them, so the same geometry stage runs on both.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import Field, dataclass, fields
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -30,12 +31,14 @@ class _ComparedByValue:
     """``==`` field by field, arrays by value (a dataclass's own ``==`` fails on arrays,
     and gymnasium's env checker compares the infos an observer puts these in)."""
 
+    __dataclass_fields__: ClassVar[dict[str, Field[Any]]]  # the subclass's @dataclass
+
     def __eq__(self, other: object) -> bool:
         if type(other) is not type(self):
             return NotImplemented
         return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
 
-    __hash__ = None  # mutable arrays inside
+    __hash__ = None  # type: ignore[assignment]  # mutable arrays inside; typeshed: a method
 
 
 def _same(a, b) -> bool:

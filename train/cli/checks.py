@@ -95,7 +95,11 @@ def observer_mode(env_id: str, observer: str) -> str:
     """The ``obs_mode`` of the env ``observer`` reads: a task observer's, or an outside
     observer's ("measurements" with the ``-measurements`` suffix, else "rgb")."""
     modes = names_for(env_id).observer_modes
-    return modes[observer] if observer in modes else _observer_plugin(env_id, observer).obs_mode
+    if observer in modes:
+        return modes[observer]
+    mode = _observer_plugin(env_id, observer).obs_mode
+    assert mode is not None  # an observer plugin's is "rgb" or "measurements"
+    return mode
 
 
 def check_controller(controller: str, env_id: str, observer: str) -> None:
@@ -153,7 +157,9 @@ def frames_message(controller: str, observer: str) -> str:
 def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str) -> None:
     """ValueError unless the trained agent ``controller`` (``ALGO:DIR``) is a run of
     ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``."""
-    algo, run_dir = parse_agent_spec(controller)
+    spec = parse_agent_spec(controller)
+    assert spec is not None, f"{controller!r} is not ALGO:DIR"  # the callers' check
+    algo, run_dir = spec
     agent = read_config(run_dir, algo=algo)
     model_files(run_dir)
     if agent["env_id"] != env_id:

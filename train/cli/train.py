@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from observer_gym.train.cli.args import (
     Command,
@@ -256,7 +257,7 @@ def _train_run(args: argparse.Namespace) -> int:
     return INTERRUPTED_EXIT_CODE if state["status"] == "interrupted" else 0
 
 
-def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict[str, object]:
+def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict[str, Any]:
     """The keywords of ``train_agent`` that ``args`` give, for a run in ``run_dir``."""
     return {
         "env_id": args.env,
@@ -275,7 +276,7 @@ def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict
     }
 
 
-def _check_train_options(args: argparse.Namespace, options: dict[str, object]) -> None:
+def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> None:
     """The checks of a new run: the light ones first, then (importing PyTorch and
     stable-baselines3, whose classes know their hyperparameters) ``check_training``."""
     from observer_gym.train.cli.checks import check_training_request, training_overrides

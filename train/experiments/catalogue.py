@@ -49,6 +49,7 @@ def observer_summary(name: str) -> str:
 def _agent_summary(name: str) -> tuple[str, str]:
     """(env id, one line) of the shipped agent ``name``: from its config and README title."""
     folder = shipped_path(name)
+    assert folder is not None  # one of shipped_names()
     config = json.loads((folder / "config.json").read_text(encoding="utf-8"))
     readme = folder / README_FILE
     title = ""
@@ -89,12 +90,15 @@ def catalogue() -> list[Listed]:
             items.append(Listed(kind, name, tuple(env_ids), summary, "observer-gym"))
     for name in shipped_names():
         env_id, summary = _agent_summary(name)
-        algo = json.loads((shipped_path(name) / "config.json").read_text(encoding="utf-8"))["algo"]
+        folder = shipped_path(name)
+        assert folder is not None  # one of shipped_names()
+        algo = json.loads((folder / "config.json").read_text(encoding="utf-8"))["algo"]
         items.append(Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym"))
     all_envs = tuple(system.env_id for system in SYSTEMS)
     for kind in ("observer", "controller"):
         for name, entry_point in entries.entry_points(kind).items():
             plugin = entries.find_plugin(kind, name)
+            assert plugin is not None  # an installed entry point
             items.append(
                 Listed(
                     kind, name, all_envs, f"{entry_point.value} ({plugin.version})", plugin.source

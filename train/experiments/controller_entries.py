@@ -17,7 +17,7 @@ import reprlib
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -51,7 +51,7 @@ class CheckedController:
         self.controller = entries.build(plugin, env, options)
         self.name = plugin.name
         self.entry = plugin.describe(options)
-        self._space = env.action_space
+        self._space = cast(gym.spaces.Box, env.action_space)  # checked_action needs a Box
 
     def __getattr__(self, attribute: str) -> Any:  # only for attributes not set above
         return getattr(self.__dict__["controller"], attribute)
@@ -131,7 +131,7 @@ class PolicyFile:
                 f"policy {self.name!r} acts with shape {self.model.action_space.shape}, the "
                 f"env takes {env.action_space.shape}"
             )
-        self._space = env.action_space
+        self._space = cast(gym.spaces.Box, env.action_space)  # checked_action needs a Box
 
     def reset(self) -> None:
         """Nothing to reset: a stable-baselines3 policy here is feed-forward."""

@@ -234,7 +234,7 @@ class _Copies:
         return copy.deepcopy(self.prototype)
 
 
-def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[str, Any]]:
+def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[tuple[str, str], Any]]:
     """``(name, objects)`` for an entry given from Python: a name or import path (text)
     as it is, with no objects; a module-level factory by its import path; any other
     factory, or an object with the protocol (an observer pipeline's ``reset`` and

@@ -13,7 +13,8 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import multiprocessing
-from collections.abc import Callable, Iterator, Mapping, Sequence
+import sys
+from collections.abc import Callable, Generator, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -277,7 +278,7 @@ def iter_episodes(
     specs: Sequence[EpisodeSpec],
     workers: int = 1,
     run: Callable[[EpisodeSpec], Any] = run_episode,
-) -> Iterator[tuple[int, Any]]:
+) -> Generator[tuple[int, Any], None, None]:
     """``(index, run(specs[index]))`` for every spec, as each finishes: in order in this
     process for ``workers`` == 1, else in ``workers`` spawned processes (``run`` must then
     be a module-level function), in the order they finish. The first episode that fails
@@ -296,7 +297,8 @@ def iter_episodes(
             for future in concurrent.futures.as_completed(futures):
                 error = future.exception()
                 if error is not None:  # ends the run now, not after the other episodes
-                    error.add_note(f"in the episode {specs[futures[future]]}")
+                    if sys.version_info >= (3, 11):  # add_note is 3.11's; 3.10 raises as is
+                        error.add_note(f"in the episode {specs[futures[future]]}")
                     raise error
                 yield futures[future], future.result()
         except BaseException:  # a failed episode, Ctrl-C, or the caller stopped iterating

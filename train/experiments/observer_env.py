@@ -32,6 +32,7 @@ def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] |
     plugin = entries.find_plugin("observer", observer)
     if plugin is None:
         raise ValueError(entries.unknown_message("observer", observer, env_id, list(observers)))
+    assert plugin.obs_mode is not None  # an observer plugin's is "rgb" or "measurements"
     return plugin.obs_mode, None, plugin
 
 

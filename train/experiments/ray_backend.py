@@ -21,7 +21,7 @@ import logging
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
 from tqdm import tqdm
@@ -105,7 +105,7 @@ def iter_tasks_ray(
     function: Callable[..., Any],
     arguments: Sequence[tuple[Any, ...]],
     address: str | None = None,
-) -> Iterator[tuple[int, Any]]:
+) -> Generator[tuple[int, Any], None, None]:
     """``(index, function(*arguments[index]))`` for every entry as each finishes, each a
     Ray task of one CPU (``function`` must be importable on every node).
 
@@ -184,7 +184,7 @@ def iter_episodes_ray(
     specs: Sequence[EpisodeSpec],
     address: str | None = None,
     run: Callable[[EpisodeSpec], Any] = run_episode,
-) -> Iterator[tuple[int, Any]]:
+) -> Generator[tuple[int, Any], None, None]:
     """``(index, run(specs[index]))`` for every spec as each finishes, as Ray tasks
     (:func:`iter_tasks_ray`; ``run``: a module-level function, :func:`run_episode` by
     default)."""

@@ -34,7 +34,7 @@ import dataclasses
 import json
 import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Generator, Mapping, Sequence
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,7 +105,9 @@ def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
 
 
 # --- running -------------------------------------------------------------------------------
-def _episodes(plan: SweepPlan, specs: Sequence[EpisodeSpec]) -> Iterator[tuple[int, Any]]:
+def _episodes(
+    plan: SweepPlan, specs: Sequence[EpisodeSpec]
+) -> Generator[tuple[int, Any], None, None]:
     """(index, :func:`sweep_episode` of specs[index]) as they finish, on the plan's backend."""
     if plan.backend == "ray":
         from observer_gym.train.experiments.ray_backend import (

@@ -83,7 +83,7 @@ def episode_consistency(record: Mapping[str, Any]) -> dict[str, float | None]:
     observer gave none."""
     if record.get("nees") is None:
         return {}
-    out = {}
+    out: dict[str, float | None] = {}
     for name in ("nees", "nis"):
         values, dof = np.asarray(record[name], float), np.asarray(record[f"{name}_dof"], float)
         has = np.isfinite(values) & (dof > 0)

@@ -57,6 +57,7 @@ def signals_deferred() -> Iterator[None]:
         received.append(signum)
 
     previous: dict[int, Any] = {}
+    signum: int
     try:
         for signum in DEFERRED:
             if signal.getsignal(signum) is not None:  # None: set outside Python, kept

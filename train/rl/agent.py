@@ -35,7 +35,12 @@ class Agent:
     """
 
     def __init__(
-        self, model: Any, obs_normalizer: Any, config: dict[str, Any], run_dir: Path, steps: int
+        self,
+        model: Any,
+        obs_normalizer: Any,
+        config: dict[str, Any],
+        run_dir: Path,
+        steps: int | None,
     ) -> None:
         self.model, self.obs_normalizer, self.config = model, obs_normalizer, config
         self.algo, self.obs = config["algo"], config["obs"]

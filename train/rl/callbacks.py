@@ -13,7 +13,7 @@ class EveryStepsCallback(BaseCallback):
     def __init__(self, every_steps: int) -> None:
         super().__init__()
         self.every_steps = int(every_steps)
-        self._next = None
+        self._next: int | None = None
 
     def _schedule(self) -> None:
         self._next = (self.num_timesteps // self.every_steps + 1) * self.every_steps
@@ -22,6 +22,7 @@ class EveryStepsCallback(BaseCallback):
         self._schedule()
 
     def _on_step(self) -> bool:
+        assert self._next is not None  # scheduled at the training's start
         if self.num_timesteps >= self._next:
             self.act()
             self._schedule()

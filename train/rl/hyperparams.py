@@ -38,10 +38,13 @@ import inspect
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import yaml
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGOS = ("ppo", "sac", "td3")
@@ -65,11 +68,11 @@ VEC_ENVS = ("subproc", "dummy")
 ACTIVATIONS = ("relu", "tanh", "elu")
 
 
-def algorithm_class(algo: str) -> type:
+def algorithm_class(algo: str) -> type[BaseAlgorithm]:
     """SB3's class for ``algo`` (ppo, sac, td3)."""
     from stable_baselines3 import PPO, SAC, TD3
 
-    classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    classes: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
     if algo not in classes:
         raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
     return classes[algo]

@@ -13,7 +13,7 @@ import functools
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -31,6 +31,10 @@ from observer_gym.train.rl.run_dir import (
     STATE_FILE,
     latest_checkpoint,
 )
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 TRAIN_SEED_OFFSET = 1_000_000
 EVAL_SEED_OFFSET = 2_000_000
@@ -148,7 +152,10 @@ def learn(
             try:
                 model = cls.load(checkpoint["model"], env=venv, device="cpu")
                 if "replay_buffer" in checkpoint:
-                    model.load_replay_buffer(checkpoint["replay_buffer"])
+                    # saved for off-policy algorithms only (save_checkpoint)
+                    cast("OffPolicyAlgorithm", model).load_replay_buffer(
+                        checkpoint["replay_buffer"]
+                    )
             except Exception as exc:  # files SB3 cannot load (another version, no hashes)
                 raise _unloadable(run_dir, start_steps, exc) from exc
         else:
@@ -169,7 +176,7 @@ def learn(
             episodes=training["eval_episodes"],
             eval_seed=eval_seed,
         )
-        callbacks = [
+        callbacks: list[BaseCallback] = [
             CheckpointCallback(
                 run_dir / "checkpoints", training["checkpoint_freq"], save_replay_buffer
             ),

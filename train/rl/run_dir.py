@@ -244,7 +244,7 @@ def _entry_paths(directory: Path, entry: Mapping[str, Any]) -> dict[str, Path | 
     }
 
 
-def latest_checkpoint(directory: Path) -> dict[str, Path | int] | None:
+def latest_checkpoint(directory: Path) -> dict[str, Any] | None:
     """The newest complete checkpoint in ``directory`` as ``latest.json`` names it (its
     files as paths and its ``timesteps``), or None if none was saved.
 
@@ -319,7 +319,7 @@ def _problem(directory: Path, entry: Mapping[str, Any]) -> str | None:
     return None if bad is None else f"{directory / entry['model']} is damaged ({bad})"
 
 
-def intact_checkpoint(directory: Path) -> tuple[dict[str, Path | int] | None, list[str]]:
+def intact_checkpoint(directory: Path) -> tuple[dict[str, Any] | None, list[str]]:
     """The newest checkpoint in ``directory`` whose files are all there and as saved
     (:func:`save_checkpoint <observer_gym.train.rl.checkpoints.save_checkpoint>` records
     each set's files and their sha256 in ``checkpoint_<N>.json``, and ``latest.json``

@@ -264,7 +264,7 @@ def _resume(
         read_config(run_dir)
         state = read_state(run_dir)
         status = None if state is None else state["status"]
-        if status == "running":
+        if state is not None and status == "running":
             raise ValueError(
                 f"seed {seed} of {out_dir} is still running (pid "
                 f"{(state.get('writer') or {}).get('pid', '?')}); stop it before resuming"

@@ -335,6 +335,7 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
     state = check_resumable(run_dir)
     config = read_config(run_dir)
     checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
+    assert checkpoint is not None  # check_resumable found it
     for problem in problems:
         warnings.warn(
             f"{problem}; resuming from the checkpoint at {checkpoint['timesteps']} steps",
