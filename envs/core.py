@@ -360,6 +360,7 @@ class CameraEnv(gym.Env):
             raise ResetNeeded("call reset() before step()")
         space = self.action_space
         action = checked_action(action, space, self._bounds(space))
+        assert self._history is not None  # made by every reset, as _tick
         self._history.append(action)
         self._apply_action(action)
         end_tick = self._tick + self.ticks_per_step
@@ -443,7 +444,7 @@ class CameraEnv(gym.Env):
 
     # --- copies ---------------------------------------------------------------------------
     def __getstate__(self) -> dict[str, Any]:
-        state = {
+        state: dict[str, Any] = {
             "render_mode": self.render_mode,
             "config": dataclasses.asdict(self.config),
             "copy_history_max_steps": self.copy_history_max_steps,

@@ -9,6 +9,7 @@ about 28 MB); after it, every use of the world raises :class:`EnvClosedError`.
 from __future__ import annotations
 
 from importlib import resources
+from typing import cast
 
 from gymnasium.error import ClosedEnvironmentError
 
@@ -121,5 +122,6 @@ class Simulation:
         if self.client._client >= 0:
             self.client.disconnect()
             self.client._client = -1
-            self.client = _ClosedClient()
+            # a stand-in with the client's calls, each raising EnvClosedError
+            self.client = cast(BulletClient, _ClosedClient())
             self.version += 1

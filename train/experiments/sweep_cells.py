@@ -156,11 +156,12 @@ def finished_cells(out_dir: Path, plan: SweepPlan) -> dict[str, dict]:
     """The plan's cells already in ``out_dir/cells`` (by id) that :func:`cell_problem`
     finds nothing wrong with; each other cell file found there is left out with a
     :class:`SweepWarning` naming it and what differed (that cell runs again)."""
-    found = {}
+    found: dict[str, dict] = {}
     for cell in plan.cells:
         path = out_dir / CELLS_DIR / f"{cell.id}.json"
         if not path.exists():
             continue
+        problem: str | None
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:

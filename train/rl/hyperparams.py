@@ -125,7 +125,7 @@ def resolve_hyperparams(
     """
     if algo not in ALGOS:
         raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
-    entry = copy.deepcopy(env_entry(env_id, algo))
+    entry = dict(copy.deepcopy(env_entry(env_id, algo)))
     by_obs = entry.pop("obs", None) or {}
     params = _merge(copy.deepcopy(TRAINING_DEFAULTS), entry)
     _merge(params, by_obs.get(obs) or {})

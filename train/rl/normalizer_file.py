@@ -101,8 +101,12 @@ def stats_of(vec_normalize: Any) -> NormalizerStats:
     return NormalizerStats(
         obs=obs,
         ret=_running(vec_normalize.ret_rms),
-        **{name: float(getattr(vec_normalize, name)) for name in _SCALARS},
-        **{name: bool(getattr(vec_normalize, name)) for name in _FLAGS},
+        clip_obs=float(vec_normalize.clip_obs),
+        clip_reward=float(vec_normalize.clip_reward),
+        gamma=float(vec_normalize.gamma),
+        epsilon=float(vec_normalize.epsilon),
+        norm_obs=bool(vec_normalize.norm_obs),
+        norm_reward=bool(vec_normalize.norm_reward),
     )
 
 
@@ -129,7 +133,8 @@ def write_stats(stats: NormalizerStats, path: str | Path) -> None:
     """Write ``stats`` to ``path`` as an ``.npz`` of plain arrays (the name is kept as
     given: numpy adds no suffix)."""
     with open(path, "wb") as f:
-        np.savez(f, **_arrays(stats))
+        # numpy's stub types **kwds as if a key could be savez's allow_pickle flag
+        np.savez(f, **_arrays(stats))  # type: ignore[arg-type]
 
 
 def save_normalizer(vec_normalize: Any, path: str | Path) -> None:
@@ -222,8 +227,12 @@ def read_stats(path: str | Path) -> NormalizerStats:
     return NormalizerStats(
         obs=obs,
         ret=_read_running(arrays, "ret", path),
-        **{name: _real(arrays[name], name, path) for name in _SCALARS},
-        **{name: _flag(arrays[name], name, path) for name in _FLAGS},
+        clip_obs=_real(arrays["clip_obs"], "clip_obs", path),
+        clip_reward=_real(arrays["clip_reward"], "clip_reward", path),
+        gamma=_real(arrays["gamma"], "gamma", path),
+        epsilon=_real(arrays["epsilon"], "epsilon", path),
+        norm_obs=_flag(arrays["norm_obs"], "norm_obs", path),
+        norm_reward=_flag(arrays["norm_reward"], "norm_reward", path),
     )
 
 
@@ -257,7 +266,7 @@ def build_vec_normalize(stats: NormalizerStats, venv: Any, training: bool) -> An
         epsilon=stats.epsilon,
         norm_obs_keys=keys,
     )
-    if norm_obs:
+    if norm_obs and stats.obs is not None:  # (norm_obs says it is not None)
         expected = vec_normalize.obs_rms
         given = stats.obs if isinstance(stats.obs, dict) else {None: stats.obs}
         current = expected if isinstance(expected, dict) else {None: expected}
