@@ -10,30 +10,30 @@ filter and the observer pipelines (docs/spec/catcher.md).
   re-filtering) and reports the prediction to the step's time, the time the next action
   is applied (see :mod:`~observer_gym.estimation.ball_catcher.observer`), so there is no
   latency gap for a second pipeline to close.
-- ``raw``: triangulation of the two newest detections, no filter (:class:`BallCatcherRaw`).
+- ``raw``: triangulation of the two newest detections, no filter (:class:`RawObserver`).
 - ``ekf``: an iterated EKF on the pixels through each frame's pinhole model, fused at
-  capture time (:class:`BallCatcherPixelEKF`).
+  capture time (:class:`PixelEKFObserver`).
 - ``oracle-visible``: ground truth while the ball is detected, predicted otherwise; reads
-  the truth, for analysis only (:class:`BallCatcherOracleVisible`).
+  the truth, for analysis only (:class:`OracleVisibleObserver`).
 """
 
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
-from observer_gym.estimation.ball_catcher.oracle_visible import BallCatcherOracleVisible
-from observer_gym.estimation.ball_catcher.pixel_ekf import BallCatcherPixelEKF
-from observer_gym.estimation.ball_catcher.raw import BallCatcherRaw
+from observer_gym.estimation.ball_catcher.oracle_visible import OracleVisibleObserver
+from observer_gym.estimation.ball_catcher.pixel_ekf import PixelEKFObserver
+from observer_gym.estimation.ball_catcher.raw import RawObserver
 
 OBSERVERS = {
     "kf": BallCatcherObserver,
     "kf-latency": BallCatcherObserver,  # kf is already latency-aware (see above)
-    "raw": BallCatcherRaw,
-    "ekf": BallCatcherPixelEKF,
-    "oracle-visible": BallCatcherOracleVisible,
+    "raw": RawObserver,
+    "ekf": PixelEKFObserver,
+    "oracle-visible": OracleVisibleObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "BallCatcherObserver",
-    "BallCatcherOracleVisible",
-    "BallCatcherPixelEKF",
-    "BallCatcherRaw",
+    "OracleVisibleObserver",
+    "PixelEKFObserver",
+    "RawObserver",
 ]

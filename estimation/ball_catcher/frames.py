@@ -20,10 +20,10 @@ from observer_gym.estimation.observer import (
     checked_rgb_frame,
 )
 
-__all__ = ["FramePixels"]
+__all__ = ["FrameReader"]
 
 
-class FramePixels:
+class FrameReader:
     """The ball's pixel (u, v) in a delivered frame (see the module docstring).
 
     Args:

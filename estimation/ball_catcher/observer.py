@@ -82,7 +82,7 @@ from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_
 from observer_gym.envs.ball_catcher.throws import throw_through
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
-from observer_gym.estimation.ball_catcher.frames import FramePixels
+from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.r_scale import checked_r_scale
 
@@ -239,7 +239,7 @@ class BallCatcherObserver:
             )
         self.reacquire_after = checked_reacquire_after(reacquire_after, "BallCatcherObserver")
         cfg = env.config
-        self.pixels = FramePixels(cfg, detector, owner="BallCatcherObserver")
+        self.pixels = FrameReader(cfg, detector, owner="BallCatcherObserver")
         self.rgb = self.pixels.rgb
         self.detector = self.pixels.detector
         self.pixel_std_px = float(
@@ -265,7 +265,7 @@ class BallCatcherObserver:
 
     def detect(self, frame: dict) -> np.ndarray | None:
         """The ball's pixel (u, v) in one delivered frame, or None (also for NaN, inf or beyond
-        MAX_PIXEL_PX); see :class:`FramePixels`."""
+        MAX_PIXEL_PX); see :class:`FrameReader`."""
         return self.pixels.detect(frame)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:

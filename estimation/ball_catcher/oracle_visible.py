@@ -6,7 +6,7 @@ late) from what the filters cost: it knows the ball exactly whenever a filter co
 had a measurement, and nothing more.
 
 At each step: if at least one frame delivered this step shows the ball (through the same
-detection as the other observers, :class:`~observer_gym.estimation.ball_catcher.frames.FramePixels`:
+detection as the other observers, :class:`~observer_gym.estimation.ball_catcher.frames.FrameReader`:
 the rgb detector on the image, the perfect detector's report in measurements mode), the
 ball's true position and velocity now (at the step's time, whatever the frame's capture
 time); otherwise the last true state so read, predicted to the step's time by the ball's
@@ -29,15 +29,15 @@ import numpy as np
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
-from observer_gym.estimation.ball_catcher.frames import FramePixels
+from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.models import BallFlight, env_drag_per_m
 from observer_gym.estimation.ball_catcher.observer import initial_estimate
 from observer_gym.estimation.observer import Estimate
 
-__all__ = ["BallCatcherOracleVisible"]
+__all__ = ["OracleVisibleObserver"]
 
 
-class BallCatcherOracleVisible:
+class OracleVisibleObserver:
     """The ``oracle-visible`` observer of BallCatcher-v0: ground truth while the ball is
     detected, predicted otherwise (see the module docstring; for analysis only).
 
@@ -49,10 +49,10 @@ class BallCatcherOracleVisible:
     def __init__(self, env: BallCatcherEnv, detector: BallCatcherDetector | None = None) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(
-                f"BallCatcherOracleVisible needs a BallCatcherEnv, got {type(env).__name__}"
+                f"OracleVisibleObserver needs a BallCatcherEnv, got {type(env).__name__}"
             )
         cfg = env.config
-        self.pixels = FramePixels(cfg, detector, owner="BallCatcherOracleVisible")
+        self.pixels = FrameReader(cfg, detector, owner="OracleVisibleObserver")
         self.flight = BallFlight(env_drag_per_m(cfg.air_drag), accel_noise_std=0.0)
         self.x0, _ = initial_estimate(cfg)
         self.reset()

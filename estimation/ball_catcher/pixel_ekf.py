@@ -74,7 +74,7 @@ from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P
-from observer_gym.estimation.ball_catcher.frames import FramePixels
+from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.models import BallFlight, env_drag_per_m
 from observer_gym.estimation.ball_catcher.observer import (
     ACCEL_NOISE_STD,
@@ -91,7 +91,7 @@ from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import MIN_DEPTH_M
 
-__all__ = ["BallCatcherPixelEKF", "PixelEKFCore", "PixelMeasurement", "pixel_model"]
+__all__ = ["PixelEKFCore", "PixelEKFObserver", "PixelMeasurement", "pixel_model"]
 
 INITIAL_STD_POS_M = 1.0  # the prior's standard deviations (see the module docstring)
 INITIAL_STD_VEL_MPS = 3.0
@@ -241,7 +241,7 @@ class PixelEKFCore:
         self.time_s = snapshot.time_s
 
 
-class BallCatcherPixelEKF:
+class PixelEKFObserver:
     """Detector + pixel EKF for BallCatcher-v0 (observer ``ekf``; see the module docstring).
 
     Args:
@@ -278,12 +278,10 @@ class BallCatcherPixelEKF:
         reacquire_after: int = DEFAULT_REACQUIRE_AFTER,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
-            raise ValueError(
-                f"BallCatcherPixelEKF needs a BallCatcherEnv, got {type(env).__name__}"
-            )
-        self.reacquire_after = checked_reacquire_after(reacquire_after, "BallCatcherPixelEKF")
+            raise ValueError(f"PixelEKFObserver needs a BallCatcherEnv, got {type(env).__name__}")
+        self.reacquire_after = checked_reacquire_after(reacquire_after, "PixelEKFObserver")
         cfg = env.config
-        self.pixels = FramePixels(cfg, detector, owner="BallCatcherPixelEKF")
+        self.pixels = FrameReader(cfg, detector, owner="PixelEKFObserver")
         self.pixel_std_px = float(
             default_pixel_std_px(env, r_scale) if pixel_std_px is None else pixel_std_px
         )

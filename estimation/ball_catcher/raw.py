@@ -45,13 +45,13 @@ from observer_gym.envs.ball_catcher.layout import (
     STATE_DIM,
 )
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
-from observer_gym.estimation.ball_catcher.frames import FramePixels
+from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.observer import default_pixel_std_px, initial_estimate
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import CameraFrame, viewline_noise_std, viewline_rows
 
-__all__ = ["BallCatcherRaw", "triangulate"]
+__all__ = ["RawObserver", "triangulate"]
 
 MAX_CONDITION = 1e8  # normal matrices worse than this (near-parallel viewlines): no point
 
@@ -89,7 +89,7 @@ def triangulate(
     return position, 0.5 * (covariance + covariance.T)
 
 
-class BallCatcherRaw:
+class RawObserver:
     """The ``raw`` observer of BallCatcher-v0 (see the module docstring).
 
     Args:
@@ -109,18 +109,18 @@ class BallCatcherRaw:
         detector: BallCatcherDetector | None = None,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
-            raise ValueError(f"BallCatcherRaw needs a BallCatcherEnv, got {type(env).__name__}")
+            raise ValueError(f"RawObserver needs a BallCatcherEnv, got {type(env).__name__}")
         cfg = env.config
-        self.pixels = FramePixels(cfg, detector, owner="BallCatcherRaw")
+        self.pixels = FrameReader(cfg, detector, owner="RawObserver")
         self.pixel_std_px = float(
             default_pixel_std_px(env) if pixel_std_px is None else pixel_std_px
         )
         if not (np.isfinite(self.pixel_std_px) and self.pixel_std_px > 0.0):
-            raise ValueError(f"BallCatcherRaw: pixel_std_px = {pixel_std_px!r}, must be > 0")
+            raise ValueError(f"RawObserver: pixel_std_px = {pixel_std_px!r}, must be > 0")
         gap_s = 1.0 / cfg.frame_rate_hz + 0.5 * cfg.physics_dt_s
         self.max_pair_gap_s = float(gap_s if max_pair_gap_s is None else max_pair_gap_s)
         if not self.max_pair_gap_s >= 0.0:
-            raise ValueError(f"BallCatcherRaw: max_pair_gap_s = {max_pair_gap_s!r}, must be >= 0")
+            raise ValueError(f"RawObserver: max_pair_gap_s = {max_pair_gap_s!r}, must be >= 0")
         self.x0, self.P0 = initial_estimate(cfg)
         self.reset()
 

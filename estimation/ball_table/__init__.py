@@ -9,13 +9,13 @@ from functools import partial
 
 from observer_gym.estimation.ball_table.observer import BallTableObserver, BallTableObserverParams
 from observer_gym.estimation.ball_table.oracle_visible import OracleVisibleObserver
-from observer_gym.estimation.ball_table.pixel_ekf import BallTablePixelEKF, PixelEKFParams
+from observer_gym.estimation.ball_table.pixel_ekf import PixelEKFObserver, PixelEKFParams
 from observer_gym.estimation.ball_table.raw import RawObserver
 
 OBSERVERS = {
     "kf": BallTableObserver,
     "kf-latency": partial(BallTableObserver, latency_aware=True),
-    "ekf": BallTablePixelEKF,
+    "ekf": PixelEKFObserver,
     "raw": RawObserver,
     "oracle-visible": OracleVisibleObserver,
 }
@@ -24,8 +24,8 @@ __all__ = [
     "OBSERVERS",
     "BallTableObserver",
     "BallTableObserverParams",
-    "BallTablePixelEKF",
     "OracleVisibleObserver",
+    "PixelEKFObserver",
     "PixelEKFParams",
     "RawObserver",
 ]

@@ -86,7 +86,7 @@ from observer_gym.estimation.filter_copy import copy_filter
 from observer_gym.estimation.gating import ChiSquareGate
 from observer_gym.estimation.r_scale import checked_r_scale
 
-__all__ = ["BallTablePixelEKF", "PixelEKFParams", "PixelMeasurement", "project"]
+__all__ = ["PixelEKFObserver", "PixelEKFParams", "PixelMeasurement", "project"]
 
 BALL = slice(0, 6)  # the ball's states in the EKF's state
 POS = slice(0, 2)
@@ -382,7 +382,7 @@ class PixelEKF:
         return cov
 
 
-class BallTablePixelEKF(FusedObserver):
+class PixelEKFObserver(FusedObserver):
     """``ekf`` for BallTable-v0: see the module docstring. Fuses each frame at its capture
     time, as ``kf-latency`` does (``latency_aware=False``: when it is delivered, as
     ``kf``).

@@ -14,7 +14,7 @@ from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
-from observer_gym.estimation.ball_catcher.pixel_ekf import BallCatcherPixelEKF
+from observer_gym.estimation.ball_catcher.pixel_ekf import PixelEKFObserver
 
 ENV_ID = "observer_gym/BallCatcher-v0"
 
@@ -204,7 +204,7 @@ def corrupted_flight(env, pipeline, seed, corrupt, steps=60):
     return throw, burst_end_s, rows
 
 
-@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, BallCatcherPixelEKF])
+@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, PixelEKFObserver])
 def test_estimate_recovers_after_a_burst_of_false_detections(pipeline_class):
     """20 frames (0.2 s) in mid-flight report a uniform random pixel instead of the ball.
     Before re-acquisition the filter accepted some, then gated out every good frame for
@@ -282,7 +282,7 @@ def test_estimate_recovers_after_false_green_blobs_in_rendered_frames():
     assert restarts >= 1
 
 
-@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, BallCatcherPixelEKF])
+@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, PixelEKFObserver])
 @pytest.mark.parametrize("preset", ["alternating", "synchronised", "random_offsets", "single"])
 def test_no_restart_on_clean_flights(preset, pipeline_class):
     """Without false detections the re-acquisition never fires before the crossing."""

@@ -22,11 +22,11 @@ from observer_gym.estimation.ball_catcher import OBSERVERS
 from observer_gym.estimation.ball_catcher.filters import ViewlineKalmanFilter
 from observer_gym.estimation.ball_catcher.models import BallFlight, BallisticModel, env_drag_per_m
 from observer_gym.estimation.ball_catcher.pixel_ekf import (
-    BallCatcherPixelEKF,
     PixelEKFCore,
+    PixelEKFObserver,
     pixel_model,
 )
-from observer_gym.estimation.ball_catcher.raw import BallCatcherRaw
+from observer_gym.estimation.ball_catcher.raw import RawObserver
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.ekf import numerical_jacobian
 
@@ -201,9 +201,9 @@ def test_raw_bad_options_raise():
     env = make_env()
     try:
         with pytest.raises(ValueError, match="max_pair_gap_s"):
-            BallCatcherRaw(env, max_pair_gap_s=-0.01)
+            RawObserver(env, max_pair_gap_s=-0.01)
         with pytest.raises(ValueError, match="pixel_std_px"):
-            BallCatcherRaw(env, pixel_std_px=0.0)
+            RawObserver(env, pixel_std_px=0.0)
     finally:
         env.close()
 
@@ -289,7 +289,7 @@ def test_ekf_models_the_env_air_drag():
     differ less, 1.2 vs 1.4 mm)."""
     env = make_env(air_drag=True, measurement_noise_px=0.2)
     try:
-        assert BallCatcherPixelEKF(env).flight.drag_per_m == env_drag_per_m(True) > 0.0
+        assert PixelEKFObserver(env).flight.drag_per_m == env_drag_per_m(True) > 0.0
         variants = {"drag": ("ekf", {}), "no drag": ("ekf", {"drag": False})}
         squares = {label: [] for label in variants}
         for _, rows in flights(env, list(variants), range(6), options=variants):
@@ -366,9 +366,9 @@ def test_ekf_history_covers_the_declared_latency_and_bad_options_raise():
     env = make_env(latency_s=0.3, latency_jitter_s=0.02, frame_rate_hz=25.0)
     try:
         # from the declared sensor: latency, 5 jitter std and two control steps of 10 ms
-        assert BallCatcherPixelEKF(env).fusion.history_s == pytest.approx(0.3 + 5 * 0.02 + 0.02)
+        assert PixelEKFObserver(env).fusion.history_s == pytest.approx(0.3 + 5 * 0.02 + 0.02)
         with pytest.raises(ValueError, match="iterations"):
-            BallCatcherPixelEKF(env, iterations=0)
+            PixelEKFObserver(env, iterations=0)
         with pytest.raises(ValueError, match="pixel_std_px"):
             PixelEKFCore(np.zeros(6), np.eye(6), BallFlight(), pixel_std_px=-1.0)
         with pytest.raises(ValueError, match="drag_per_m"):

@@ -1,4 +1,4 @@
-"""BallCatcher's re-acquisition in both filters: ``ekf`` (:class:`BallCatcherPixelEKF`)
+"""BallCatcher's re-acquisition in both filters: ``ekf`` (:class:`PixelEKFObserver`)
 restarts after ``reacquire_after`` gated-out frames of one camera in a row exactly as
 ``kf`` (:class:`BallCatcherObserver`) does, and both hold at the env's heaviest image
 noise (image_noise_std=64, rendered frames)."""
@@ -15,8 +15,8 @@ from observer_gym.envs.ball_catcher.layout import BALL_POS
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.pixel_ekf import (
-    BallCatcherPixelEKF,
     PixelEKFCore,
+    PixelEKFObserver,
     PixelMeasurement,
 )
 
@@ -74,12 +74,12 @@ def test_ekf_restarts_after_reacquire_after_rejections_as_kf_does(reacquire_afte
     or rejected."""
     env = gym.make(ENV_ID, obs_mode="measurements").unwrapped
     try:
-        clean = BallCatcherPixelEKF(env, reacquire_after=reacquire_after)
+        clean = PixelEKFObserver(env, reacquire_after=reacquire_after)
         corrupted_flight(env, {"ekf": clean}, 0)
         for k in (reacquire_after - 1, reacquire_after):
             pipelines = {
                 "kf": BallCatcherObserver(env, reacquire_after=reacquire_after),
-                "ekf": BallCatcherPixelEKF(env, reacquire_after=reacquire_after),
+                "ekf": PixelEKFObserver(env, reacquire_after=reacquire_after),
             }
             ekf = pipelines["ekf"]
             throw, rows, corrupted_s = corrupted_flight(env, pipelines, k)
@@ -128,7 +128,7 @@ def test_ekf_restarts_after_reacquire_after_rejections_as_kf_does(reacquire_afte
 
 
 @pytest.mark.parametrize("bad", [0, -1, 2.5, True, "3", None, np.float64(3.0)])
-@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, BallCatcherPixelEKF])
+@pytest.mark.parametrize("pipeline_class", [BallCatcherObserver, PixelEKFObserver])
 def test_reacquire_after_must_be_a_positive_integer(pipeline_class, bad):
     env = gym.make(ENV_ID, obs_mode="measurements").unwrapped
     try:
