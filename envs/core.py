@@ -32,7 +32,7 @@ original does. Only a replay gives that: PyBullet's ``saveState``/``restoreState
 but a restored world, even one rebuilt alike, steps on differently from the original:
 on BallTable states by 1e-16 to 1e-13 on some, on others by 0.3 mm in the ball's position
 and 0.48 rad/s in its spin one step on (benchmarks/bench_copies.py). So the episode's
-actions are kept, in one array (the action's bytes per step: 8 B for BallTable, 12 B for
+actions are kept, in one float64 array (the action's bytes per step: 16 B for BallTable, 24 B for
 BallCatcher and TargetFollower), for at most ``copy_history_max_steps`` steps (10,000 by
 default: the size of a copy stays under that many actions, and its replay under that
 many steps). Past it the episode goes on but keeps no more actions, and copying the env
@@ -79,7 +79,8 @@ class EpisodeTooLongToCopyError(pickle.PicklingError):
 
 class ActionHistory:
     """The actions of an episode since its reset, at most ``max_steps`` of them, in one
-    array that doubles as it fills (``shape`` and ``dtype``: the action space's).
+    float64 array (the actions as applied, after the checks: a copy replays exactly
+    those) that doubles as it fills (``shape``: the action space's).
 
     Past ``max_steps`` it keeps counting the steps but no more actions
     (:attr:`is_complete` turns False).
@@ -87,11 +88,11 @@ class ActionHistory:
 
     INITIAL_CAPACITY_STEPS = 64
 
-    def __init__(self, max_steps: int, shape: tuple[int, ...], dtype) -> None:
+    def __init__(self, max_steps: int, shape: tuple[int, ...]) -> None:
         self.max_steps = max_steps
         self.steps = 0
         capacity = min(self.INITIAL_CAPACITY_STEPS, max_steps)
-        self._actions = np.empty((capacity, *shape), dtype=dtype)
+        self._actions = np.empty((capacity, *shape), dtype=np.float64)
 
     @property
     def is_complete(self) -> bool:
@@ -327,7 +328,7 @@ class CameraEnv(gym.Env):
         self._begin_episode(options)
         self._episode = (generator, copy.deepcopy(options))
         space = self.action_space
-        self._history = ActionHistory(history_max_steps, space.shape, space.dtype)
+        self._history = ActionHistory(history_max_steps, space.shape)
         delivered = self.rig.deliver(0)
         return self._observation(), {**self._step_info(delivered), "sensor": self.sensor_spec}
 
@@ -487,6 +488,6 @@ class CameraEnv(gym.Env):
         self.rig.deliver(0)  # as reset() does: the frames due at once are no longer pending
         self._episode = state["episode"]
         space = self.action_space
-        self._history = ActionHistory(state["history_max_steps"], space.shape, space.dtype)
+        self._history = ActionHistory(state["history_max_steps"], space.shape)
         for action in state["actions"]:
             self.step(action)

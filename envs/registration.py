@@ -81,7 +81,9 @@ SYSTEMS: list[System] = [
 ]
 
 
-BUILT_IN_COUNT = len(SYSTEMS)
+# the package's own systems (SYSTEMS without those register_system added)
+PACKAGE_SYSTEMS: tuple[System, ...] = tuple(SYSTEMS)
+BUILT_IN_COUNT = len(PACKAGE_SYSTEMS)
 
 
 def register_envs() -> None:

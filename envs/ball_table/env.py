@@ -111,7 +111,7 @@ class BallTableEnv(CameraEnv):
 
     ## Copies and closing
     ``pickle`` and ``copy.deepcopy`` give an env that steps on exactly as this one: it
-    replays the episode's actions in a world of its own (8 B a step, kept for at
+    replays the episode's actions in a world of its own (16 B a step, kept for at
     most ``copy_history_max_steps`` steps, 10,000 by default; past them a copy raises
     ``EpisodeTooLongToCopyError`` until the next reset). After ``close()``, ``step``,
     ``render``, ``camera_pose`` and the scene's ground truth raise ``EnvClosedError``

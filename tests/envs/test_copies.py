@@ -34,7 +34,9 @@ def _disturbed(env_id: str) -> dict:
 def _actions(env, n: int, seed: int = 0) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
     space = env.action_space
-    return [rng.uniform(space.low, space.high).astype(np.float32) * 0.3 for _ in range(n)]
+    # float64, as a controller or an agent gives them: a copy must replay them exactly, not
+    # rounded to the space's float32
+    return [rng.uniform(space.low, space.high) * 0.3 for _ in range(n)]
 
 
 def _client(env) -> int:

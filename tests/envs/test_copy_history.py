@@ -21,7 +21,7 @@ PICKLE_SLACK_BYTES = 256
 
 
 def _zero_action(env) -> np.ndarray:
-    return np.zeros(env.action_space.shape, env.action_space.dtype)
+    return np.zeros(env.action_space.shape, np.float64)  # as kept: float64
 
 
 def _pickled_bytes(env) -> int:

@@ -94,6 +94,8 @@ def test_a_subclass_of_an_env_finds_its_system_observers_and_controllers(system)
             if other is system:
                 continue
             for name in controllers_for(other.env_id):
+                if name in controllers_for(system.env_id):
+                    continue  # the name is this system's too ("lqr"): its own design
                 fits = ", ".join(controllers_for(system.env_id))
                 with pytest.raises(ValueError, match=f"{system.short_id} takes: {fits}"):
                     make_controller(name, env)

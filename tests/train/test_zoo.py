@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from observer_gym.envs import SYSTEMS
+from observer_gym.envs.registration import PACKAGE_SYSTEMS as SYSTEMS  # those with zoo files
 from observer_gym.train.rl import zoo
 from observer_gym.train.rl.agent_env import OBS_TYPES, make_agent_env
 from observer_gym.train.rl.hyperparams import ALGOS, algorithm_parameters, resolve_hyperparams

@@ -42,7 +42,8 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import yaml
 
-from observer_gym.envs import SYSTEMS, System, system_of
+from observer_gym.envs import System, system_of
+from observer_gym.envs.registration import PACKAGE_SYSTEMS
 from observer_gym.train.experiments.observer_env import wrap_observer
 from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.rl.agent_env import (
@@ -230,11 +231,13 @@ def zoo_text(entry: ZooFile) -> str:
 
 
 def zoo_files() -> list[ZooFile]:
-    """Every algorithm on every system reading every obs type."""
+    """Every algorithm on every system of the package reading every obs type (the
+    files shipped in ``hyperparams/zoo/``; a system added by ``register_system`` has
+    none)."""
     return [
         zoo_hyperparams(system.env_id, algo, obs)
         for algo in ALGOS
-        for system in SYSTEMS
+        for system in PACKAGE_SYSTEMS
         for obs in OBS_TYPES
     ]
 
