@@ -128,3 +128,43 @@ def test_a_command_into_a_folder_another_process_holds_is_refused(argv, tmp_path
     assert line.startswith(f"observer-gym {command}: error: {out} is in use by ")
     assert f"'observer-gym lock-holder' (pid {holder.pid} on {socket.gethostname()}" in line
     assert files(out) == before  # nothing written
+
+
+def test_another_thread_of_the_holder_is_refused_and_the_lock_outlives_it(tmp_path):
+    import threading
+
+    outcome: list[str] = []
+
+    def second() -> None:
+        try:
+            with folder_lock(tmp_path, "sweep"):
+                outcome.append("entered")
+        except FolderBusyError:
+            outcome.append("refused")
+
+    with folder_lock(tmp_path, "sweep"):
+        thread = threading.Thread(target=second)
+        thread.start()
+        thread.join()
+        assert outcome == ["refused"]
+        assert (tmp_path / LOCK_FILE).exists()  # the first thread still holds it
+    assert not (tmp_path / LOCK_FILE).exists()
+
+
+def test_a_training_folder_in_use_is_busy_before_any_check_of_its_contents(tmp_path, holder):
+    # A run training in DIR has written config.json and a "running" state.json; a second
+    # train --resume or train --out DIR is refused as busy (exit code 75), not by the checks
+    # of what the first wrote (exit code 2).
+    from observer_gym.train.rl.run_dir import check_new_run_folder, check_resumable
+
+    (tmp_path / "config.json").write_text("{}")
+    (tmp_path / "state.json").write_text(json.dumps({"status": "running", "pid": holder.pid}))
+    assert holder.take(tmp_path) == "held"
+    for check in (check_resumable, check_new_run_folder):
+        with pytest.raises(FolderBusyError):
+            check(tmp_path)
+    argv = ["train", "--resume", str(tmp_path), "--timesteps", "10", "--no-progress"]
+    assert main(argv) == FOLDER_BUSY_EXIT_CODE
+    holder.release(tmp_path)
+    with pytest.raises(ValueError):  # free again: the checks read the folder
+        check_new_run_folder(tmp_path)

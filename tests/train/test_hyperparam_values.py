@@ -74,3 +74,14 @@ def test_what_sb3_refuses_past_the_checks_is_one_line(tmp_path, capsys, monkeypa
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert "PPO refuses the hyperparameters: `n_steps * n_envs` must be greater than 1" in err
     assert not (out / "state.json").exists()
+
+
+@pytest.mark.slow  # builds the envs and imports PyTorch (~8 s)
+def test_a_layer_pytorch_refuses_is_one_line_and_leaves_the_folder_free(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = [*TRAIN, "--algo", "ppo", "--out", str(out)]
+    assert main([*argv, "--hyperparam", "policy_kwargs.net_arch=[-5]"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "PPO refuses the hyperparameters: " in err and "negative dimension" in err
+    assert not (out / "config.json").exists()  # the folder takes a new run

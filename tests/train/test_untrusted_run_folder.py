@@ -288,3 +288,49 @@ def test_converting_a_checkpointed_folder_rewrites_its_records(tmp_path):
     assert latest["vecnormalize"] == f"vecnormalize_{STEPS}.npz"
     assert set(latest["sha256"]) == {f"model_{STEPS}.zip", f"vecnormalize_{STEPS}.npz"}
     assert Agent.load(folder).timesteps == STEPS
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (b"garbage", "UnpicklingError"),  # cut or damaged
+        (pickle.dumps({"a": 1}), "AttributeError"),  # a pickle of something else
+    ],
+)
+def test_the_converter_refuses_a_pickle_that_holds_no_statistics_in_one_line(
+    tmp_path, capsys, content, says
+):
+    (tmp_path / "config.json").write_text("{}")
+    (tmp_path / "vecnormalize.pkl").write_bytes(content)
+    assert normalizer_file.main(["--trust-pickle", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "holds no VecNormalize statistics" in err and says in err
+    assert (tmp_path / "vecnormalize.pkl").read_bytes() == content  # nothing removed
+
+
+def test_statistics_of_another_observation_kind_are_a_value_error(tmp_path):
+    """Statistics of other Dict keys, or of one array for a Dict (and the reverse), are
+    refused with ValueError (which the commands report in one line), not SB3's KeyError."""
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    def dict_env(keys):
+        class _DictEnv(gym.Env):
+            observation_space = gym.spaces.Dict({k: gym.spaces.Box(-1, 1, (2,)) for k in keys})
+            action_space = gym.spaces.Box(-1, 1, (1,))
+
+        return _DictEnv
+
+    box = lambda: gym.make("Pendulum-v1")  # noqa: E731
+    for saved_from, loaded_into, says in (
+        (dict_env("a"), dict_env("b"), r"observation keys \['a'\] the env does not have"),
+        (box, dict_env("b"), "of one observation array"),
+        (dict_env("a"), box, "per observation key"),
+    ):
+        path = tmp_path / "stats.npz"
+        normalizer_file.save_normalizer(VecNormalize(DummyVecEnv([saved_from])), path)
+        with pytest.raises(ValueError, match=says):
+            normalizer_file.build_vec_normalize(
+                normalizer_file.read_stats(path), DummyVecEnv([loaded_into]), training=False
+            )

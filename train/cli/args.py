@@ -180,7 +180,7 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
         default=None,
         metavar="DIR",
         help=(
-            f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS); one "
+            f"output folder (default: ./observer-gym-out/{command}-YYYYmmdd-HHMMSS-PID); one "
             "command at a time: while another command writes there, this one is refused "
             "(exit code 75)"
         ),

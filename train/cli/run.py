@@ -72,7 +72,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         type=folder_path,
         default=None,
         metavar="DIR",
-        help="output folder (default: ./observer-gym-out/run-YYYYmmdd-HHMMSS)",
+        help="output folder (default: ./observer-gym-out/run-YYYYmmdd-HHMMSS-PID)",
     )
     parser.add_argument(
         "--steps",

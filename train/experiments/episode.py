@@ -54,6 +54,7 @@ CONTROLLER_ATTRIBUTES = (
     "tilt_limit_rad",
     "tilt_rate_limit_radps",
     "ball_limit_m",
+    "bounds",  # a generic MPC's constraints (StageBound rows)
     "settings",
     "kp",
     "ki",

@@ -15,9 +15,14 @@ no stale lock to detect), and no dependency is needed. The holder removes the lo
 when it releases the lock; a process that opened the old file in the meantime finds,
 once it holds the lock, that the path no longer names that file, and tries again.
 
-Within one process the lock nests: a function that holds a folder's lock may call
-another that takes it again. A process started from the holder (``fork``) shares its
-lock; one started with ``spawn`` (or ``subprocess``) does not inherit the file.
+Within one thread the lock nests: a function that holds a folder's lock may call another
+that takes it again. Another thread of the holder's process is refused like another
+process. A process started from the holder does not share the lock: it is refused like
+any other (a ``fork``ed child keeps the inherited descriptor, and with it the folder
+locked, until it exits; the file is opened close-on-exec, so ``spawn`` and
+``subprocess`` children do not inherit it). :func:`check_not_busy` asks without holding:
+a command's checks call it first, so a folder in use is refused with this error even when
+what the other command wrote would fail a check.
 
 Needs a POSIX system and a file system with ``flock`` (local disks, NFSv4); elsewhere
 the command stops with an ``OSError`` naming the folder.
@@ -31,6 +36,7 @@ import os
 import shlex
 import socket
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -100,6 +106,7 @@ class FolderBusyError(OSError):
 @dataclass
 class _Held:
     pid: int  # the process that took it (a forked child is not it)
+    thread: int  # and its thread (threading.get_ident)
     fd: int
     depth: int
 
@@ -178,6 +185,8 @@ def folder_lock(folder: str | os.PathLike, command: str) -> Iterator[None]:
     key = folder.resolve()
     held = _HELD.get(key)
     if held is not None and held.pid == os.getpid():
+        if held.thread != threading.get_ident():  # another thread of this process holds it
+            raise FolderBusyError(folder, _read_holder(held.fd))
         held.depth += 1
         try:
             yield
@@ -185,9 +194,33 @@ def folder_lock(folder: str | os.PathLike, command: str) -> Iterator[None]:
             held.depth -= 1
         return
     fd = _acquire(folder, command)
-    _HELD[key] = _Held(os.getpid(), fd, 1)
+    _HELD[key] = _Held(os.getpid(), threading.get_ident(), fd, 1)
     try:
         yield
     finally:
         del _HELD[key]
         _release(folder / LOCK_FILE, fd)
+
+
+def check_not_busy(folder: str | os.PathLike) -> None:
+    """:class:`FolderBusyError` if another process (or thread) holds ``folder``'s lock now;
+    nothing if it is free or this thread holds it. A check, not a hold: the lock is
+    released at once (the command takes it for good before it writes)."""
+    folder = Path(folder)
+    held = _HELD.get(folder.resolve())
+    if held is not None and held.pid == os.getpid():
+        if held.thread != threading.get_ident():
+            raise FolderBusyError(folder, _read_holder(held.fd))
+        return
+    try:
+        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CLOEXEC)
+    except OSError:  # no lock file (nobody holds it) or no folder: the checks say more
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise FolderBusyError(folder, _read_holder(fd)) from None
+    except OSError:
+        return  # no flock there: folder_lock reports it when the command takes the lock
+    finally:
+        os.close(fd)  # releases the lock if this took it; the file stays for its holder

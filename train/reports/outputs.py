@@ -62,8 +62,10 @@ VERSIONED_PACKAGES = (
 
 
 def default_out_dir(command: str) -> Path:
-    """``observer-gym-out/<command>-YYYYmmdd-HHMMSS`` under the current directory."""
-    return Path.cwd() / "observer-gym-out" / f"{command}-{datetime.now():%Y%m%d-%H%M%S}"
+    """``observer-gym-out/<command>-YYYYmmdd-HHMMSS-PID`` under the current directory (the
+    process id keeps two commands started in the same second apart)."""
+    stamp = f"{datetime.now():%Y%m%d-%H%M%S}"
+    return Path.cwd() / "observer-gym-out" / f"{command}-{stamp}-{os.getpid()}"
 
 
 def package_versions(names: Iterable[str] = VERSIONED_PACKAGES) -> dict[str, str]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import shutil
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,6 +27,7 @@ from observer_gym.train.rl.agent_env import make_agent_env
 from observer_gym.train.rl.callbacks import EveryStepsCallback
 from observer_gym.train.rl.run_dir import (
     CHECKPOINTS,
+    CONFIG_FILE,
     FINAL_MODEL,
     FINAL_VECNORMALIZE,
     STATE_FILE,
@@ -85,10 +87,13 @@ def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
 
 
 def _refused(name: str, run_dir: Path, exc: Exception) -> ValueError:
+    """The algorithm refused its hyperparameters before training: the run's config.json
+    and monitor/ go (the run holds its folder's lock), so the folder takes a new run."""
+    (run_dir / CONFIG_FILE).unlink(missing_ok=True)
+    shutil.rmtree(run_dir / "monitor", ignore_errors=True)
     reason = " ".join(str(exc).split()) or type(exc).__name__
     return ValueError(
-        f"{name} refuses the hyperparameters: {reason}; nothing was trained ({run_dir} holds "
-        "only its config.json: remove it before training there again)"
+        f"{name} refuses the hyperparameters: {reason}; nothing was trained or kept in {run_dir}"
     )
 
 
@@ -163,7 +168,8 @@ def learn(
             kwargs = build_algo_kwargs(algo_kwargs, int(np.prod(venv.action_space.shape)))
             try:
                 model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
-            except (AssertionError, ValueError, TypeError) as exc:  # past the up-front checks
+            # past the up-front checks; RuntimeError: PyTorch refusing a layer's size
+            except (AssertionError, ValueError, TypeError, RuntimeError) as exc:
                 raise _refused(cls.__name__, run_dir, exc) from exc
         segment = f"resume-{start_steps}" if resume else "start"
         formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])

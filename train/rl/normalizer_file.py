@@ -244,6 +244,30 @@ def _rms(running: RunningStats) -> Any:
     return rms
 
 
+def _check_observation_kind(stats: NormalizerStats, space: Any) -> None:
+    """ValueError unless ``stats``' observation statistics are of ``space``'s kind: per key
+    of a Dict space (keys it has), or one array for any other space."""
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Dict):
+        if not isinstance(stats.obs, dict):
+            raise ValueError(
+                "the saved statistics are of one observation array; the env's observation "
+                f"is a Dict with keys {sorted(space.spaces)}"
+            )
+        unknown = sorted(set(stats.obs) - set(space.spaces))
+        if unknown:
+            raise ValueError(
+                f"the saved statistics are of observation keys {unknown} the env does not "
+                f"have; its keys: {sorted(space.spaces)}"
+            )
+    elif isinstance(stats.obs, dict):
+        raise ValueError(
+            f"the saved statistics are per observation key ({sorted(stats.obs)}); the env's "
+            "observation is one array"
+        )
+
+
 def build_vec_normalize(stats: NormalizerStats, venv: Any, training: bool) -> Any:
     """A new SB3 ``VecNormalize`` around ``venv`` holding ``stats``.
 
@@ -255,6 +279,8 @@ def build_vec_normalize(stats: NormalizerStats, venv: Any, training: bool) -> An
 
     keys = list(stats.obs) if isinstance(stats.obs, dict) else None
     norm_obs = stats.norm_obs and stats.obs is not None
+    if norm_obs:
+        _check_observation_kind(stats, venv.observation_space)
     vec_normalize = VecNormalize(
         venv,
         training=training,
@@ -360,8 +386,16 @@ def check_final_files(run_dir: str | Path) -> None:
 def _unpickle(path: Path) -> NormalizerStats:
     import pickle
 
-    with open(path, "rb") as f:
-        return stats_of(pickle.load(f))  # trusted by the caller: this runs the file's code
+    try:
+        with open(path, "rb") as f:
+            loaded = pickle.load(f)  # trusted by the caller: this runs the file's code
+        return stats_of(loaded)
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError) as exc:
+        # a damaged pickle, or one that is not a VecNormalize
+        raise ValueError(
+            f"{path} holds no VecNormalize statistics: {type(exc).__name__}: "
+            f"{' '.join(str(exc).split())}"
+        ) from None
 
 
 def _convert_checkpoints(directory: Path) -> list[Path]:
@@ -473,12 +507,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    from observer_gym.train.reports.folder_lock import (
+        FOLDER_BUSY_EXIT_CODE,
+        FolderBusyError,
+        folder_lock,
+    )
+
     for folder in args.folders:
         try:
-            written = convert_folder(folder)
+            if not folder.is_dir():
+                raise ValueError(f"{folder} is no folder")
+            with folder_lock(folder, "convert statistics"):  # no command writes it meanwhile
+                written = convert_folder(folder)
         except ValueError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return 2
+        except FolderBusyError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return FOLDER_BUSY_EXIT_CODE
+        except OSError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 1
         print(f"{folder}: {len(written)} statistics file(s) converted")
     return 0
 

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
     to_jsonable,
@@ -89,6 +90,7 @@ def check_new_run_folder(run_dir: str | Path) -> None:
     """:class:`~observer_gym.train.reports.outputs.OutputFolderError` (a ValueError) if
     ``run_dir`` already holds a training run (its config.json). ``train`` checks it before
     anything runs and again once it holds the folder's lock, before it writes there."""
+    check_not_busy(run_dir)  # a run training there now: FolderBusyError, exit code 75
     if (Path(run_dir) / CONFIG_FILE).exists():
         raise OutputFolderError(
             f"{run_dir} already holds a training run; continue it with --resume"
@@ -219,6 +221,7 @@ def check_resumable(run_dir: str | Path) -> dict[str, Any] | None:
         ValueError: no training run there, no intact checkpoint (naming what is wrong with
             each), or a run still writing it.
     """
+    check_not_busy(run_dir)  # a run training there now: FolderBusyError, exit code 75
     read_config(run_dir)
     checkpoint, problems = intact_checkpoint(Path(run_dir) / CHECKPOINTS)
     if checkpoint is None:

@@ -47,7 +47,7 @@ from observer_gym.train.reports.aggregate import (
     check_rliable,
     statistics_text,
 )
-from observer_gym.train.reports.folder_lock import folder_lock
+from observer_gym.train.reports.folder_lock import check_not_busy, folder_lock
 from observer_gym.train.reports.outputs import (
     OutputFolderWarning,
     output_folder,
@@ -261,6 +261,7 @@ def _resume(
     todo = []
     for seed in record.seeds:
         run_dir = seed_dir(out_dir, seed)
+        check_not_busy(run_dir)  # a seed training there now: FolderBusyError
         read_config(run_dir)
         state = read_state(run_dir)
         status = None if state is None else state["status"]

@@ -59,7 +59,7 @@ def _linderoth2010(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="output folder for results.json, two_cameras_ellipses.png and "
         "single_camera_ellipses.png (default: "
-        "observer-gym-out/reproduce-linderoth2010-YYYYmmdd-HHMMSS)",
+        "observer-gym-out/reproduce-linderoth2010-YYYYmmdd-HHMMSS-PID)",
     )
     parser.add_argument(
         "--seed", type=nonnegative_int, default=0, help="seed of throws and noise (default: 0)"
@@ -143,7 +143,7 @@ def _tsai2009(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="DIR",
         help="output folder for results.json and fig8_mse_vs_noise.png (default: "
-        "observer-gym-out/reproduce-tsai2009-YYYYmmdd-HHMMSS)",
+        "observer-gym-out/reproduce-tsai2009-YYYYmmdd-HHMMSS-PID)",
     )
 
 
