@@ -164,8 +164,8 @@ class BallFlight:
             k3 = self.derivative(x + 0.5 * step * k2)
             k4 = self.derivative(x + step * k3)
             x = x + step / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        Q = self.linear.matrices(h)[2] if with_jacobian else None
-        return x, F, Q
+        R1 = self.linear.matrices(h)[2] if with_jacobian else None
+        return x, F, R1
 
 
 def env_drag_per_m(air_drag: bool) -> float:

@@ -248,11 +248,10 @@ class BallCatcherObserver:
         self.gate_p = gate_p
         self.accel_noise_std = float(accel_noise_std)
         self.x0, self.P0 = initial_estimate(cfg)
-        self.filter: ViewlineKalmanFilter | None = None
-        self.reset()
+        self.reset()  # makes self.filter
 
     def reset(self) -> None:
-        self.filter = ViewlineKalmanFilter(
+        self.filter: ViewlineKalmanFilter = ViewlineKalmanFilter(
             self.x0,
             self.P0,
             pixel_std_px=self.pixel_std_px,

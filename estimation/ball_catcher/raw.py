@@ -68,9 +68,12 @@ def triangulate(
 
         p = (A^T W A)^-1 A^T W y,   W = diag(1 / s_i^2),   Cov(p) = (A^T W A)^-1
     """
+    pixels = [f.uv_px for f in frames if f.uv_px is not None]
+    if len(pixels) != len(frames):
+        raise ValueError("triangulate takes detections: a frame has no uv_px")
     rows, values = [], []
-    for f in frames:
-        C, y = viewline_rows(projection_matrix(f.K, f.T_world_cam), f.uv_px)
+    for f, uv in zip(frames, pixels, strict=True):
+        C, y = viewline_rows(projection_matrix(f.K, f.T_world_cam), uv)
         rows.append(C[:, :3])
         values.append(y)
     A, y = np.vstack(rows), np.concatenate(values)
@@ -79,7 +82,10 @@ def triangulate(
         return None
     p0 = np.linalg.solve(normal, A.T @ y)
     stds = np.concatenate(
-        [viewline_noise_std(f.K, f.T_world_cam, f.uv_px, p0, pixel_std_px) for f in frames]
+        [
+            viewline_noise_std(f.K, f.T_world_cam, uv, p0, pixel_std_px)
+            for f, uv in zip(frames, pixels, strict=True)
+        ]
     )
     w = 1.0 / stds**2
     # A^T W A and A^T W y

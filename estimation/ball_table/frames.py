@@ -14,9 +14,10 @@ env's measurement space. Anything else raises ``ValueError`` before any state ch
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+from gymnasium import spaces
 
 from observer_gym.envs.ball_table import BallTableEnv
 from observer_gym.estimation.ball_table.features import (
@@ -52,7 +53,8 @@ class FrameReader:
         self.owner = owner or type(self).__name__
         self.detector = detector or BallTableDetector()
         self.from_pixels = cfg.obs_mode == "rgb"
-        self.measurement_space = env.observation_space  # measurements mode: its Dict
+        # measurements mode: its Dict (rgb mode: its Box, not read)
+        self.measurement_space = cast(spaces.Dict, env.observation_space)
         self.image_size_px = (int(cfg.image_width_px), int(cfg.image_height_px))
         # The image stage, with the table's region of interest tracked between frames.
         self.table_tracker = TableTracker()

@@ -225,6 +225,8 @@ class BallTableDetector:
         tell why: the red top is no square, or it and the outline disagree.
         """
         corners_px, model = features.corners_px, features.corner_model
+        if corners_px is None or model is None:  # detect() asks only with the corners found
+            return f"table: {features.table_failure}"
         outline = features.outline_corners_px
         if self.use_outline and model == RED_TOP and outline is not None:
             joint = self._joint_pose(np.concatenate((corners_px, outline)), K)

@@ -11,6 +11,7 @@ is confined to the region around the table (:func:`ball_window_near`), and
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import cv2
@@ -58,7 +59,7 @@ def coarse_image(rgb: np.ndarray) -> np.ndarray:
 
 
 def _coarse_box(
-    rect: tuple[int, int, int, int], margin: int, image_size: tuple[int, int]
+    rect: Sequence[int], margin: int, image_size: tuple[int, int]
 ) -> tuple[int, int, int, int]:
     """The box (x0, y0, x1, y1) of full-size pixels around a rectangle (x, y, w, h) of
     coarse pixels, widened by ``margin``."""

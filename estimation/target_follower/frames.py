@@ -23,9 +23,10 @@ How far back a capture-time-fused observer keeps its past is the declared sensor
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+from gymnasium import spaces
 
 from observer_gym.envs.target_follower import DETECTED, TARGET_PX, TargetFollowerEnv
 from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
@@ -67,7 +68,8 @@ class FrameReader:
     ) -> None:
         self.detector = detector or TargetFollowerDetector()
         self.from_pixels = env.config.obs_mode == "rgb"
-        self.measurement_space = env.observation_space  # measurements mode: its Dict
+        # measurements mode: its Dict (rgb mode: its Box, not read)
+        self.measurement_space = cast(spaces.Dict, env.observation_space)
         self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         self.delta_y_m = env.calibration["delta_y_m"]
         self.owner = owner

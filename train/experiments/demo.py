@@ -185,6 +185,7 @@ def _run_episode(
 
     def save_frame(step: int) -> None:
         frame = env.unwrapped.render()  # the camera frame the observer got at this step
+        assert isinstance(frame, np.ndarray)  # the demo's env renders rgb_array
         record["frame_paths"].append(_save_frame(frame, frames_dir, step))
 
     remember(obs, info)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -38,7 +39,7 @@ def new_figure(figsize: tuple[float, float]) -> Figure:
 def draw_table(ax: Axes) -> None:
     """The table's edge, the square the ball's centre can reach and the 1 cm band, in the
     table frame (m)."""
-    for half_side_m, style in (
+    squares: list[tuple[float, dict[str, Any]]] = [
         (
             TABLE_SIDE_M / 2,
             {"color": "k", "lw": 1.5, "label": f"table edge (±{TABLE_SIDE_M / 2} m)"},
@@ -47,7 +48,8 @@ def draw_table(ax: Axes) -> None:
             BALL_TRAVEL_M,
             {"color": "0.5", "ls": "--", "lw": 1, "label": f"reachable (±{BALL_TRAVEL_M:g} m)"},
         ),
-    ):
+    ]
+    for half_side_m, style in squares:
         xs = half_side_m * np.array([1, -1, -1, 1, 1])
         ys = half_side_m * np.array([1, 1, -1, -1, 1])
         ax.plot(xs, ys, **style)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import gymnasium as gym
@@ -130,10 +130,8 @@ class ResizeImages(gym.ObservationWrapper):
 
     def observation(self, observation: Any) -> Any:
         if isinstance(observation, Mapping):
-            return {
-                k: self._image(v) if _is_image(self.env.observation_space[k]) else v
-                for k, v in observation.items()
-            }
+            space = cast(spaces.Dict, self.env.observation_space)  # a Dict for a Mapping
+            return {k: self._image(v) if _is_image(space[k]) else v for k, v in observation.items()}
         return self._image(observation)
 
 

@@ -37,7 +37,7 @@ import functools
 import shlex
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import gymnasium as gym
 import yaml
@@ -53,6 +53,9 @@ from observer_gym.train.rl.agent_env import (
     observer_for,
 )
 from observer_gym.train.rl.hyperparams import ALGOS, HYPERPARAMS_DIR, resolve_hyperparams
+
+if TYPE_CHECKING:
+    from observer_gym.envs.core import CameraEnv
 
 ZOO_DIR = HYPERPARAMS_DIR / "zoo"
 WRAPPER = "observer_gym.train.rl.zoo.agent_wrapper"  # importable by Zoo (and its workers)
@@ -87,10 +90,11 @@ def agent_wrapper(
     env_id = system_of(env).env_id
     feeding = observer_for(env_id, obs, "measurements", observer)
     obs_mode = task_for(env_id).OBSERVERS[feeding][0]
-    if env.unwrapped.config.obs_mode != obs_mode:
+    made_with = cast("CameraEnv", env.unwrapped).config.obs_mode  # system_of said it is one
+    if made_with != obs_mode:
         raise ValueError(
             f"observer {feeding!r} reads obs_mode {obs_mode!r}; the env was made with "
-            f"obs_mode {env.unwrapped.config.obs_mode!r} (set env_kwargs.obs_mode: {obs_mode})"
+            f"obs_mode {made_with!r} (set env_kwargs.obs_mode: {obs_mode})"
         )
     return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image, features)
 

@@ -306,7 +306,8 @@ def _ellipse(ax, mean_2d: np.ndarray, cov_2d: np.ndarray, color) -> None:
     lam, V = np.linalg.eigh(cov_2d)
     angle = np.degrees(np.arctan2(V[1, -1], V[0, -1]))
     w, h = 2.0 * ELLIPSE_SIGMAS * np.sqrt(np.maximum(lam[::-1], 0.0))
-    ax.add_patch(Ellipse(mean_2d, w, h, angle=angle, fill=False, color=color, lw=0.8))
+    centre = (float(mean_2d[0]), float(mean_2d[1]))
+    ax.add_patch(Ellipse(centre, w, h, angle=angle, fill=False, color=color, lw=0.8))
 
 
 def _track_views(fig, axes, throw, frames, states, cameras, title: str) -> None:
