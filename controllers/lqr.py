@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import control
 import numpy as np
 
 from observer_gym.controllers.base import StateFeedbackController
@@ -36,6 +35,8 @@ class LQRController(StateFeedbackController):
         Q0, R0 = plant.weights()
         self.Q, self.R = check_weights(Q0 if Q is None else Q, R0 if R is None else R, n, m)
         self._state = plant.state_slice
+        import control  # imported on use: python-control loads matplotlib (~0.7 s)
+
         # K = (R + B^T P B)^-1 B^T P A, P the stabilising solution of the DARE
         K, P, poles = control.dlqr(self.Phi, self.Gamma, self.Q, self.R)
         self.K = np.asarray(K)

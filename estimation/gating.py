@@ -12,7 +12,6 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
-import scipy.stats
 
 __all__ = ["ChiSquareGate", "Gate", "PSigmaGate", "nis"]
 
@@ -62,6 +61,8 @@ class ChiSquareGate:
     def threshold(self, m: int) -> float:
         """The NIS bound for an m-dimensional measurement (cached per m)."""
         if m not in self._threshold:
+            import scipy.stats  # imported on use: scipy.stats takes ~0.6 s to import
+
             self._threshold[m] = float(scipy.stats.chi2.ppf(self.probability, m))
         return self._threshold[m]
 

@@ -7,7 +7,6 @@ Notation and equation numbers as in :mod:`observer_gym.estimation.filters`
 
 from __future__ import annotations
 
-import control
 import numpy as np
 
 from observer_gym.estimation.covariance import right_divide, symmetrised
@@ -33,6 +32,8 @@ def steady_state_gain(
     S = R12. The filter gain is K_f = P C^T (C P C^T + R)^-1 (6); the predictor gain (9)
     is Phi K_f + R12 (C P C^T + R)^-1.
     """
+    import control  # imported on use: python-control loads matplotlib (~0.7 s)
+
     Phi, C = np.asarray(Phi, dtype=float), np.asarray(C, dtype=float)
     Q, R = np.asarray(Q, dtype=float), np.asarray(R, dtype=float)
     S = None if R12 is None else np.asarray(R12, dtype=float)

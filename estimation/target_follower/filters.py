@@ -53,7 +53,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
 
 from observer_gym.estimation.filters import KalmanFilter, UpdateResult
 from observer_gym.estimation.r_scale import checked_r_scale
@@ -152,6 +151,8 @@ class VisualStateEstimator:
         self.Q = self.noise.image_Q(np.array([0.0, 0.0, 1.0]), 0.0, 0.0, np.zeros(3), np.zeros(3))
         self.R0 = self.noise.R(np.array([0.0, 0.0, 35.0]))
         self.tuner = SelfTuningR(np.zeros((3, 3)), self.params.window)
+        import scipy.stats  # imported on use: scipy.stats takes ~0.6 s to import
+
         dof = self.params.window - 2
         self._significant = float(scipy.stats.chi2.ppf(ADAPTATION_SIGNIFICANCE, dof) / dof)
         self.tracks = TrackPair(self.params.track_rule)

@@ -12,12 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import binomtest
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.train.reports.metrics import rmse
-from observer_gym.train.reports.plots import new_figure, save_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
@@ -129,6 +127,8 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
 def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Catch rate with its Wilson score interval (SciPy's ``binomtest``), the miss
     distance's median and 90th percentile, and means of the rest."""
+    from scipy.stats import binomtest  # imported on use: scipy.stats takes ~0.6 s to import
+
     if not episodes:
         raise ValueError("no episodes to summarize")
     n = len(episodes)
@@ -163,6 +163,11 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     """``plane.png``: where each ball crossed the box's plane relative to the hole
     (caught / missed), with the hole and the ball's size; ``estimate.png`` for an
     observer: episode 0's ball-position error and its 2-sigma band over time."""
+    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+        new_figure,
+        save_figure,
+    )
+
     fig = new_figure((5.2, 5.0))
     ax = fig.add_subplot()
     phase = np.linspace(0.0, 2.0 * np.pi, 200)

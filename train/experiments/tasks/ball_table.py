@@ -8,7 +8,6 @@ from typing import Any
 
 from observer_gym.envs.ball_table.layout import BALL_POS
 from observer_gym.train.reports import metrics
-from observer_gym.train.reports.plots import plot_distances, plot_estimate, plot_paths
 
 # observer_gym.estimation.ball_table's observers other than the default (kf), each from
 # the camera's frames and from the measurements
@@ -79,6 +78,12 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     """``path.png`` (ball paths of the first episodes), ``error.png`` (distance from the
     centre vs time) and, for an observer, ``estimate.png`` (episode 0's estimate vs truth
     with +-2 sigma)."""
+    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+        plot_distances,
+        plot_estimate,
+        plot_paths,
+    )
+
     shown = records[:PATH_PLOT_EPISODES]
     plot_paths(
         [r["state"][:, BALL_POS] for r in shown],

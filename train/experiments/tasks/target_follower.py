@@ -24,7 +24,6 @@ import numpy as np
 
 from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateIndex
 from observer_gym.train.reports.metrics import rmse
-from observer_gym.train.reports.plots import new_figure, save_figure
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
@@ -201,6 +200,11 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ``error.png`` (|(x_i, y_i)| and d_x - d* vs time, every episode, occlusions shaded in
     episode 0) and, for an observer, ``estimate.png`` (episode 0's estimate of X_i vs
     truth with +-2 sigma)."""
+    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+        new_figure,
+        save_figure,
+    )
+
     half_w, half_h = _image_limits(records[0])
     fig = new_figure((6.0, 4.8))
     ax = fig.add_subplot()
