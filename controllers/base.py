@@ -80,9 +80,10 @@ class StateFeedbackController:
         """stable-baselines3's signature; ``state`` is passed through, ``deterministic`` is
         ignored (every controller here is deterministic)."""
         try:
-            # complex (its imaginary part dropped), strings, dates, masked: not numbers
+            # only booleans, integers and floats: not complex (its imaginary part dropped),
+            # strings, dates, objects (even of numbers) or masked arrays
             kind = np.asarray(observation).dtype.kind
-            if kind in "cmMSUV" or isinstance(observation, np.ma.MaskedArray):
+            if kind not in "biuf" or isinstance(observation, np.ma.MaskedArray):
                 raise TypeError(f"{type(observation).__name__} of dtype kind {kind!r}")
             obs = np.asarray(observation, dtype=float)
         except (TypeError, ValueError, OverflowError) as error:  # Overflow: 10**400

@@ -194,8 +194,9 @@ def test_bad_observations_raise_for_every_controller(env_for, name):
         (np.zeros((2, n - 1)), "shape"),
         (np.zeros((1, 2, n)), "shape"),
         (np.zeros(0), "shape"),
-        (None, "shape"),
+        (None, "array of numbers"),
         ("obs", "array of numbers"),
+        (np.zeros(n).astype(object), "array of numbers"),  # numbers, but objects
         ([[0.0] * n, [0.0]], "array of numbers"),
         (object(), "array of numbers"),
     ]:
