@@ -65,7 +65,7 @@ def check_controller_fits(name: str, system: System, others: str = "") -> Contro
     raise ValueError(f"unknown controller {name!r}; allowed: {fits}{others}")
 
 
-def make_controller(name: str, env: gym.Env, **options: Any) -> Controller:
+def make_controller(name: str, env: gym.Env, /, **options: Any) -> Controller:
     """The controller ``name`` of ``env``'s system designed from ``env``'s nominal model;
     ``options`` go to its constructor. A controller of another system, an unknown name, an
     unknown option or an ``env`` that is no gymnasium env raise ValueError naming what is

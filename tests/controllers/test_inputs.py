@@ -216,3 +216,10 @@ def test_huge_finite_observations_give_a_finite_action_in_bounds(env_for, name, 
         action, _ = controller.predict(obs)
     assert np.all(np.isfinite(action))
     assert env.action_space.contains(action)
+
+
+@pytest.mark.parametrize("key", ["env", "name"])
+def test_an_option_named_like_make_controllers_arguments_is_unknown(env_for, key):
+    """Before: TypeError "got multiple values for argument" (found by the fuzz suite)."""
+    with pytest.raises(ValueError, match=f"unknown option\\(s\\) \\['{key}'\\]"):
+        make_controller("lqr", env_for("lqr"), **{key: None})
