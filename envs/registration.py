@@ -83,7 +83,6 @@ SYSTEMS: list[System] = [
 
 # the package's own systems (SYSTEMS without those register_system added)
 PACKAGE_SYSTEMS: tuple[System, ...] = tuple(SYSTEMS)
-BUILT_IN_COUNT = len(PACKAGE_SYSTEMS)
 
 
 def register_envs() -> None:
@@ -119,7 +118,7 @@ def unregister_system(name: str) -> None:
     """Remove the system ``name`` added by :func:`register_system` (and its Gymnasium id);
     the package's own systems stay. ValueError for an unknown or built-in name."""
     system = system_named(name)
-    if system in SYSTEMS[:BUILT_IN_COUNT]:
+    if system in PACKAGE_SYSTEMS:
         raise ValueError(f"{name!r} is one of the package's systems; only added ones go")
     SYSTEMS.remove(system)
     gym.registry.pop(system.env_id, None)

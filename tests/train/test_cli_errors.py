@@ -18,6 +18,7 @@ import pytest
 from observer_gym.envs import SYSTEMS
 from observer_gym.train.cli import build_parser, checks
 from observer_gym.train.experiments.request import check_pair
+from observer_gym.train.experiments.systems import controller_choices, observer_choices
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
 
@@ -380,9 +381,9 @@ def test_the_checks_say_what_the_library_says(tmp_path):
         "sac:" + str(tmp_path / "state"),  # a PPO run named as SAC
         "td3:" + str(tmp_path / "none"),
     }
-    names = {*checks.controller_choices(), "lqg", *runs}
+    names = {*controller_choices(), "lqg", *runs}
     for system in SYSTEMS:
-        for observer in [*checks.observer_choices(), "no-such-observer"]:
+        for observer in [*observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
                     checks.check_controller, controller, system.env_id, observer

@@ -192,8 +192,8 @@ def controller_name(text: str) -> str:
     """argparse type: a controller of some system, a trained agent ``ALGO:DIR``, a
     stable-baselines3 zip ``ALGO:PATH.zip`` or an outside controller (an import path or an
     installed entry point's name); whether it fits the env is checked with the env."""
-    from observer_gym.train.cli.checks import controller_choices
     from observer_gym.train.experiments.entries import find_plugin
+    from observer_gym.train.experiments.systems import controller_choices
 
     controllers = controller_choices()
     algo, sep, run_dir = text.partition(":")

@@ -59,20 +59,6 @@ def names_for(env_id: str) -> SystemEntry:
     return entry_for(env_id)
 
 
-def controller_choices() -> tuple[str, ...]:
-    """Every system's controllers, each name once (read from the layers)."""
-    from observer_gym.train.experiments import systems
-
-    return systems.controller_choices()
-
-
-def observer_choices() -> tuple[str, ...]:
-    """Every system's observers, each name once (read from the layers)."""
-    from observer_gym.train.experiments import systems
-
-    return systems.observer_choices()
-
-
 def check_observer(env_id: str, observer: str) -> str:
     """The registered id of ``env_id`` after checking that ``observer`` is one of its
     task's observers, or an outside observer (:mod:`observer_gym.train.experiments.entries`) whose

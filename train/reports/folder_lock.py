@@ -171,6 +171,18 @@ def _release(path: Path, fd: int) -> None:
         os.close(fd)
 
 
+def _held_by_this_thread(folder: Path, key: Path) -> _Held | None:
+    """This thread's hold of ``folder`` (``key``: its resolved path), None if this process
+    holds none (a forked child's inherited record is not its own); FolderBusyError if
+    another thread of this process holds it."""
+    held = _HELD.get(key)
+    if held is None or held.pid != os.getpid():
+        return None
+    if held.thread != threading.get_ident():
+        raise FolderBusyError(folder, _read_holder(held.fd))
+    return held
+
+
 @contextmanager
 def folder_lock(folder: str | os.PathLike, command: str) -> Iterator[None]:
     """Hold ``folder``'s lock (it must exist) for the block's duration, recording this
@@ -183,10 +195,8 @@ def folder_lock(folder: str | os.PathLike, command: str) -> Iterator[None]:
     """
     folder = Path(folder)
     key = folder.resolve()
-    held = _HELD.get(key)
-    if held is not None and held.pid == os.getpid():
-        if held.thread != threading.get_ident():  # another thread of this process holds it
-            raise FolderBusyError(folder, _read_holder(held.fd))
+    held = _held_by_this_thread(folder, key)
+    if held is not None:
         held.depth += 1
         try:
             yield
@@ -207,10 +217,7 @@ def check_not_busy(folder: str | os.PathLike) -> None:
     nothing if it is free or this thread holds it. A check, not a hold: the lock is
     released at once (the command takes it for good before it writes)."""
     folder = Path(folder)
-    held = _HELD.get(folder.resolve())
-    if held is not None and held.pid == os.getpid():
-        if held.thread != threading.get_ident():
-            raise FolderBusyError(folder, _read_holder(held.fd))
+    if _held_by_this_thread(folder, folder.resolve()) is not None:
         return
     try:
         fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CLOEXEC)

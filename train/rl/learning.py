@@ -86,11 +86,14 @@ def _unloadable(run_dir: Path, steps: int, exc: Exception) -> ValueError:
     )
 
 
-def _refused(name: str, run_dir: Path, exc: Exception) -> ValueError:
-    """The algorithm refused its hyperparameters before training: the run's config.json
-    and monitor/ go (the run holds its folder's lock), so the folder takes a new run."""
+def _discard_new_run(run_dir: Path) -> None:
+    """Remove what a new run wrote before its algorithm refused it (config.json and
+    monitor/; the run holds its folder's lock), so the folder takes a new run."""
     (run_dir / CONFIG_FILE).unlink(missing_ok=True)
     shutil.rmtree(run_dir / "monitor", ignore_errors=True)
+
+
+def _refused(name: str, run_dir: Path, exc: Exception) -> ValueError:
     reason = " ".join(str(exc).split()) or type(exc).__name__
     return ValueError(
         f"{name} refuses the hyperparameters: {reason}; nothing was trained or kept in {run_dir}"
@@ -170,6 +173,7 @@ def learn(
                 model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **kwargs)
             # past the up-front checks; RuntimeError: PyTorch refusing a layer's size
             except (AssertionError, ValueError, TypeError, RuntimeError) as exc:
+                _discard_new_run(run_dir)
                 raise _refused(cls.__name__, run_dir, exc) from exc
         segment = f"resume-{start_steps}" if resume else "start"
         formats = ["csv"] + (["tensorboard"] if config["tensorboard"] else [])
