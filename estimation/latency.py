@@ -33,9 +33,7 @@ from __future__ import annotations
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
-
-import numpy as np
+from typing import Any, Generic, Protocol, TypeVar
 
 __all__ = ["CaptureTimeFusion", "FilterCore", "TimedMeasurement"]
 
@@ -43,21 +41,27 @@ __all__ = ["CaptureTimeFusion", "FilterCore", "TimedMeasurement"]
 # computed by different sums).
 SAME_TIME_S = 1e-9
 
+# What a core holds over a step interval: the env's applied action (an array), or what
+# the system's core derives from it (target_follower's HeldInput)
+A = TypeVar("A")
+A_contra = TypeVar("A_contra", contravariant=True)
 
-class FilterCore(Protocol):
+
+class FilterCore(Protocol[A_contra]):
     """A system's filter as :class:`CaptureTimeFusion` drives it.
 
     ``predict_to(time_s, action)`` propagates the estimate from its current time to
-    ``time_s`` (>= it) with ``action`` (the env's applied action, or None before the
-    first step) held over the interval; ``update(measurement)`` fuses one measurement
-    taken at the current time and returns whether it was used; ``snapshot()`` returns an
-    object from which ``restore`` puts the filter back exactly (time included).
+    ``time_s`` (>= it) with ``action`` (the env's applied action, or what the system makes
+    of it; None before the first step) held over the interval; ``update(measurement)``
+    fuses one measurement taken at the current time and returns whether it was used;
+    ``snapshot()`` returns an object from which ``restore`` puts the filter back exactly
+    (time included).
     ``predict_to`` the current time must leave the filter unchanged.
     """
 
     time_s: float
 
-    def predict_to(self, time_s: float, action: np.ndarray | None) -> None: ...
+    def predict_to(self, time_s: float, action: A_contra | None) -> None: ...
 
     def update(self, measurement: Any) -> bool: ...
 
@@ -75,14 +79,14 @@ class TimedMeasurement:
 
 
 @dataclass
-class _Step:
+class _Step(Generic[A]):
     time_s: float
-    action: np.ndarray | None  # held over the interval that ends at time_s
+    action: A | None  # held over the interval that ends at time_s
     measurements: list[TimedMeasurement] = field(default_factory=list)  # captured in it
     snapshot: Any = None  # the filter after predicting to time_s and fusing the above
 
 
-class CaptureTimeFusion:
+class CaptureTimeFusion(Generic[A]):
     """Drives a :class:`FilterCore` so that each measurement is fused at its capture time
     (``latency_aware=True``) or at its delivery (``False``: the plain drive, the same calls
     a filter without this class makes). See the module docstring.
@@ -94,17 +98,17 @@ class CaptureTimeFusion:
             jitter the sensor can have; older captures are fused at the oldest step kept).
     """
 
-    def __init__(self, core: FilterCore, latency_aware: bool, history_s: float = 1.0) -> None:
+    def __init__(self, core: FilterCore[A], latency_aware: bool, history_s: float = 1.0) -> None:
         if not history_s > 0.0:
             raise ValueError(f"CaptureTimeFusion: history_s = {history_s!r}, must be > 0")
         self.core = core
         self.latency_aware = latency_aware
         self.history_s = float(history_s)
-        self._steps: list[_Step] = [_Step(core.time_s, None, [], core.snapshot())]
+        self._steps: list[_Step[A]] = [_Step(core.time_s, None, [], core.snapshot())]
         self.rewinds = 0  # how many steps rewound the filter (late measurements)
 
     def step(
-        self, time_s: float, action: np.ndarray | None, measurements: Sequence[TimedMeasurement]
+        self, time_s: float, action: A | None, measurements: Sequence[TimedMeasurement]
     ) -> bool:
         """Advance to step time ``time_s`` with ``action`` held since the last step and fuse
         ``measurements`` (delivered now). Returns whether any measurement was used."""
@@ -157,7 +161,7 @@ class CaptureTimeFusion:
         self._forget()
         return used
 
-    def _remember(self, step: _Step) -> None:
+    def _remember(self, step: _Step[A]) -> None:
         self._steps.append(step)
         self._forget()
 

@@ -57,6 +57,12 @@ BORDER_PROBE_PX = 2.0
 BORDER_MIN_DARK_FRACTION = 0.75
 
 
+def bounding_rect(points: np.ndarray) -> tuple[int, int, int, int]:
+    """cv2.boundingRect of ``points`` (a contour, a mask) as the (x, y, w, h) it is."""
+    x, y, w, h = cv2.boundingRect(points)
+    return x, y, w, h
+
+
 class CoarseQuad(NamedTuple):
     """A quadrilateral found on an outline: its corners and, for each side, the range of
     the outline's pixels between the side's two hull vertices."""
@@ -84,7 +90,7 @@ def coarse_corners(
         return None, "no_blob"
     hull_index = cv2.convexHull(contour, returnPoints=False).ravel()
     hull = contour[hull_index].reshape(-1, 2)
-    if touches_image_edge(cv2.boundingRect(hull), image_size):  # its extremes are the hull's
+    if touches_image_edge(bounding_rect(hull), image_size):  # its extremes are the hull's
         return None, "clipped"
     epsilon = max(APPROX_EPSILON_FRACTION * image_size[0], APPROX_EPSILON_MIN_PX)
     poly = cv2.approxPolyDP(hull, epsilon, True)
@@ -149,7 +155,10 @@ def refine_corners(
     size = len(contour)
     margin = SIDE_END_MARGIN_PX
     corners = quad.corners
-    ball = None if ball_px is None else ball_px.tolist()
+    ball: tuple[float, float, float] | None = None  # (u, v, rho)
+    if ball_px is not None:
+        bu, bv, rho = ball_px.tolist()
+        ball = (bu, bv, rho)
     lines = []
     for k, (start, end) in enumerate(quad.arcs):
         if (end - start) % size - 2 * margin < MIN_SIDE_POINTS:
@@ -157,9 +166,9 @@ def refine_corners(
         a, b = (start + margin) % size, (end - margin) % size
         points = contour[a:b] if a <= b else np.concatenate((contour[a:], contour[:b]))
         if ball is not None and _near_segment(
-            *ball, corners[k - 1], corners[k], BALL_EDGE_MARGIN_PX
+            ball, corners[k - 1], corners[k], BALL_EDGE_MARGIN_PX
         ):
-            offsets = points.reshape(-1, 2) - ball_px[:2]
+            offsets = points.reshape(-1, 2) - ball[:2]
             reach = ball[2] + BALL_EDGE_MARGIN_PX
             points = points[np.einsum("ij,ij->i", offsets, offsets) > reach * reach]
             if len(points) < MIN_SIDE_POINTS:
@@ -168,9 +177,15 @@ def refine_corners(
     return _intersect_sides(lines, corners)
 
 
-def _near_segment(bu: float, bv: float, rho: float, start, end, margin: float) -> bool:
-    """Whether the circle (bu, bv, rho) comes within ``margin`` (+ 1 px) of the segment
-    start-end."""
+def _near_segment(
+    ball: tuple[float, float, float],
+    start: tuple[float, float],
+    end: tuple[float, float],
+    margin: float,
+) -> bool:
+    """Whether the circle ``ball`` (u, v, rho) comes within ``margin`` (+ 1 px) of the
+    segment start-end."""
+    bu, bv, rho = ball
     (x0, y0), (x1, y1) = start, end
     reach = rho + margin + 1.0
     dx, dy = x1 - x0, y1 - y0
@@ -229,7 +244,7 @@ def order_corners(
     determinant = ax * by - ay * bx
     if abs(determinant) < 1e-12:
         return None
-    ordered = [None] * 4
+    ordered: list[tuple[float, float] | None] = [None] * 4
     for u, v in corners:
         du, dv = u - cu, v - cv
         along_x = (du * by - dv * bx) * determinant > 0.0
@@ -238,7 +253,8 @@ def order_corners(
         if ordered[slot] is not None:
             return None
         ordered[slot] = (u, v)
-    return ordered
+    # the four corners took the four slots, one each: none is left None
+    return [corner for corner in ordered if corner is not None]
 
 
 _QUADRANT_SLOT = {(True, True): 0, (False, True): 1, (False, False): 2, (True, False): 3}
@@ -319,6 +335,8 @@ def find_corners(
     probe_px: float = BORDER_PROBE_PX,
 ) -> tuple[np.ndarray | None, str | None]:
     """Table steps 2-5 (up to PnP) on one outline: its named corners, or (None, reason)."""
+    if contour is None:
+        return None, "no_blob"
     quad, failure = coarse_corners(contour, image_size, ball_px)
     if quad is None:
         return None, failure
@@ -349,7 +367,7 @@ def outline_beside_red_top(
     """
     if contour is None:
         return None, "no_blob"
-    if touches_image_edge(cv2.boundingRect(contour), image_size):
+    if touches_image_edge(bounding_rect(contour), image_size):
         return None, "clipped"
     red = red_corners.tolist()
     cu = 0.25 * (red[0][0] + red[1][0] + red[2][0] + red[3][0])

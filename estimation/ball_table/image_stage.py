@@ -21,14 +21,14 @@ too small to pin the tilt on its own gives no pose (geometry_stage.py).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, overload
 
-import cv2
 import numpy as np
 
 from observer_gym.estimation.ball_table.ball_image import CUT, ball_circle
 from observer_gym.estimation.ball_table.corners import (
     BORDER_PROBE_PX,
+    bounding_rect,
     find_corners,
     image_axes,
     outline_beside_red_top,
@@ -65,6 +65,26 @@ class RegionFeatures(NamedTuple):
     red_rect: tuple[int, int, int, int] | None  # (x, y, w, h) of the red top's outline
 
 
+@overload
+def features_in_region(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    located: Located,
+    inside_px: None = None,
+) -> RegionFeatures: ...
+
+
+@overload
+def features_in_region(
+    rgb: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    located: Located,
+    inside_px: int,
+) -> RegionFeatures | None: ...
+
+
 def features_in_region(
     rgb: np.ndarray,
     K: np.ndarray,
@@ -87,8 +107,10 @@ def features_in_region(
     less a coarse pixel's reach): the masks the outlines rest on are computed from true
     neighbours (3x3 blur; the open/close only ever meets non-red pixels there), and the
     features are the full search's (the border probes read the whole raw frame either
-    way).
+    way). ``inside_px`` needs ``located.table`` (ValueError without).
     """
+    if inside_px is not None and located.table is None:
+        raise ValueError("features_in_region: inside_px given without a table region to be inside")
     height, width = rgb.shape[:2]
     image_size = (width, height)
     x0, y0, x1, y1 = located.table or (0, 0, width, height)
@@ -104,11 +126,16 @@ def features_in_region(
     red_contour, outline_contour = table_outlines(  # table step 2
         red_mask(red_hls), dark_mask(blurred), offset, red_offset
     )
-    outline_rect = None if outline_contour is None else cv2.boundingRect(outline_contour)
-    red_rect = None if red_contour is None else cv2.boundingRect(red_contour)
-    if inside_px is not None and not (
-        rect_inside(outline_rect, located.table, inside_px)
-        and rect_inside(red_rect, located.red_top or located.table, inside_px)
+    outline_rect = None if outline_contour is None else bounding_rect(outline_contour)
+    red_rect = None if red_contour is None else bounding_rect(red_contour)
+    table = located.table
+    if (
+        inside_px is not None
+        and table is not None  # checked above
+        and not (
+            rect_inside(outline_rect, table, inside_px)
+            and rect_inside(red_rect, located.red_top or table, inside_px)
+        )
     ):
         return None
     ball_px, ball_failure = ball_circle(rgb, located.ball, hls, offset)  # ball step 1

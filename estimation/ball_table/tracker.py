@@ -12,7 +12,6 @@ from observer_gym.estimation.ball_table.image_stage import RegionFeatures, featu
 from observer_gym.estimation.ball_table.region import (
     COARSE_STEP_PX,
     ROI_MARGIN_PX,
-    WHOLE_FRAME,
     Located,
     ball_window_near,
     coarse_image,
@@ -64,12 +63,15 @@ class TableTracker:
     ) -> BallTableFeatures:
         height, width = rgb.shape[:2]
         image_size = (width, height)
-        small = ball_window = None
+        small: np.ndarray | None = None
+        ball_window: tuple[int, int, int, int] | None = None
         if self.boxes is not None:
-            ball_window = ball_window_near(rgb, self.boxes[0])
-            if ball_window is WHOLE_FRAME:
+            near = ball_window_near(rgb, self.boxes[0])
+            if isinstance(near, str):  # WHOLE_FRAME, its only other value
                 small = coarse_image(rgb)
                 ball_window = locate_ball(small, image_size)
+            else:
+                ball_window = near
             located = Located(self.boxes[0], ball_window, self.boxes[1])
             found = features_in_region(rgb, K, T_world_cam, located, TRACK_INSIDE_PX)
             if found is not None:
@@ -81,16 +83,19 @@ class TableTracker:
             small = coarse_image(rgb)
             ball_window = locate_ball(small, image_size)
         located = Located(locate_table(small, image_size), ball_window)
-        found = features_in_region(rgb, K, T_world_cam, located)
-        self.boxes = tracked_boxes(found, image_size) if trackable(found.features) else None
-        return found.features
+        searched = features_in_region(rgb, K, T_world_cam, located)
+        self.boxes = tracked_boxes(searched, image_size) if trackable(searched.features) else None
+        return searched.features
 
 
 def tracked_boxes(
     found: RegionFeatures, image_size: tuple[int, int]
 ) -> tuple[tuple[int, int, int, int], tuple[int, int, int, int]]:
     """The next frame's region of interest and red top's box: the outline's and the red
-    top's boxes widened by TRACK_GROW_PX (the red top's within the region)."""
+    top's boxes widened by TRACK_GROW_PX (the red top's within the region). ``found``
+    must have both outlines (a trackable frame's: its corners were found on them)."""
+    if found.outline_rect is None or found.red_rect is None:
+        raise ValueError("tracked_boxes: the frame's outline or red top was not found")
     table = _grown(found.outline_rect, TRACK_GROW_PX, (0, 0, *image_size))
     return table, _grown(found.red_rect, TRACK_GROW_PX, table)
 

@@ -93,6 +93,14 @@ class DetectorErrorModel:
         return np.sqrt(np.maximum(rms**2 - self.relative_bias(image_noise_std) ** 2, 0.0))
 
 
+def _triple(values: list, what: str) -> tuple[float, float, float]:
+    """(x_i, y_i, d_x) of a stored level's entry ``what``; ValueError unless 3 numbers."""
+    if len(values) != 3:
+        raise ValueError(f"{what} must be a triple (x_i, y_i, d_x), got {values!r}")
+    x_i, y_i, d_x = (float(v) for v in values)
+    return x_i, y_i, d_x
+
+
 @lru_cache(maxsize=4)
 def load_detector_error(path: str | Path = DEFAULT_PATH) -> DetectorErrorModel:
     """The stored model (``detector_error.json`` by default)."""
@@ -100,8 +108,8 @@ def load_detector_error(path: str | Path = DEFAULT_PATH) -> DetectorErrorModel:
     levels = data["levels"]
     return DetectorErrorModel(
         tuple(float(level["image_noise_std"]) for level in levels),
-        tuple(tuple(float(v) for v in level["rms_over_width"]) for level in levels),
-        tuple(tuple(float(v) for v in level["mean_over_width"]) for level in levels),
+        tuple(_triple(level["rms_over_width"], "rms_over_width") for level in levels),
+        tuple(_triple(level["mean_over_width"], "mean_over_width") for level in levels),
     )
 
 
@@ -110,14 +118,19 @@ def _errors_at(image_noise_std: float, frames: int, seed: int) -> dict:
     import gymnasium as gym
 
     import observer_gym.envs  # noqa: F401  (registers the envs)
-    from observer_gym.envs.target_follower import IMAGE, StateIndex
+    from observer_gym.envs.target_follower import IMAGE, StateIndex, TargetFollowerEnv
     from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 
     env = gym.make(ENV_ID, obs_mode="rgb", image_noise_std=float(image_noise_std))
     detector = TargetFollowerDetector()
     rng = np.random.default_rng(seed)
-    half_w, half_h = (0.5 * s for s in env.unwrapped.rig.image_size_px)
-    errors, widths, missed, episode = [], [], 0, 0
+    target_follower = env.unwrapped
+    if not isinstance(target_follower, TargetFollowerEnv):
+        raise TypeError(f"{ENV_ID} made a {type(target_follower).__name__}")
+    half_w, half_h = (0.5 * s for s in target_follower.rig.image_size_px)
+    errors: list[np.ndarray] = []  # detection - truth, (3,) each
+    widths: list[float] = []  # the true d_x of each
+    missed, episode = 0, 0
     try:
         while len(errors) + missed < frames:
             obs, info = env.reset(seed=seed + episode)

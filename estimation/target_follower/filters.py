@@ -155,7 +155,7 @@ class VisualStateEstimator:
 
         dof = self.params.window - 2
         self._significant = float(scipy.stats.chi2.ppf(ADAPTATION_SIGNIFICANCE, dof) / dof)
-        self.tracks = TrackPair(self.params.track_rule)
+        self.tracks: TrackPair[KalmanFilter] = TrackPair(self.params.track_rule)
         self.reset()
 
     def reset(self) -> None:
@@ -299,8 +299,12 @@ class VisualStateEstimator:
         return f.update(z, MEASUREMENT_MATRIX, R)
 
     def unreliable(self) -> bool:
-        """(6): a diagonal element of P exceeds the reliability threshold."""
-        return bool(np.max(np.diag(self.kf.P)) > self.params.reliability_threshold)
+        """(6): a diagonal element of P exceeds the reliability threshold (only with a
+        main track: :attr:`initialised`)."""
+        kf = self.kf
+        if kf is None:
+            raise RuntimeError("VisualStateEstimator.unreliable: no main track (not initialised)")
+        return bool(np.max(np.diag(kf.P)) > self.params.reliability_threshold)
 
     def check_reliability(self) -> None:
         """(6): if the estimate is unreliable, stop: back to uninitialised (the register

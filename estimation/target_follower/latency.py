@@ -194,12 +194,15 @@ class LatencyAwareObserver:
 
     def reset(self) -> None:
         self.frames.reset()
-        self.fusion: CaptureTimeFusion | None = None
+        # the drive and its core (``fusion.core``, typed as the VSECore it is)
+        self.fusion: CaptureTimeFusion[HeldInput] | None = None
+        self.core: VSECore | None = None
         self._robot: RobotStep | None = None
         self._last_image = np.zeros(3)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         robot = RobotStep.from_info(info, action, self.delta_y_m)
+        held: HeldInput | None
         if action is None or self.fusion is None:  # after a reset
             core = VSECore(
                 VisualStateEstimator(self.params, self.noise),
@@ -207,23 +210,29 @@ class LatencyAwareObserver:
                 robot.time_s,
                 self.frame_period_s,
             )
-            self.fusion = CaptureTimeFusion(core, latency_aware=True, history_s=self.history_s)
+            fusion: CaptureTimeFusion[HeldInput] = CaptureTimeFusion(
+                core, latency_aware=True, history_s=self.history_s
+            )
+            self.core, self.fusion = core, fusion
             held = None
         else:
-            prev = self._robot
+            fusion, started, prev = self.fusion, self.core, self._robot
+            if started is None or prev is None:  # both set with the fusion
+                raise RuntimeError("LatencyAwareObserver: a drive without its core or last step")
+            core = started
             held = HeldInput(robot.applied, prev.time_s, robot.time_s, prev.tilt_rad)
         self._robot = robot
         frame = self.frames.newest(obs, info)
         new = [] if frame is None else [TimedMeasurement(frame.capture_time_s, frame)]
-        core = self.fusion.core
         core.nis_of = {}
-        used = self.fusion.step(robot.time_s, held, new)
+        used = fusion.step(robot.time_s, held, new)
         vse = core.vse
         visible = frame is not None and frame.z_px is not None
-        if core.reliable:
-            self._last_image = vse.x[:3].copy()
-            P = vse.noise.reported(vse.P, vse.x)
-            mean, cov = state_estimate(vse.x[:3], vse.x[3:], P, robot, True, visible)
+        kf = vse.kf if core.reliable else None  # the main track's filter, while reliable
+        if kf is not None:
+            self._last_image = kf.x[:3].copy()
+            P = vse.noise.reported(kf.P, kf.x)
+            mean, cov = state_estimate(kf.x[:3], kf.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(
                 self._last_image, self.params.reliability_threshold, robot, visible

@@ -170,10 +170,11 @@ class TargetFollowerObserver:
         self._time_s = robot.time_s
         self._tilt_rad = robot.tilt_rad
         visible = z is not None
-        if vse.valid:
-            self._last_image = vse.x[:3].copy()
-            P = vse.noise.reported(vse.P, vse.x)
-            mean, cov = state_estimate(vse.x[:3], vse.x[3:], P, robot, True, visible)
+        kf = vse.kf if vse.valid else None  # the main track's filter, while valid
+        if kf is not None:
+            self._last_image = kf.x[:3].copy()
+            P = vse.noise.reported(kf.P, kf.x)
+            mean, cov = state_estimate(kf.x[:3], kf.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(
                 self._last_image, self.params.reliability_threshold, robot, visible

@@ -53,6 +53,7 @@ import numpy as np
 from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.envs.target_follower.geometry import MIN_DEPTH_M
 from observer_gym.estimation.ekf import ExtendedKalmanFilter
+from observer_gym.estimation.filters import UpdateResult
 from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
@@ -123,7 +124,7 @@ class PixelEKFCore:
         self.max_gap_s = GAP_PERIODS * noise.sensor.frame_period_s
         self.last_capture_s = -np.inf
         self.fx_px, self.fy_px, self.width_m = fx_px, fy_px, width_m
-        self.tracks = TrackPair(params.track_rule)
+        self.tracks: TrackPair[ExtendedKalmanFilter] = TrackPair(params.track_rule)
         self.time_s = float(time_s)
         self.starts = 0
         self.nis_of: dict[int, float] = {}
@@ -133,7 +134,7 @@ class PixelEKFCore:
         """The main track's filter."""
         return self.tracks.main
 
-    def predict_to(self, time_s: float, action: Any) -> None:
+    def predict_to(self, time_s: float, action: np.ndarray | None) -> None:
         dt = round(time_s - self.time_s, 9)
         if dt <= 0.0:
             return
@@ -147,31 +148,39 @@ class PixelEKFCore:
                 f.predict_nonlinear(F.dot(f.x), F, Q)
         self.time_s = float(time_s)
 
-    def _start(self, m: FrameDetection) -> ExtendedKalmanFilter | None:
-        if m.z_px[2] <= 0.0:
+    # The track rule's start, innovation and update with the detection z (a frame's
+    # z_px) of a frame captured with the camera pose T_world_cam.
+    def _start(self, z: np.ndarray, T_world_cam: np.ndarray) -> ExtendedKalmanFilter | None:
+        if z[2] <= 0.0:
             return None
-        p_w, G = back_project(m.z_px, m.T_world_cam, self.fx_px, self.fy_px, self.width_m)
+        p_w, G = back_project(z, T_world_cam, self.fx_px, self.fy_px, self.width_m)
         P0 = np.zeros((6, 6))
         # P_pos = G R G^T, P_vel = Sigma_v (the motion model's stationary velocity)
-        P0[:3, :3] = G.dot(self.noise.R(m.z_px)).dot(G.T)
+        P0[:3, :3] = G.dot(self.noise.R(z)).dot(G.T)
         P0[3:, 3:] = self.noise.world_velocity_prior
         return ExtendedKalmanFilter(np.concatenate([p_w, np.zeros(3)]), 0.5 * (P0 + P0.T))
 
-    def _projected(self, f: ExtendedKalmanFilter, m: FrameDetection):
-        h, H_p, depth_m = project(f.x[:3], m.T_world_cam, self.fx_px, self.fy_px, self.width_m)
+    def _projected(
+        self, f: ExtendedKalmanFilter, T_world_cam: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        h, H_p, depth_m = project(f.x[:3], T_world_cam, self.fx_px, self.fy_px, self.width_m)
         return h, np.hstack([H_p, np.zeros((3, 3))]), depth_m
 
-    def _innovation(self, f: ExtendedKalmanFilter, m: FrameDetection):
-        h, H, depth_m = self._projected(f, m)
+    def _innovation(
+        self, f: ExtendedKalmanFilter, z: np.ndarray, T_world_cam: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        h, H, depth_m = self._projected(f, T_world_cam)
         if depth_m <= MIN_DEPTH_M:
             return None
         # d = z - h(x), S = H P H^T + R
-        return m.z_px - h, H.dot(f.P).dot(H.T) + self.noise.R(m.z_px)
+        return z - h, H.dot(f.P).dot(H.T) + self.noise.R(z)
 
-    def _update(self, f: ExtendedKalmanFilter, m: FrameDetection):
-        h, H, _ = self._projected(f, m)
+    def _update(
+        self, f: ExtendedKalmanFilter, z: np.ndarray, T_world_cam: np.ndarray
+    ) -> UpdateResult:
+        h, H, _ = self._projected(f, T_world_cam)
         # x <- x + K d (Joseph form)
-        return f.update_nonlinear(m.z_px, h, H, self.noise.R(m.z_px))
+        return f.update_nonlinear(z, h, H, self.noise.R(z))
 
     def update(self, measurement: FrameDetection) -> bool:
         z = measurement.z_px
@@ -183,15 +192,16 @@ class PixelEKFCore:
             return False
         main = self.tracks.main
         if main is not None:
-            _, H, depth_m = self._projected(main, measurement)
+            _, H, depth_m = self._projected(main, measurement.T_world_cam)
             image_var = np.diag(H.dot(main.P).dot(H.T))
             if depth_m <= MIN_DEPTH_M or np.max(image_var) > self.params.reliability_threshold:
                 self.tracks.lose_main()  # lost: a candidate takes its place, or none
+        T_world_cam = measurement.T_world_cam
         measured = self.tracks.measure(
             z,
-            lambda _: self._start(measurement),
-            lambda f, _: self._innovation(f, measurement),
-            lambda f, _, is_main: self._update(f, measurement),
+            lambda z_px: self._start(z_px, T_world_cam),
+            lambda f, z_px: self._innovation(f, z_px, T_world_cam),
+            lambda f, z_px, is_main: self._update(f, z_px, T_world_cam),
         )
         self.starts += measured.event in ("start", "switch")
         if measured.update is not None:
@@ -236,7 +246,9 @@ class PixelEKFObserver:
 
     def reset(self) -> None:
         self.frames.reset()
-        self.fusion: CaptureTimeFusion | None = None
+        # the drive and its core (``fusion.core``, typed as the PixelEKFCore it is)
+        self.fusion: CaptureTimeFusion[np.ndarray] | None = None
+        self.core: PixelEKFCore | None = None
         self._last_image = np.zeros(3)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
@@ -245,20 +257,28 @@ class PixelEKFObserver:
             core = PixelEKFCore(
                 self.params, self.noise, self.fx_px, self.fy_px, self.width_m, robot.time_s
             )
-            self.fusion = CaptureTimeFusion(core, latency_aware=True, history_s=self.history_s)
+            fusion: CaptureTimeFusion[np.ndarray] = CaptureTimeFusion(
+                core, latency_aware=True, history_s=self.history_s
+            )
+            self.core, self.fusion = core, fusion
+        else:
+            fusion, started = self.fusion, self.core
+            if started is None:  # set with the fusion
+                raise RuntimeError("PixelEKFObserver: a drive without its core")
+            core = started
         frame = self.frames.newest(obs, info)
         new = [] if frame is None else [TimedMeasurement(frame.capture_time_s, frame)]
-        core = self.fusion.core
         core.nis_of = {}
-        used = self.fusion.step(robot.time_s, action, new)
+        used = fusion.step(robot.time_s, action, new)
         visible = frame is not None and frame.z_px is not None
         valid = False
-        if core.ekf is not None:
+        ekf = core.ekf
+        if ekf is not None:
             T_world_cam = np.asarray(info["camera"]["T_world_cam"], dtype=float)
             s, J, depth_m = image_state_and_rate(
-                core.ekf.x, T_world_cam, self.fx_px, self.fy_px, self.width_m
+                ekf.x, T_world_cam, self.fx_px, self.fy_px, self.width_m
             )
-            cov = J.dot(core.ekf.P).dot(J.T)
+            cov = J.dot(ekf.P).dot(J.T)
             valid = depth_m > MIN_DEPTH_M and bool(
                 np.max(np.diag(cov)[:3]) <= self.params.reliability_threshold
             )

@@ -28,7 +28,7 @@ second detection: variance ``reliability_threshold``); while not valid,
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 from observer_gym.estimation.target_follower.filters import Table1Noise, VSEParams
-from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
+from observer_gym.estimation.target_follower.frames import FrameReader
 from observer_gym.estimation.target_follower.models import (
     TargetFollowerCameraParams,
     robot_jacobian,
@@ -49,6 +49,14 @@ from observer_gym.estimation.target_follower.state_layout import (
 )
 
 __all__ = ["RawObserver"]
+
+
+class _Detection(NamedTuple):
+    """A frame's detection, as the finite difference uses it."""
+
+    z_px: np.ndarray  # (x_i, y_i, d_x)
+    capture_time_s: float
+    tilt_rad: float  # the camera's tilt at capture
 
 
 class RawObserver:
@@ -84,7 +92,7 @@ class RawObserver:
         self._robot: RobotStep | None = None
         # (start_s, end_s, applied) of the recent steps, for the mean input between captures
         self._inputs: list[tuple[float, float, np.ndarray]] = []
-        self._last: FrameDetection | None = None  # the last detection
+        self._last: _Detection | None = None  # the last detection
         self._rate_pxps = np.zeros(3)
         self._rate_dt_s: float | None = None  # the capture interval of the last difference
         self._R = np.zeros((3, 3))  # R of the last detection
@@ -111,30 +119,31 @@ class RawObserver:
         if frame is not None:
             self._valid = frame.z_px is not None
         if frame is not None and frame.z_px is not None:
+            detection = _Detection(frame.z_px, frame.capture_time_s, frame.tilt_rad)
+            R_last, self._R = self._R, self.noise.R(detection.z_px)
             last = self._last
             if last is not None:
-                dt_s = frame.capture_time_s - last.capture_time_s
+                dt_s = detection.capture_time_s - last.capture_time_s
                 B_i = robot_jacobian(last.z_px, last.tilt_rad, self.camera_params)
-                u_mean = self._mean_input(last.capture_time_s, frame.capture_time_s)
+                u_mean = self._mean_input(last.capture_time_s, detection.capture_time_s)
                 # X_i^t' = (Z_1 - Z_0) / dt - B_i(Z_0, phi(t_0)) u_mean   (30) inverted
-                self._rate_pxps = (frame.z_px - last.z_px) / dt_s - B_i.dot(u_mean)
+                self._rate_pxps = (detection.z_px - last.z_px) / dt_s - B_i.dot(u_mean)
                 self._rate_dt_s = dt_s
-            R_last, self._R = self._R, self.noise.R(frame.z_px)
-            if last is not None:
-                self._rate_cov = (self._R + R_last) / self._rate_dt_s**2
-            self._last = frame
+                self._rate_cov = (self._R + R_last) / dt_s**2
+            self._last = detection
         oldest_s = robot.time_s - self.history_s
         if self._last is not None:
             oldest_s = min(oldest_s, self._last.capture_time_s)
         self._inputs = [i for i in self._inputs if i[1] > oldest_s]
         visible = frame is not None and frame.z_px is not None
-        if self._valid:
+        held = self._last if self._valid else None  # valid: the newest frame's detection
+        if held is not None:
             cov = self.params.reliability_threshold * np.eye(6)  # rates unknown until a difference
             cov[:3, :3] = self._R
             if self._rate_dt_s is not None:
                 cov[3:, 3:] = self._rate_cov  # Var(Z_1 - Z_0) / dt^2
                 cov[:3, 3:] = cov[3:, :3] = self._R / self._rate_dt_s  # Cov(Z_1, (Z_1 - Z_0) / dt)
-            mean, cov = state_estimate(self._last.z_px, self._rate_pxps, cov, robot, True, visible)
+            mean, cov = state_estimate(held.z_px, self._rate_pxps, cov, robot, True, visible)
         else:
             image = np.zeros(3) if self._last is None else self._last.z_px
             mean, cov = lost_estimate(image, self.params.reliability_threshold, robot, visible)

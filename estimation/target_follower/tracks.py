@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Generic, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -89,16 +89,19 @@ class Measured(NamedTuple):
         return self.event != "candidate"
 
 
+# The tracks' filter class (a KalmanFilter, or a subclass such as the EKF)
+F = TypeVar("F", bound=KalmanFilter)
 # start(z) -> a new filter at the detection (None: it cannot start there)
-Start = Callable[[np.ndarray], KalmanFilter | None]
+Start = Callable[[np.ndarray], F | None]
 # innovation(filter, z) -> (d, S) with the filter's R, or None when it cannot be formed
-Innovation = Callable[[KalmanFilter, np.ndarray], tuple[np.ndarray, np.ndarray] | None]
+Innovation = Callable[[F, np.ndarray], tuple[np.ndarray, np.ndarray] | None]
 # update(filter, z, is_main) -> the filter's update with z (no gate)
-Update = Callable[[KalmanFilter, np.ndarray, bool], UpdateResult]
+Update = Callable[[F, np.ndarray, bool], UpdateResult]
 
 
-class TrackPair:
-    """The main track and the candidate of one target (module docstring)."""
+class TrackPair(Generic[F]):
+    """The main track and the candidate of one target (module docstring); their filters
+    are ``F``s (what ``start`` returns)."""
 
     def __init__(self, rule: TrackRule) -> None:
         self.rule = rule
@@ -106,24 +109,25 @@ class TrackPair:
         self.reset()
 
     def reset(self) -> None:
-        self.main: KalmanFilter | None = None
+        self.main: F | None = None
         self.locked = False  # the main track used the previous frame's detection
-        self.candidate: KalmanFilter | None = None
+        self.candidate: F | None = None
         self.candidate_is_branch = False
         self.candidate_updates = 0
         self.switches = 0  # new tracks that replaced a main track
         self.rejected = 0  # detections outside the main track's gate
 
-    def filters(self) -> tuple[KalmanFilter, ...]:
+    def filters(self) -> tuple[F, ...]:
         """The tracks there are (main first), for the caller's predict."""
         return tuple(f for f in (self.main, self.candidate) if f is not None)
 
-    def _inside(self, f: KalmanFilter, z: np.ndarray, innovation: Innovation) -> bool:
+    @staticmethod
+    def _inside(gate: ChiSquareGate, f: F, z: np.ndarray, innovation: Innovation[F]) -> bool:
         formed = innovation(f, z)
         if formed is None:
             return False
         d, S = formed
-        return nis(S, d) <= self._gate.threshold(d.shape[0])  # d^T S^-1 d <= chi2 quantile
+        return nis(S, d) <= gate.threshold(d.shape[0])  # d^T S^-1 d <= chi2 quantile
 
     def miss(self) -> None:
         """A frame without a detection (or a frame dropped): out of lock, no candidate."""
@@ -131,24 +135,25 @@ class TrackPair:
         self.candidate, self.candidate_updates = None, 0
 
     def measure(
-        self, z: np.ndarray, start: Start, innovation: Innovation, update: Update
+        self, z: np.ndarray, start: Start[F], innovation: Innovation[F], update: Update[F]
     ) -> Measured:
         """Use the detection ``z`` (see the module docstring)."""
         main = self.main
-        if self._gate is None:  # the spec: start at the first detection, use every one
+        gate = self._gate
+        if gate is None:  # the spec: start at the first detection, use every one
             if main is None:
                 self.main = start(z)
                 return Measured("start" if self.main is not None else "candidate", None)
             return Measured("update", update(main, z, True))
-        in_main_gate = main is not None and self._inside(main, z, innovation)
-        if in_main_gate and self.locked:
+        in_main_gate = main is not None and self._inside(gate, main, z, innovation)
+        if main is not None and in_main_gate and self.locked:
             self.candidate, self.candidate_updates = None, 0
             return Measured("update", update(main, z, True))
         if main is not None and not in_main_gate:
             self.rejected += 1
         self.locked = False
         candidate = self.candidate
-        if candidate is not None and self._inside(candidate, z, innovation):
+        if candidate is not None and self._inside(gate, candidate, z, innovation):
             result = update(candidate, z, False)
             self.candidate_updates += 1
             branch = self.candidate_is_branch
@@ -163,7 +168,7 @@ class TrackPair:
                 return Measured(event, result)
             return Measured("candidate", None)
         # a new candidate: the main track with z (a branch), or a new track at z
-        if in_main_gate:
+        if main is not None and in_main_gate:
             candidate = type(main)(main.x, main.P)
             update(candidate, z, False)
         else:
@@ -184,7 +189,7 @@ class TrackPair:
         flags = (self.locked, self.candidate_is_branch, self.candidate_updates)
         return (main, candidate, *flags, self.switches, self.rejected)
 
-    def restore(self, snapshot: tuple, make: Callable[[np.ndarray, np.ndarray], KalmanFilter]):
+    def restore(self, snapshot: tuple, make: Callable[[np.ndarray, np.ndarray], F]) -> None:
         """Back to ``snapshot``; ``make(x, P)`` builds a filter where one is missing."""
         main, candidate, *rest = snapshot
         self.main = self._restored(self.main, main, make)
@@ -198,7 +203,11 @@ class TrackPair:
         ) = rest
 
     @staticmethod
-    def _restored(f, state, make):
+    def _restored(
+        f: F | None,
+        state: tuple[np.ndarray, np.ndarray] | None,
+        make: Callable[[np.ndarray, np.ndarray], F],
+    ) -> F | None:
         if state is None:
             return None
         if f is None:

@@ -31,6 +31,8 @@ import torch
 from gymnasium import spaces
 from torch import nn
 
+from observer_gym.envs.core import CameraEnv
+
 ENCODERS_DIR = Path(__file__).parent / "encoders"
 
 
@@ -56,6 +58,10 @@ class FrameEncoderNet(nn.Module):
     de-standardised with the training targets' mean and standard deviation, kept as
     buffers.
     """
+
+    # the buffers registered in __init__ (nn.Module's __getattr__ types them loosely)
+    target_mean: torch.Tensor
+    target_std: torch.Tensor
 
     def __init__(self, channels: int, size_px: int, n_targets: int) -> None:
         super().__init__()
@@ -164,7 +170,7 @@ class EncodedFrames(gym.ObservationWrapper):
     def __init__(self, env: gym.Env, encoder: Encoder) -> None:
         super().__init__(env)
         meta = encoder.meta
-        unwrapped = env.unwrapped
+        unwrapped = camera_env(env)
         size = meta["image"]["size_px"]
         frame = (size, size) if meta["channels"] == 1 else (size, size, 3)
         camera = [unwrapped.config.image_width_px, unwrapped.config.image_height_px]
@@ -189,6 +195,14 @@ class EncodedFrames(gym.ObservationWrapper):
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
         return self.encoder(channels_first(observation))
+
+
+def camera_env(env: gym.Env) -> CameraEnv:
+    """The observer-gym env under ``env``'s wrappers; TypeError for another env."""
+    unwrapped = env.unwrapped
+    if not isinstance(unwrapped, CameraEnv):
+        raise TypeError(f"not an observer-gym camera env: {type(unwrapped).__name__}")
+    return unwrapped
 
 
 def channels_first(frame: np.ndarray) -> np.ndarray:

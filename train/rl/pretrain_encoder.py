@@ -27,7 +27,12 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from observer_gym.train.rl.pixel_encoder import Encoder, FrameEncoderNet, channels_first
+from observer_gym.train.rl.pixel_encoder import (
+    Encoder,
+    FrameEncoderNet,
+    camera_env,
+    channels_first,
+)
 
 BATCH_SIZE = 128
 HELD_OUT_FRACTION = 0.1
@@ -61,13 +66,16 @@ def collect_frames(
     env = make_agent_env(env_id, "rgb", env_kwargs=env_kwargs, image=single)
     try:
         policy = make_controller(controller, env)
-        low = env.unwrapped.action_space.low.astype(np.float64)
-        high = env.unwrapped.action_space.high.astype(np.float64)
+        unwrapped = camera_env(env)
+        low = unwrapped.action_space.low.astype(np.float64)
+        high = unwrapped.action_space.high.astype(np.float64)
         rng = np.random.default_rng(seed)
         shape = env.observation_space.shape
+        if shape is None:
+            raise ValueError(f"{env_id}'s rgb frames have no shape: {env.observation_space}")
         frame_shape = (1, *shape) if len(shape) == 2 else (shape[2], *shape[:2])
         images = np.zeros((frames, *frame_shape), np.uint8)
-        states = np.zeros((frames, env.unwrapped.state_space.shape[0]), np.float32)
+        states = np.zeros((frames, unwrapped.state_space.shape[0]), np.float32)
         episodes = np.zeros(frames, np.int64)
         n = episode = 0
         while n < frames:
@@ -183,8 +191,11 @@ def pretrain(
     state_names = list(importlib.import_module(f"observer_gym.envs.{system.name}").STATE_NAMES)
     indices = [state_names.index(name) for name in FRAME_TARGETS[system.name]]
     probe = gym.make(env_id, obs_mode="state", **dict(env_kwargs))
-    camera_px = [probe.unwrapped.config.image_width_px, probe.unwrapped.config.image_height_px]
-    probe.close()
+    try:
+        config = camera_env(probe).config
+    finally:
+        probe.close()
+    camera_px = [config.image_width_px, config.image_height_px]
     tic = time.perf_counter()
     data_path = None if data_path is None else Path(data_path)
     if data_path is not None and data_path.is_file():

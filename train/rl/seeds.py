@@ -98,7 +98,11 @@ class SeedsConfig:
             )
         data = json.loads(path.read_text())
         fields = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: tuple(v) if k == "seeds" else v for k, v in data.items() if k in fields})
+        # the file's JSON values, of the types the fields say (as_dict wrote them)
+        values: dict[str, Any] = {k: v for k, v in data.items() if k in fields}
+        if "seeds" in values:
+            values["seeds"] = tuple(values["seeds"])
+        return cls(**values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -323,10 +327,10 @@ def _train(
             )
         )
     steps = sum(max(_timesteps(p) - before[p], 0) for p in run_dirs)
-    failed = [run for run in runs if run.error]
+    failed = [(run.seed, run.error) for run in runs if run.error]
     if failed:
         details = "; ".join(
-            f"seed {run.seed}: {run.error.strip().splitlines()[-1]}" for run in failed
+            f"seed {seed}: {error.strip().splitlines()[-1]}" for seed, error in failed
         )
         raise RuntimeError(f"training failed for {len(failed)} seed(s) of {out_dir}: {details}")
     aggregate = None

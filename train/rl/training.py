@@ -34,6 +34,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from gymnasium import spaces
+
 from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.outputs import (
     OneLineWarning,
@@ -180,6 +182,8 @@ def run_config(
         action_space = probe.unwrapped.action_space
     finally:
         probe.close()
+    if not isinstance(action_space, spaces.Box):
+        raise TypeError(f"{env_id}: the action space must be a Box, not {action_space}")
     encoder = params["image"].get("encoder") if obs == "rgb" else None
     recorded = {}  # the frame encoder's file, which a loaded agent checks
     if encoder is not None:

@@ -33,6 +33,7 @@ import numpy as np
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
 from observer_gym.controllers.target_follower.vtc import VisualTrackingController
+from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.envs.target_follower.motion import PROFILE_TURN_RATE_RADPS
 from observer_gym.estimation.observer import VisionObserver
 from observer_gym.estimation.target_follower.filters import VSEParams
@@ -99,10 +100,14 @@ def run_once(
         measurement_noise_px=float(sigma_px),
         max_episode_steps=steps + 1,
     )
+    target_follower = env.unwrapped
+    if not isinstance(target_follower, TargetFollowerEnv):
+        env.close()
+        raise TypeError(f"{ENV_ID} made a {type(target_follower).__name__}")
     rho = np.random.default_rng([seed, run_index]).uniform(-RHO_MAX, RHO_MAX, 4)
-    calibrated = TargetFollowerCameraParams.from_calibration(env.unwrapped.calibration)
+    calibrated = TargetFollowerCameraParams.from_calibration(target_follower.calibration)
     pipeline = TargetFollowerObserver(
-        env.unwrapped, filter=filter_name, params=VSEParams(window=window)
+        target_follower, filter=filter_name, params=VSEParams(window=window)
     )
     observed = VisionObserver(env, pipeline=pipeline)
     try:
@@ -160,7 +165,7 @@ def run_study(
 def check_targets(sigmas: list[float], mse: dict) -> dict:
     """The reproduction's targets: at sigma_n = 10, STKF < KF for all six and our ratio within
     1.25x the paper's; at sigma_n = 0, both filters' position MSE <= 0.1 px^2."""
-    out = {}
+    out: dict[str, list[bool] | list[float] | dict[str, list[bool]]] = {}
     if 10 in sigmas:
         i = sigmas.index(10)
         kf, st = mse["kf"][i].mean(axis=0), mse["stkf"][i].mean(axis=0)

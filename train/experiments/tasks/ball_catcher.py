@@ -176,15 +176,17 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     clear_mm = hole_r_mm - 1e3 * geo.BALL_RADIUS_M
     ax.plot(clear_mm * np.cos(phase), clear_mm * np.sin(phase), "k:", lw=1, label="clean pass")
     crossings = [(bool(r["final_info"].get("caught")), plane_offset_m(r)) for r in records]
-    for caught, style in (
-        (True, {"c": "tab:green", "marker": "o"}),
-        (False, {"c": "tab:red", "marker": "x"}),
-    ):
-        points = [1e3 * offset for c, offset in crossings if c == caught and offset is not None]
-        if points:
-            points = np.array(points)
+    for caught, colour, marker in ((True, "tab:green", "o"), (False, "tab:red", "x")):
+        offsets = [1e3 * offset for c, offset in crossings if c == caught and offset is not None]
+        if offsets:
+            points = np.array(offsets)
             ax.scatter(
-                points[:, 0], points[:, 1], s=14, label="caught" if caught else "missed", **style
+                points[:, 0],
+                points[:, 1],
+                s=14,
+                label="caught" if caught else "missed",
+                c=colour,
+                marker=marker,
             )
     ax.set_aspect("equal")
     limit = 3.0 * hole_r_mm
