@@ -49,9 +49,10 @@ def nees_per_step(
 
     Over the entries with a finite, positive variance, in the eigenbasis of their
     correlation matrix: directions whose correlation eigenvalue is below
-    :data:`RANK_TOL` are ones the observer claims to know exactly (e.g. BallTable's tilt
-    rate, computed from the tilt and the known command) and are left out, so the dof is
-    the covariance's numerical rank. numpy.linalg.eigh, not a Cholesky solve, for that."""
+    :data:`RANK_TOL` are ones the observer claims to know exactly and are left out, so the
+    dof is the covariance's numerical rank. numpy.linalg.eigh, not a Cholesky solve, for
+    that. An error in such a direction, or in an entry of zero variance, is not counted: a
+    claim of exact knowledge is not checked here."""
     nees = np.full(len(estimates), np.nan)
     dof = np.zeros(len(estimates), dtype=int)
     for k, (mean, P, x) in enumerate(zip(estimates, covariances, truth, strict=True)):
