@@ -5,9 +5,13 @@ rule's R against the detections' scatter; the model floors against the simulator
 Cells: 3 episodes (seeds 0-2) x 150 steps, closed loop with the LQR on the observer's own
 estimate, perfect-detector measurements. Measured with this code (median of the 3):
 kf and kf-latency 0.15 at 0 px, 0.53 at 0.5 px, 1.86 at 2 px, 0.12 at 20 % drops; kf 0.65
-and kf-latency 1.29 at a latency of 0.1 s; ekf 0.17, 0.47, 1.50, 0.17 and 0.40 at 0.1 s
-(its rotation term driven by the commands, not by its own tilt states).
-With R x 100 at 0 px: 0.08 (kf), 0.09 (ekf). Below the band the filters claim more error
+and kf-latency 1.29 at a latency of 0.1 s; ekf 1.21, 0.46, 1.53, 0.94 and 1.11 at 0.1 s
+(its rotation term driven by the commands, not by its own tilt states; since it has the
+table centre's translation and its pixel floor is what its model leaves out, 0.003 px:
+0.17, 0.47, 1.50, 0.17 and 0.40 before). ekf under calibration error (0 px): 0.78 at 1
+degree of rotation error, 1.17 at 2 % focal error (754 and 4.2 in the consistency study
+before the translation states: a pose error read as tilt).
+With R x 100 at 0 px: 0.08 (kf), 0.13 (ekf). Below the band the filters claim more error
 than they have: at 0 px the estimate rests on the rolling model's process noise,
 sigma_w = 0.5 m/s^2 (estimation/ball_table/noise.py), now 3x the model's measured error
 at its 99th percentile since the model has the table's angular acceleration, and more
@@ -33,8 +37,10 @@ from consistency_cells import (
 )
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_table.geometry import TABLE_CENTRE_HOME_WORLD
 from observer_gym.envs.ball_table.layout import CORNERS_PX
 from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.ball_table import pixel_ekf
 from observer_gym.estimation.ball_table.features import (
     RED_TOP,
     BallTableFeatures,
@@ -65,8 +71,6 @@ OUTSIDE = {
     ("kf", "drops"): "measured 0.12, as at 0 px",
     ("kf-latency", "0px"): "measured 0.15, as kf",
     ("kf-latency", "drops"): "measured 0.12, as kf",
-    ("ekf", "0px"): "measured 0.17 (episodes 0.12, 4.69, 0.17): heavy-tailed model error",
-    ("ekf", "drops"): "measured 0.17, as at 0 px",
 }
 CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
     (o, "latency") for o in ("kf", *LATENCY_AWARE)
@@ -81,6 +85,37 @@ def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
 def test_median_nees_per_dof_is_within_the_band(observer, condition):
     ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
     assert LOW <= ratio <= HIGH, ratio
+
+
+CALIBRATION = {
+    "rotation 1 deg": {"calib_rotation_error_deg": 1.0},
+    "focal 2 %": {"calib_focal_error": 0.02},
+}
+
+
+@pytest.mark.parametrize("condition", CALIBRATION)
+def test_ekf_is_within_the_band_under_calibration_error(condition):
+    """The pixel EKF absorbs a camera pose error as the table's translation and reports
+    the rest (estimation/ball_table/pixel_ekf.py, fit_calibration_cov): measured 0.78
+    (episodes 0.50, 1.49, 0.78) at 1 degree, 1.17 (1.30, 1.17, 0.67) at 2 %."""
+    ratio = _median_nees("ekf-measurements", CALIBRATION[condition])
+    assert LOW <= ratio <= HIGH, ratio
+
+
+def test_a_hundredfold_R_fails_the_focal_cell():
+    """Measured 0.25 (episodes 0.25, 0.35, 0.23). At 1 degree of rotation R x 100 stays in
+    the band (0.48): there the reported calibration offset, which R does not scale,
+    dominates the tilt's covariance; the next test holds that cell to its report."""
+    ratio = _median_nees("ekf-measurements", CALIBRATION["focal 2 %"], r_scale=100.0)
+    assert ratio < LOW, ratio
+
+
+def test_without_the_calibration_report_the_rotation_cell_fails(monkeypatch):
+    """The reported calibration offset is what keeps the rotation cell in the band: without
+    it the tilt's constant offset (about 10 mrad) is unclaimed (measured 15558)."""
+    monkeypatch.setattr(pixel_ekf, "fit_calibration_cov", lambda *args: None)
+    ratio = _median_nees("ekf-measurements", CALIBRATION["rotation 1 deg"])
+    assert ratio > HIGH, ratio
 
 
 @pytest.mark.parametrize("observer", OBSERVERS)
@@ -131,9 +166,12 @@ def test_R_is_the_scatter_of_the_detections_under_pixel_noise(make_env):
 def test_the_model_floors_cover_the_sim(make_env):
     """What the models leave out, measured on perfect pixels (0 px) over 3 episodes of the
     LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error, the tilt
-    rate's departure from the lag model, and the table corners' departure from a table
-    held at its home centre (ekf). Each RMS at most 25 % above its floor, and each floor
-    at most 3x its RMS (measured RMS: 0.015 mm, 4-5 mrad/s, 0.052 px)."""
+    rate's departure from the lag model, each RMS at most 25 % above its floor and each
+    floor at most 3x its RMS (measured RMS: 0.015 mm, 4-5 mrad/s); and the table corners'
+    departure from ekf's model at the true tilt and the simulator's table centre, whose
+    floor lies between their RMS and 99th percentile (measured 0.0010 and 0.0049 px;
+    0.052 px RMS from a table held at its home centre, the floor before ekf had the
+    centre's translation)."""
     state_env = make_env(ENV_ID, obs_mode="state")
     env = make_env(ENV_ID, obs_mode="measurements", push_rate_hz=0.5)
     pipeline = VisionObserver(env, observer="kf").pipeline
@@ -155,19 +193,23 @@ def test_the_model_floors_cover_the_sim(make_env):
                 detection = detector.detect(features_from_measurement(obs), K, T_world_cam)
                 if detection.ball_found:
                     ball_err.append(detection.ball_pos_table_m - x[:2])
-                T = T_world_table(x[4:6])
-                held, _ = project(K, T_world_cam, corners_table @ T[:3, :3].T + T[:3, 3])
-                corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - held)
+                centre = env.unwrapped.scene.table_pose()[:3, 3] - TABLE_CENTRE_HOME_WORLD
+                T = T_world_table(x[4:6], centre)
+                modelled, _ = project(K, T_world_cam, corners_table @ T[:3, :3].T + T[:3, 3])
+                corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - modelled)
             if terminated or truncated:
                 break
     for errors, floor in [
         (ball_err, PERFECT_PIXELS_BALL_STD_M),
         (rate_err, TILT_RATE_MODEL_STD_RADPS),
-        (corner_err, MEASUREMENT_FLOOR_PX),
     ]:
         rms = float(np.sqrt(np.mean(np.square(errors))))
         print(f"\nRMS {rms:.3g}, floor {floor:.3g}")
         assert rms <= 1.25 * floor and floor <= 3.0 * rms
+    corner_rms = float(np.sqrt(np.mean(np.square(corner_err))))
+    corner_p99 = float(np.percentile(np.abs(corner_err), 99))
+    print(f"\ncorners: RMS {corner_rms:.3g}, 99th pct {corner_p99:.3g} px")
+    assert corner_rms <= MEASUREMENT_FLOOR_PX <= corner_p99
 
 
 @pytest.mark.slow
