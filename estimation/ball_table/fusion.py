@@ -59,7 +59,8 @@ class FusedObserver:
     The covariance it reports is the core's plus the declared calibration's offset, which
     no filter holds (the noise rule's :meth:`~observer_gym.estimation.ball_table.noise.
     BallTableNoiseRule.reported`, at the frame a subclass last gave to
-    :meth:`_track_calibration`; ``rate_gain_per_s``: the tilt rate's g in g (u - tilt)).
+    :meth:`_track_calibration`, or the one a subclass's :meth:`_reported` sets;
+    ``rate_gain_per_s``: the tilt rate's g in g (u - tilt)).
 
     A subclass gives :meth:`_read` (the frame's raw detection and the core's measurement)
     and :meth:`_start` (the core)."""

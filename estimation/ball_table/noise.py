@@ -34,9 +34,12 @@ Every R is the rule's times ``r_scale`` (1; sensitivity studies).
 **Calibration**: the declared calibration uncertainty through the geometry stage
 (estimation/calibration.py: the stage run with the camera moved along each calibration
 parameter) gives the covariance of the constant offset it puts on the tilt and the ball's
-position (and, through the observers' rate g (u - tilt), on the tilt rate); both
-observers add it to the covariance they report (:meth:`reported`), not to R (no
-innovation sees a constant offset).
+position (and, through the observers' rate g (u - tilt), on the tilt rate); ``kf`` adds
+it to the covariance it reports (:meth:`reported`), not to R (no innovation sees a
+constant offset). ``ekf`` reports the offset as its own pixel model reads the frame
+(estimation/ball_table/pixel_ekf.py, ``fit_calibration_cov``, through :meth:`reported`):
+it takes the part a translation of the table explains in its state, and under a focal
+error settles at another tilt than PnP does.
 
 **Q** (:func:`ball_process_params`, the rolling-ball model's w1 and w2), from the
 disturbance model (envs/ball_table/disturbances.py) and what the model leaves out:

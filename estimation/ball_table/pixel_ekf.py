@@ -1,11 +1,18 @@
 """The BallTable observer ``ekf``: one extended Kalman filter straight from the pixels, with
 no PnP in between.
 
-State (8): the ball's position, velocity and Gauss-Markov disturbance per table axis
-(RollingBallModel's six) and the table's two tilt angles (TiltLagModel's). Process: the
-tilt follows the commanded tilt through the arm's first-order lag; the ball rolls with the
-gravity input of the tilt at the middle of the interval (the trapezoid of its two ends, as
-``kf`` has it), so the ball's prediction depends on the tilt and F couples them:
+State (14): the ball's position, velocity and Gauss-Markov disturbance per table axis
+(RollingBallModel's six), the table's two tilt angles (TiltLagModel's) and its centre's
+offset from TABLE_CENTRE_HOME_WORLD in the world frame in two parts of three: a constant
+(where a camera calibration error makes the table appear: its prior the declared
+calibration uncertainty through :func:`centre_calibration_cov`, none without one) and the
+arm's (a Gauss-Markov with the stationary std and correlation measured once,
+TABLE_CENTRE_HOLD_STD_M, benchmarks/ball_table_centre_motion.py: the arm's joints lag, so
+the centre moves 0.14 mm RMS, up to 1.7 mm). The estimate is the env's state layout;
+the centre's states are internal. Process: the tilt follows the commanded tilt through
+the arm's first-order lag; the ball rolls with the gravity input of the tilt at the middle
+of the interval (the trapezoid of its two ends, as ``kf`` has it), so the ball's
+prediction depends on the tilt and F couples them:
 
     theta' = Phi_t theta + Gamma_t u,   b' = Phi_b b + Gamma_b a((theta + theta') / 2)
     F = [[Phi_b, Gamma_b A (I + Phi_t) / 2], [0, Phi_t]],   A = da/dtheta
@@ -15,15 +22,22 @@ applied to the predicted mean, as in ``kf``.
 
 Measurement: the pixels of the table's corners and of the ball's centre, predicted
 through the frame's nominal camera (``K``, ``T_world_cam`` in ``info["frames"]``) from the
-table's pose, which the tilt angles and the arm's fixed table centre give
-(``T_world_table`` = [R_x(tilt_x) R_y(tilt_y), TABLE_CENTRE_HOME_WORLD]: the arm tilts the
-table about its centre, envs/ball_table/scene.py), and the ball's centre on the table at
-its radius, (x, y, r) in the table frame. The ball's pixel is the centre of the sphere's
-exact image ellipse (what the env's measurement and the image stage's blob centroid
-report), which for a sphere of centre S (camera frame) and radius r is the pinhole
-projection of S scaled by S_z^2 / (S_z^2 - r^2): see :func:`project`. Measured corners are
-those of the red top (measurements mode; from rgb, the image stage's corners of the model
-it found) and, from rgb, the borders' outer outline beside them. A corner with a
+table's pose, which the tilt angles and the centre give (``T_world_table`` =
+[R_x(tilt_x) R_y(tilt_y), TABLE_CENTRE_HOME_WORLD + offset]: the arm tilts the table
+about its centre, envs/ball_table/scene.py), and the ball's centre on the table at
+its radius, (x, y, r) in the table frame. A camera pose error shifts and scales the whole
+image: the centre's constant part takes what a translation of the table explains (7 mm
+at 1 degree of rotation error, 7.7 mm of depth at 2 % focal error), and the offset it
+leaves on the tilt and the ball's position (about the rotation error itself on the tilt)
+is reported, not filtered: :func:`fit_calibration_cov` gives its covariance as this
+model reads the frame, which the observer adds to the covariance it reports.
+
+The ball's pixel is the centre of the sphere's exact image ellipse (what the env's
+measurement and the image stage's blob centroid report), which for a sphere of centre S
+(camera frame) and radius r is the pinhole projection of S scaled by S_z^2 / (S_z^2 -
+r^2): see :func:`project`. Measured corners are those of the red top (measurements mode;
+from rgb, the image stage's corners of the model it found) and, from rgb, the borders'
+outer outline beside them. A corner with a
 non-finite pixel is dropped from that step's measurement vector; a table not found gives
 no corner rows, a ball not found no ball rows.
 
@@ -43,12 +57,18 @@ Pixel noise: from rgb, the image stage's measured errors (corners of the red top
 px RMS, outline 0.15 px, ball centre 0.06 px on 400 rendered frames, fixed camera and head
 motion; the red top's taken at 0.25 px, the middle of its corners'), the noise rule's
 detector error model (median episode NEES/dof 0.46 from rendered frames,
-tests/estimation/test_consistency_ball_table.py); in measurements
+tests/estimation/test_consistency_ball_table.py). From rgb the arm's part of the centre
+is left out (its std 0): with it the ball's position error from rendered frames grew
+from 0.17 to 0.29 mm and its NEES (4 dof) from 2.0 to 4.6 (tests/estimation/
+test_ball_table_observers.py, 6 s): the filter moved the centre after the image stage's
+corner errors, which it takes as white and which likely are not (the same pose, the
+same edges); the arm's 0.14 mm (0.05 px) is well inside their 0.25 px. In measurements
 mode the declared pixel noise (``SensorSpec.measurement_noise_std_px``, the noise rule of
 estimation/ball_table/noise.py) with a floor of MEASUREMENT_FLOOR_PX for what the model
-leaves out: the arm holds the table's centre to 0.02 mm once settled, but
-its joints lag in fast tilt moves (0.3 mm, 0.1 px, under the tests' circle-tracking law;
-up to 2.3 mm under 0.1 rad steps every frame).
+leaves out: the corners depart from it at the true tilt and centre by 0.001 px RMS,
+0.005 px at the 99th percentile (float32 pixels; the table's small yaw under the arm),
+and the floor lies between them (before the model had the centre's offset it was 0.05
+px: the table's departure from a centre held at home, 0.052 px RMS).
 """
 
 from __future__ import annotations
@@ -61,6 +81,7 @@ import numpy as np
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table import geometry as geo
+from observer_gym.envs.sensor import SensorSpec
 from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation.ball_table.features import (
     BORDER_OUTLINE,
@@ -81,6 +102,7 @@ from observer_gym.estimation.ball_table.observer import (
     BallTableObserverParams,
     tilt_covariance_blocks,
 )
+from observer_gym.estimation.calibration import calibration_covariance, calibration_variances
 from observer_gym.estimation.ekf import ExtendedKalmanFilter
 from observer_gym.estimation.filter_copy import copy_filter
 from observer_gym.estimation.gating import ChiSquareGate
@@ -92,8 +114,21 @@ BALL = slice(0, 6)  # the ball's states in the EKF's state
 POS = slice(0, 2)
 VEL = slice(2, 4)
 TILT = slice(6, 8)
-N_STATES = 8
-MEASUREMENT_FLOOR_PX = 0.05
+# The table centre's offset from its home, world frame (m), in two parts: where the
+# declared calibration error puts it (constant) and the arm's (Gauss-Markov).
+CENTRE = slice(8, 11)
+ARM = slice(11, 14)
+N_STATES = 14
+MEASUREMENT_FLOOR_PX = 0.003
+# The table centre's motion under the arm (world x, y, z), measured with
+# ``python benchmarks/ball_table_centre_motion.py`` (the LQR on the truth, pushes at 0.5
+# Hz, 10 episodes of 500 steps): its offset from home has RMS 0.137, 0.012 and 0.099 mm
+# (the Gauss-Markov's stationary std) and lag-one correlation 0.91, 0.81 and 0.91 over
+# a 20 ms step (its correlation time); the change over a step that these give,
+# sqrt(2 (1 - rho)) std, is 0.058, 0.0074 and 0.042 mm (measured 0.057, 0.0076, 0.041).
+TABLE_CENTRE_HOLD_STD_M = np.array([1.37e-4, 1.2e-5, 9.9e-5])
+TABLE_CENTRE_CORRELATION_PER_STEP = np.array([0.91, 0.81, 0.91])
+TABLE_CENTRE_STEP_S = 0.02
 # From rgb: the image stage's measured pixel errors (see the module docstring).
 RGB_STD_PX = {RED_TOP: 0.25, BORDER_OUTLINE: 0.15, "ball": 0.06}
 
@@ -175,40 +210,114 @@ def gravity_jacobian(tilt_x: float, tilt_y: float) -> np.ndarray:
     return k * np.array([[-sy * sx, cy * cx], [-cx, 0.0]])
 
 
+def table_centre_world(x: np.ndarray) -> np.ndarray:
+    """The table's centre in the world for the state ``x``: its home plus the offset."""
+    return geo.TABLE_CENTRE_HOME_WORLD + x[CENTRE] + x[ARM]
+
+
 def corner_pixels(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
-    """h and H of the corners' pixels (2n,), (2n, 8) at the state ``x``."""
+    """h and H of the corners' pixels (2n,), (2n, N_STATES) at the state ``x``."""
     R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
     q = m.corners_table
-    # p_i = c + R(tilt) q_i,  dp_i/dtilt = dR/dtilt q_i
-    uv, J = project(m.K, m.T_world_cam, q @ R.T + geo.TABLE_CENTRE_HOME_WORLD)
+    # p_i = c + R(tilt) q_i,  dp_i/dtilt = dR/dtilt q_i,  dp_i/dc = I
+    uv, J = project(m.K, m.T_world_cam, q @ R.T + table_centre_world(x))
     n = q.shape[0]
     H = np.zeros((2 * n, N_STATES))
     H[:, 6] = np.einsum("kij,kj->ki", J, q @ dR_dx.T).reshape(-1)
     H[:, 7] = np.einsum("kij,kj->ki", J, q @ dR_dy.T).reshape(-1)
+    H[:, CENTRE] = H[:, ARM] = J.reshape(2 * n, 3)
     return uv.reshape(-1), H
 
 
 def ball_pixel(x: np.ndarray, m: PixelMeasurement) -> tuple[np.ndarray, np.ndarray]:
-    """h and H of the ball's centre pixel (2,), (2, 8) at the state ``x``."""
+    """h and H of the ball's centre pixel (2,), (2, N_STATES) at the state ``x``."""
     R, dR_dx, dR_dy = _tilt_rotation_and_derivatives(x[6], x[7])
-    # the ball's centre p = c + R(tilt) (x, y, r): dp/d(x, y) = R[:, :2], dp/dtilt = dR/dtilt q
+    # the ball's centre p = c + R(tilt) (x, y, r): dp/d(x, y) = R[:, :2], dp/dtilt = dR/dtilt q,
+    # dp/dc = I
     q = np.array([x[0], x[1], geo.BALL_RADIUS_M])
-    centre = R @ q + geo.TABLE_CENTRE_HOME_WORLD
+    centre = R @ q + table_centre_world(x)
     uv, J = project(m.K, m.T_world_cam, centre[None], geo.BALL_RADIUS_M)
     J = J[0]
     H = np.zeros((2, N_STATES))
     H[:, POS] = J @ R[:, :2]
     H[:, 6] = J @ (dR_dx @ q)
     H[:, 7] = J @ (dR_dy @ q)
+    H[:, CENTRE] = H[:, ARM] = J
     return uv[0], H
 
 
-def T_world_table(tilt: np.ndarray) -> np.ndarray:
-    """The table's pose for the tilt angles: the arm holds its centre fixed."""
+def T_world_table(tilt: np.ndarray, centre_offset_world_m: np.ndarray | None = None) -> np.ndarray:
+    """The table's pose for the tilt angles and its centre's offset from home (None: the
+    arm holds it at home)."""
     T = np.eye(4)
     T[:3, :3] = geo.tilt_rotation(float(tilt[0]), float(tilt[1]))
     T[:3, 3] = geo.TABLE_CENTRE_HOME_WORLD
+    if centre_offset_world_m is not None:
+        T[:3, 3] += centre_offset_world_m
     return T
+
+
+def centre_calibration_cov(
+    sensor: SensorSpec, K: np.ndarray, T_world_cam: np.ndarray
+) -> np.ndarray | None:
+    """The declared calibration uncertainty's covariance (3, 3) of where the table's home
+    centre appears to be (world frame), None without calibration error: the point the
+    nominal camera (``K``, ``T_world_cam``) sees at the centre's pixel and depth, placed
+    again through a camera moved along each calibration parameter
+    (estimation/calibration.py). Its depth follows the focal length, as a square of known
+    size does: z = z_0 fx / fx_0."""
+    variances = calibration_variances(sensor)
+    if not variances:
+        return None
+    K0, T0 = np.asarray(K, dtype=float), np.asarray(T_world_cam, dtype=float)
+    # S_0 = T0^-1 c_home: the home centre in the nominal camera's frame, its pixel uv_0
+    S0 = (geo.TABLE_CENTRE_HOME_WORLD - T0[:3, 3]) @ T0[:3, :3]
+    uv1 = K0 @ (S0 / S0[2])
+
+    def apparent(K_: np.ndarray, T_: np.ndarray) -> np.ndarray:
+        # S = z_0 (fx / fx_0) K^-1 (u_0, v_0, 1),  p = T S
+        S = S0[2] * (K_[0, 0] / K0[0, 0]) * np.linalg.solve(K_, uv1)
+        return T_[:3, :3] @ S + T_[:3, 3]
+
+    return calibration_covariance(apparent, K0, T0, variances)
+
+
+FIT = [0, 1, 6, 7, 8, 9, 10]  # the states a frame's pixels place: ball, tilt, centre
+
+
+def fit_calibration_cov(
+    x: np.ndarray, m: PixelMeasurement, variances: dict[str, float]
+) -> np.ndarray | None:
+    """The declared calibration uncertainty's covariance (4, 4) of the offset it puts on
+    (tilt, ball position) as the EKF's own pixel model reads this frame: the weighted
+    least-squares fit of the ball's position, the tilt and the centre to the corners' and
+    the ball's pixels, one Gauss-Newton step from ``x``, through a camera moved along each
+    calibration parameter (estimation/calibration.py). None without ``variances``, a ball
+    or three corners (the fit needs them). The PnP pipelines' offset (the noise rule's) is
+    not the EKF's: on BallTable's 160 px focal length a tilt of 3.8 mrad moves no corner
+    by more than 0.05 px, and PnP and this model settle at different tilts under a focal
+    error (0.01 and -3.8 mrad at 2 %)."""
+    if not variances or m.ball_px is None or m.corners_px.shape[0] < 3:
+        return None
+    h_c, H_c = corner_pixels(x, m)
+    h_b, H_b = ball_pixel(x, m)
+    H = np.vstack([H_c, H_b])[:, FIT]
+    weights = np.concatenate([np.repeat(m.corner_std_px, 2), [m.ball_std_px] * 2]) ** -2.0
+    # the fit's change for a change dh of the predicted pixels (the real pixels fixed):
+    # d(ball, tilt, centre) = -(H^T W H)^-1 H^T W dh
+    HtW = H.T * weights
+    gain = np.linalg.solve(HtW @ H, HtW)
+    K0, T0 = m.K, m.T_world_cam
+
+    def fitted(K_: np.ndarray, T_: np.ndarray) -> np.ndarray:
+        moved = PixelMeasurement(
+            K_, T_, m.corners_table, m.corners_px, m.corner_std_px, m.ball_px, m.ball_std_px
+        )
+        dh = np.concatenate([corner_pixels(x, moved)[0] - h_c, ball_pixel(x, moved)[0] - h_b])
+        d = -gain @ dh
+        return np.concatenate([d[2:4], d[0:2]])  # (tilt, ball position)
+
+    return calibration_covariance(fitted, K0, T0, variances)
 
 
 class PixelEKF:
@@ -223,8 +332,11 @@ class PixelEKF:
         tilt_model: TiltLagModel,
         detector: BallTableDetector,
         time_s: float,
+        centre_calibration: np.ndarray | None = None,
+        arm_std_m: np.ndarray = TABLE_CENTRE_HOLD_STD_M,
     ) -> None:
         self.params = params
+        self.arm_std_m = np.asarray(arm_std_m, dtype=float)
         self.ball_model = ball_model
         self.tilt_model = tilt_model
         self.detector = detector
@@ -244,7 +356,13 @@ class PixelEKF:
             + [p.start_speed_std_mps**2] * 2
             + [p.ball.sigma_w**2] * 2
             + [p.start_tilt_std_rad**2] * 2
+            + [0.0] * 3
+            + list(self.arm_std_m**2)
         )
+        # the centre's prior: the arm's part at its stationary std, the constant part where
+        # the declared calibration puts it (none without calibration error: it stays 0)
+        if centre_calibration is not None:
+            P0[CENTRE, CENTRE] += centre_calibration
         self.ekf = ExtendedKalmanFilter(np.zeros(N_STATES), P0)
 
     # --- FilterCore ---------------------------------------------------------------------
@@ -260,7 +378,7 @@ class PixelEKF:
             self.tilt_cmd = np.asarray(action, dtype=float)
         Phi_t, Gamma_t, Q_t = tilt_model.matrices(dt_s)
         Phi_b, Gamma_b, Q_b = self.ball_model.matrices(dt_s)
-        # theta' = Phi_t theta + Gamma_t u
+        # theta' = Phi_t theta + Gamma_t u;  c' = c + w_c (the centre's random walk)
         tilt_next = Phi_t @ x[TILT] + Gamma_t @ self.tilt_cmd
         # b' = Phi_b b + Gamma_b a((theta + theta') / 2) + the table's angular
         # acceleration's increment (as kf's), clamped at the border
@@ -282,10 +400,19 @@ class PixelEKF:
         F[BALL, BALL] = Phi_b
         F[TILT, TILT] = Phi_t
         F[BALL, TILT] = ball_per_mid @ (0.5 * (np.eye(2) + Phi_t))
+        F[CENTRE, CENTRE] = np.eye(3)
+        # the arm's part: a' = rho a + w,  rho = rho_step^(dt / step),
+        # var(w) = std^2 (1 - rho^2) (its stationary std unchanged)
+        rho = TABLE_CENTRE_CORRELATION_PER_STEP ** (dt_s / TABLE_CENTRE_STEP_S)
+        F[ARM, ARM] = np.diag(rho)
         G = np.vstack([0.5 * ball_per_mid, np.eye(2)])
-        Q = G @ Q_t @ G.T
+        Q = np.zeros((N_STATES, N_STATES))
+        Q[:8, :8] = G @ Q_t @ G.T
         Q[BALL, BALL] += Q_b
-        self.ekf.predict_nonlinear(np.concatenate([ball_next, tilt_next]), F, Q)
+        Q[ARM, ARM] = np.diag(self.arm_std_m**2 * (1.0 - rho**2))
+        self.ekf.predict_nonlinear(
+            np.concatenate([ball_next, tilt_next, x[CENTRE], rho * x[ARM]]), F, Q
+        )
         self.time_s = time_s
 
     def update(self, measurement: Fused) -> bool:
@@ -345,7 +472,9 @@ class PixelEKF:
         """Set the ball's position from its pixel on the estimated table (velocity and
         disturbance from their priors, uncorrelated with the tilt); False when its ray
         misses the table."""
-        T_cam_table = np.linalg.solve(m.T_world_cam, T_world_table(self.ekf.x[TILT]))
+        x = self.ekf.x
+        offset = table_centre_world(x) - geo.TABLE_CENTRE_HOME_WORLD
+        T_cam_table = np.linalg.solve(m.T_world_cam, T_world_table(x[TILT], offset))
         found = self.detector.ball_position(m.ball_px, m.K, T_cam_table[:3, :3], T_cam_table[:3, 3])
         if isinstance(found, str):
             return False
@@ -404,6 +533,7 @@ class PixelEKFObserver(FusedObserver):
         r_scale: float = 1.0,
     ) -> None:
         cfg = env.config
+        self._env = env
         self.params = params or PixelEKFParams(
             filters=BallTableObserverParams(ball=ball_process_params(cfg, RGB_BALL_STD_M))
         )
@@ -430,7 +560,10 @@ class PixelEKFObserver(FusedObserver):
             model: model_corners_table(model) for model in (RED_TOP, BORDER_OUTLINE)
         }
         reader = FrameReader(env, detector, type(self).__name__)
-        # the calibration's offset on the state (the noise rule's; not in R)
+        # the calibration's offset on the state, as this model reads a frame
+        # (fit_calibration_cov; not in R), reported through the noise rule's ``reported``
+        self._calibration_variances = calibration_variances(env.sensor_spec)
+        self._last_pixels: PixelMeasurement | None = None
         noise = BallTableNoiseRule(
             env.sensor_spec, cfg.obs_mode == "rgb", reader.detector, (0.0, 0.0), 0.0
         )
@@ -471,14 +604,43 @@ class PixelEKFObserver(FusedObserver):
             self.pixel_std_px["ball"],
         )
 
+    def reset(self) -> None:
+        super().reset()
+        self._last_pixels = None
+
     def _read(self, obs: Any, frame: dict) -> tuple[BallTableFeatures, Fused]:
         features = self.reader.features(obs, frame)
         K, T_world_cam = (np.asarray(frame[k], dtype=float) for k in ("K", "T_world_cam"))
-        self._track_calibration(features, K, T_world_cam)
-        return features, Fused(self.pixel_measurement(features, K, T_world_cam))
+        self._last_pixels = self.pixel_measurement(features, K, T_world_cam)
+        return features, Fused(self._last_pixels)
+
+    def _reported(self, covariance: np.ndarray) -> np.ndarray:
+        """The core's ``covariance`` plus the calibration's offset as this model reads the
+        last frame at the current estimate (:func:`fit_calibration_cov`; the last one
+        found while a frame has too few pixels for the fit)."""
+        if self._calibration_variances and self._last_pixels is not None:
+            sigma = fit_calibration_cov(
+                self.core.ekf.x, self._last_pixels, self._calibration_variances
+            )
+            if sigma is not None:
+                self._calibration = sigma
+        return super()._reported(covariance)
 
     def _start(self, time_s: float, measurement: Fused | None) -> tuple[PixelEKF, bool]:
+        # the centre's calibration prior at the first frame's nominal camera (without a
+        # frame, the env's nominal camera now)
+        if measurement is not None:
+            K, T_world_cam = measurement.value.K, measurement.value.T_world_cam
+        else:
+            K, T_world_cam = self._env.camera_intrinsics()[0].K, self._env.camera_pose(0)
         core = PixelEKF(
-            self.params.filters, self.ball_model, self.tilt_model, self.reader.detector, time_s
+            self.params.filters,
+            self.ball_model,
+            self.tilt_model,
+            self.reader.detector,
+            time_s,
+            centre_calibration_cov(self._env.sensor_spec, K, T_world_cam),
+            # from rgb the arm's part is left out (see the module docstring)
+            np.zeros(3) if self._env.config.obs_mode == "rgb" else TABLE_CENTRE_HOLD_STD_M,
         )
         return core, measurement is not None and core.update(measurement)

@@ -270,10 +270,12 @@ def test_the_pixel_model_is_the_envs_projection():
     obs, info = _frame_measurement()
     frame, state = info["frames"][-1], info["state"]
     K, T_world_cam = frame["K"], frame["T_world_cam"]
-    # The table's pose from the tilt alone: the arm holds the centre (to 0.02 mm, settled).
+    # The table's pose from the tilt and the centre's offset from home (the arm holds the
+    # centre to 0.02 mm, settled).
     T_table = info["T_world_table"]
     np.testing.assert_allclose(T_table[:3, 3], geo.TABLE_CENTRE_HOME_WORLD, atol=3e-5)
-    x = np.concatenate([state[0:4], np.zeros(2), state[4:6]])
+    centre = T_table[:3, 3] - geo.TABLE_CENTRE_HOME_WORLD
+    x = np.concatenate([state[0:4], np.zeros(2), state[4:6], centre, np.zeros(3)])
     m = PixelMeasurement(
         K, T_world_cam, geo.TABLE_CORNERS_TABLE, np.zeros((4, 2)), np.ones(4), None, 1.0
     )
@@ -299,7 +301,8 @@ def test_the_pixel_models_jacobians_are_its_derivatives():
         None,
         1.0,
     )
-    x = np.array([0.04, -0.06, 0.1, 0.2, 0.0, 0.0, 0.07, -0.05])
+    ball, tilt, centre = [0.04, -0.06, 0.1, 0.2, 0.0, 0.0], [0.07, -0.05], [0.003, -0.002, 0.004]
+    x = np.array(ball + tilt + centre + [1e-4, 0.0, -2e-4])
     for model in (corner_pixels, ball_pixel):
         _, H = model(x, m)
         numeric = numerical_jacobian(lambda v, model=model: model(v, m)[0], x, 1e-7)
@@ -323,7 +326,7 @@ def test_ekf_predicts_as_kf_does():
         kf, ekf = default_pipeline(env, "kf"), default_pipeline(env, "ekf")
         obs, info = env.reset(seed=0)
         kf.observe(obs, info, None), ekf.observe(obs, info, None)
-        ekf.core.ekf.x = np.concatenate([kf.core.ball_kf.x, kf.core.tilt_kf.x])
+        ekf.core.ekf.x = np.concatenate([kf.core.ball_kf.x, kf.core.tilt_kf.x, np.zeros(6)])
         ekf.core._lag_tilt = kf.core._lag_tilt.copy()  # the rotation term's command-driven tilt
         rng = np.random.default_rng(0)
         for k in range(1, 40):

@@ -6,15 +6,19 @@ Cells: 3 episodes (seeds 0-2) x 300 steps with pushes at 0.5 Hz (the consistency
 conditions), closed loop with the LQR on the observer's own estimate, perfect-detector
 measurements. Measured with this code (median of the 3): kf and kf-latency 0.26 at 0 px,
 0.61 at 0.5 px, 1.93 at 2 px, 0.21 at 20 % drops; kf 0.47 and kf-latency 1.95 at a
-latency of 0.1 s; ekf 0.26, 0.45, 1.19, 0.18 and 0.59 at 0.1 s. With R x 100 at 0 px the
-ratio falls further (the test below).
-On perfect pixels an episode's NEES is an average of two wrongs: over the first ~15 steps
-(the LQR's swings from a 10 cm start) the filters claim less error than they have
-(NEES/dof ~2.4), afterwards far more (~0.02), because the rolling model's process
-noise, sigma_w = 0.5 m/s^2 (estimation/ball_table/noise.py), is sized for the swings
-and for single pushes while the model errs by ~1e-4 m/s^2 once the table is calm. The
-geometry stage's floor on the ball is its RMS per axis (it was 2x that for its tails:
-kf 0.10 at 0 px in the study then).
+latency of 0.1 s; ekf 0.66, 0.46, 1.19, 0.52 and 1.30 at 0.1 s. ekf has the table
+centre's translation and its pixel floor is what its model leaves out, 0.003 px (before:
+0.26, 0.45, 1.19, 0.18 and 0.59); under calibration error (0 px) it reads 0.63 at 1
+degree of rotation error and 0.70 at 2 % focal error (754 and 4.2 in the consistency
+study before the translation states: a pose error read as tilt).
+With R x 100 at 0 px the ratio falls further (the tests below).
+On perfect pixels kf's episode NEES is an average of two wrongs: over the first ~15
+steps (the LQR's swings from a 10 cm start) it claims less error than it has (NEES/dof
+~2.4), afterwards far more (~0.02), because the rolling model's process noise, sigma_w =
+0.5 m/s^2 (estimation/ball_table/noise.py), is sized for the swings and for single
+pushes while the model errs by ~1e-4 m/s^2 once the table is calm. The geometry stage's
+floor on the ball is its RMS per axis (it was 2x that for its tails: kf 0.10 at 0 px in
+the study then).
 
 Cells still outside the band are marked ``xfail(strict=True)`` with their measured value,
 so that fixing them makes the test fail until the mark goes.
@@ -35,8 +39,10 @@ from consistency_cells import (
 )
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_table.geometry import TABLE_CENTRE_HOME_WORLD
 from observer_gym.envs.ball_table.layout import CORNERS_PX
 from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.ball_table import pixel_ekf
 from observer_gym.estimation.ball_table.features import (
     RED_TOP,
     BallTableFeatures,
@@ -71,8 +77,6 @@ OUTSIDE = {
     ("kf", "drops"): "measured 0.21 (episodes 0.47, 0.21, 0.15), as at 0 px",
     ("kf-latency", "0px"): "measured 0.26, as kf",
     ("kf-latency", "drops"): "measured 0.21, as kf",
-    ("ekf", "0px"): "measured 0.26 (episodes 0.11, 2.39, 0.26): heavy-tailed model error",
-    ("ekf", "drops"): "measured 0.18 (episodes 0.11, 1.94, 0.18), as at 0 px",
 }
 CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
     (o, "latency") for o in ("kf", *LATENCY_AWARE)
@@ -88,6 +92,37 @@ def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
 def test_median_nees_per_dof_is_within_the_band(observer, condition):
     ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
     assert LOW <= ratio <= HIGH, ratio
+
+
+CALIBRATION = {
+    "rotation 1 deg": {"calib_rotation_error_deg": 1.0},
+    "focal 2 %": {"calib_focal_error": 0.02},
+}
+
+
+@pytest.mark.parametrize("condition", CALIBRATION)
+def test_ekf_is_within_the_band_under_calibration_error(condition):
+    """The pixel EKF absorbs a camera pose error as the table's translation and reports
+    the rest (estimation/ball_table/pixel_ekf.py, fit_calibration_cov): measured 0.63
+    (episodes 0.54, 1.03, 0.63) at 1 degree, 0.70 (0.89, 0.70, 0.44) at 2 %."""
+    ratio = _median_nees("ekf-measurements", CALIBRATION[condition])
+    assert LOW <= ratio <= HIGH, ratio
+
+
+def test_a_hundredfold_R_fails_the_focal_cell():
+    """Measured 0.25 (episodes 0.27, 0.25, 0.18). At 1 degree of rotation R x 100 stays in
+    the band (0.48): there the reported calibration offset, which R does not scale,
+    dominates the tilt's covariance; the next test holds that cell to its report."""
+    ratio = _median_nees("ekf-measurements", CALIBRATION["focal 2 %"], r_scale=100.0)
+    assert ratio < LOW, ratio
+
+
+def test_without_the_calibration_report_the_rotation_cell_fails(monkeypatch):
+    """The reported calibration offset is what keeps the rotation cell in the band: without
+    it the tilt's constant offset (about 10 mrad) is unclaimed (measured 15490)."""
+    monkeypatch.setattr(pixel_ekf, "fit_calibration_cov", lambda *args: None)
+    ratio = _median_nees("ekf-measurements", CALIBRATION["rotation 1 deg"])
+    assert ratio > HIGH, ratio
 
 
 @pytest.mark.parametrize("observer", OBSERVERS)
@@ -137,10 +172,13 @@ def test_R_is_the_scatter_of_the_detections_under_pixel_noise(make_env):
 
 def test_the_model_floors_cover_the_sim(make_env):
     """What the models leave out, measured on perfect pixels (0 px) over 3 episodes of the
-    LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error per axis, the
-    tilt rate's departure from the lag model, and the table corners' departure from a
-    table held at its home centre (ekf). Each RMS at most 25 % above its floor, and each
-    floor at most 3x its RMS (measured RMS: 0.0137 and 0.0060 mm, 4-5 mrad/s, 0.052 px)."""
+    LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error per axis and
+    the tilt rate's departure from the lag model, each RMS at most 25 % above its floor
+    and each floor at most 3x its RMS (measured RMS: 0.0137 and 0.0060 mm, 4-5 mrad/s);
+    and the table corners' departure from ekf's model at the true tilt and the
+    simulator's table centre, whose floor lies between their RMS and 99th percentile
+    (measured 0.0010 and 0.0049 px; 0.052 px RMS from a table held at its home centre,
+    the floor before ekf had the centre's translation)."""
     state_env = make_env(ENV_ID, obs_mode="state")
     env = make_env(ENV_ID, obs_mode="measurements", push_rate_hz=0.5)
     pipeline = VisionObserver(env, observer="kf").pipeline
@@ -162,9 +200,10 @@ def test_the_model_floors_cover_the_sim(make_env):
                 detection = detector.detect(features_from_measurement(obs), K, T_world_cam)
                 if detection.ball_found:
                     ball_err.append(detection.ball_pos_table_m - x[:2])
-                T = T_world_table(x[4:6])
-                held, _ = project(K, T_world_cam, corners_table @ T[:3, :3].T + T[:3, 3])
-                corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - held)
+                centre = env.unwrapped.scene.table_pose()[:3, 3] - TABLE_CENTRE_HOME_WORLD
+                T = T_world_table(x[4:6], centre)
+                modelled, _ = project(K, T_world_cam, corners_table @ T[:3, :3].T + T[:3, 3])
+                corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - modelled)
             if terminated or truncated:
                 break
     ball_x, ball_y = np.asarray(ball_err).T
@@ -172,11 +211,14 @@ def test_the_model_floors_cover_the_sim(make_env):
         (ball_x, PERFECT_PIXELS_BALL_STD_M[0]),
         (ball_y, PERFECT_PIXELS_BALL_STD_M[1]),
         (rate_err, TILT_RATE_MODEL_STD_RADPS),
-        (corner_err, MEASUREMENT_FLOOR_PX),
     ]:
         rms = float(np.sqrt(np.mean(np.square(errors))))
         print(f"\nRMS {rms:.3g}, floor {floor:.3g}")
         assert rms <= 1.25 * floor and floor <= 3.0 * rms
+    corner_rms = float(np.sqrt(np.mean(np.square(corner_err))))
+    corner_p99 = float(np.percentile(np.abs(corner_err), 99))
+    print(f"\ncorners: RMS {corner_rms:.3g}, 99th pct {corner_p99:.3g} px")
+    assert corner_rms <= MEASUREMENT_FLOOR_PX <= corner_p99
 
 
 @pytest.mark.slow
