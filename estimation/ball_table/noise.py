@@ -89,14 +89,11 @@ __all__ = [
 
 # The geometry stage's own error on the perfect detector's pixels (measurements mode at
 # 0 px), what the model leaves out (the ball's contact with the table; float32 pixels):
-# measured RMS 0.0136 and 0.0059 mm of ball position on the table's x and y, 0.00016
-# mrad of tilt, over 6 episodes of 300 steps of the LQR on the truth, with and without
-# pushes (tests/estimation/test_consistency_ball_table.py::
-# test_the_model_floors_cover_the_sim). The ball's error is heavy-tailed (0.8 % of
-# frames beyond 4 RMS, 0.26 mm at most): the floor is its RMS per axis, and the filter's
-# gate rejects the tails (a floor raised to cover them made the filter claim 7x the
-# error it had on perfect pixels: NEES/dof 0.15).
-PERFECT_PIXELS_BALL_STD_M = (1.6e-5, 8e-6)
+# measured RMS 0.015 and 0.007 mm of ball position, 0.00016 mrad of tilt, over 6
+# episodes of the LQR with pushes (tests/estimation/test_consistency_ball_table.py::
+# test_the_model_floors_cover_the_sim); the ball's taken larger for its tails (0.26 mm
+# at most).
+PERFECT_PIXELS_BALL_STD_M = 3e-5
 PERFECT_PIXELS_TILT_STD_RAD = 2e-7
 JACOBIAN_REUSE_PX = 2.0
 # The rolling model's acceleration error (see the module docstring), over MODEL_STEP_S:
@@ -254,7 +251,7 @@ class BallTableNoiseRule:
         R = self.pixel_var_px2 * J.dot(J.T)
         R[:2, :2] += PERFECT_PIXELS_TILT_STD_RAD**2 * np.eye(2)
         if R.shape[0] == 4:
-            R[2:, 2:] += np.diag(np.square(PERFECT_PIXELS_BALL_STD_M))
+            R[2:, 2:] += PERFECT_PIXELS_BALL_STD_M**2 * np.eye(2)
         R *= self.r_scale
         R_tilt = _readonly(R[:2, :2].copy())
         R_ball = _readonly(R[2:, 2:].copy()) if R.shape[0] == 4 else self._rgb_R[1]

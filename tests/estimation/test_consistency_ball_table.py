@@ -4,8 +4,8 @@ rule's R against the detections' scatter; the model floors against the simulator
 
 Cells: 3 episodes (seeds 0-2) x 300 steps with pushes at 0.5 Hz (the consistency study's
 conditions), closed loop with the LQR on the observer's own estimate, perfect-detector
-measurements. Measured with this code (median of the 3): kf and kf-latency 0.26 at 0 px,
-0.61 at 0.5 px, 1.93 at 2 px, 0.21 at 20 % drops; kf 0.47 and kf-latency 1.95 at a
+measurements. Measured with this code (median of the 3): kf and kf-latency 0.13 at 0 px,
+0.61 at 0.5 px, 1.93 at 2 px, 0.11 at 20 % drops; kf 0.47 and kf-latency 2.12 at a
 latency of 0.1 s; ekf 0.66, 0.46, 1.19, 0.52 and 1.30 at 0.1 s. ekf has the table
 centre's translation and its pixel floor is what its model leaves out, 0.003 px (before:
 0.26, 0.45, 1.19, 0.18 and 0.59); under calibration error (0 px) it reads 0.63 at 1
@@ -17,8 +17,10 @@ steps (the LQR's swings from a 10 cm start) it claims less error than it has (NE
 ~2.4), afterwards far more (~0.02), because the rolling model's process noise, sigma_w =
 0.5 m/s^2 (estimation/ball_table/noise.py), is sized for the swings and for single
 pushes while the model errs by ~1e-4 m/s^2 once the table is calm. The geometry stage's
-floor on the ball is its RMS per axis (it was 2x that for its tails: kf 0.10 at 0 px in
-the study then).
+floor on the ball, 3e-5 m, is twice its RMS (0.016 and 0.008 mm on x and y over 20
+episodes): with the RMS per axis as the floor kf reads 0.22 at 0 px in the study
+(0.10), still below the band, and 17 and 104 at 2 % and 5 % focal error (1.9 and 12):
+the larger floor also covers what the calibration report's linearisation leaves out.
 
 Cells still outside the band are marked ``xfail(strict=True)`` with their measured value,
 so that fixing them makes the test fail until the mark goes.
@@ -68,15 +70,15 @@ OBSERVERS = ("kf", "kf-latency", "ekf")
 LATENCY_AWARE = ("kf-latency", "ekf")
 # The consistency study's conditions (train/experiments/consistency_study.py): 300 steps
 # with pushes at 0.5 Hz. (At 150 steps the swings of the first ~15 steps weigh twice as
-# much in each episode's mean: kf's 0 px cell then reads 0.42, not 0.26.)
+# much in each episode's mean: kf's 0 px cell then reads 0.15, not 0.13.)
 EPISODES, STEPS = 3, 300
 STUDY_KWARGS = {"push_rate_hz": 0.5}
 # Measured outside the band (median of the 3 episodes) and left open in issue 23.
 OUTSIDE = {
-    ("kf", "0px"): "measured 0.26 (episodes 0.52, 0.26, 0.17): Q sized for the swings",
-    ("kf", "drops"): "measured 0.21 (episodes 0.47, 0.21, 0.15), as at 0 px",
-    ("kf-latency", "0px"): "measured 0.26, as kf",
-    ("kf-latency", "drops"): "measured 0.21, as kf",
+    ("kf", "0px"): "measured 0.13 (episodes 0.26, 0.13, 0.11): Q sized for the swings",
+    ("kf", "drops"): "measured 0.11 (episodes 0.27, 0.11, 0.10), as at 0 px",
+    ("kf-latency", "0px"): "measured 0.13, as kf",
+    ("kf-latency", "drops"): "measured 0.11, as kf",
 }
 CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
     (o, "latency") for o in ("kf", *LATENCY_AWARE)
@@ -172,9 +174,9 @@ def test_R_is_the_scatter_of_the_detections_under_pixel_noise(make_env):
 
 def test_the_model_floors_cover_the_sim(make_env):
     """What the models leave out, measured on perfect pixels (0 px) over 3 episodes of the
-    LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error per axis and
-    the tilt rate's departure from the lag model, each RMS at most 25 % above its floor
-    and each floor at most 3x its RMS (measured RMS: 0.0137 and 0.0060 mm, 4-5 mrad/s);
+    LQR on the truth with pushes at 0.5 Hz: the geometry stage's ball error and the tilt
+    rate's departure from the lag model, each RMS at most 25 % above its floor and each
+    floor at most 3x its RMS (measured RMS: 0.015 mm, 4-5 mrad/s);
     and the table corners' departure from ekf's model at the true tilt and the
     simulator's table centre, whose floor lies between their RMS and 99th percentile
     (measured 0.0010 and 0.0049 px; 0.052 px RMS from a table held at its home centre,
@@ -206,10 +208,8 @@ def test_the_model_floors_cover_the_sim(make_env):
                 corner_err.append(np.asarray(obs[CORNERS_PX]).reshape(4, 2) - modelled)
             if terminated or truncated:
                 break
-    ball_x, ball_y = np.asarray(ball_err).T
     for errors, floor in [
-        (ball_x, PERFECT_PIXELS_BALL_STD_M[0]),
-        (ball_y, PERFECT_PIXELS_BALL_STD_M[1]),
+        (ball_err, PERFECT_PIXELS_BALL_STD_M),
         (rate_err, TILT_RATE_MODEL_STD_RADPS),
     ]:
         rms = float(np.sqrt(np.mean(np.square(errors))))
