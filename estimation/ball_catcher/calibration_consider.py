@@ -21,22 +21,24 @@ the offsets are not estimated), while Cov(x) and Cov(x, c) keep the update's val
 error covariances of that filter. The covariance reported is Cov(x), which holds the
 offsets' effect.
 
-Why this rule and not another (measured, docs/results/consistency.md):
+Why this rule and not another:
 
 - Not pixel variance in R (what the filters did before): an offset is the same on every
   frame of a camera, and white noise averages away over frames, so over a flight of ~22
   frames per camera the claimed error shrank far below the offset's: median NEES/dof
-  3.2-4.7 at 0.5-2 degrees of rotation error (and NIS 0.04-0.12, from the inflated R).
+  3.2-4.7 at 0.5-2 degrees of rotation error (and NIS 0.04-0.12, from the inflated R);
+  with this rule 0.92-1.04 and NIS 0.72-0.77 (measured, docs/results/consistency.md).
 - Not BallTable's added term alone (the estimate's sensitivity to each calibration
   parameter added to the reported covariance): BallTable's estimate is one frame's
   geometry, whose sensitivity one evaluation gives; here each estimate is a filter's over
   many frames of two cameras, and its sensitivity to each camera's parameters builds up
   frame by frame through the gains, which is what Cov(x, c) carries.
-- Not a bias state that is estimated: within a 0.44 s flight two cameras' offsets are
-  only partly observable (a joint rotation of the rig moves the whole trajectory), and
-  J depends on the estimate, so estimating them would feed the linearisation's error
-  back into the estimate; the consider filter keeps the estimate's model as it was and
-  makes only the gain and the covariance account for the offsets.
+- Not a bias state that is estimated (not tried): within a 0.44 s flight two cameras'
+  offsets are at best partly observable (a rotation of both cameras together moves the
+  whole trajectory they see), and J depends on the estimate, so estimated offsets would
+  feed the linearisation's error back into the estimate; the consider filter keeps the
+  estimate's model as it was and makes only the gain and the covariance account for the
+  offsets.
 
 Without declared calibration uncertainty (the default) m = 0 and the filters run on x
 alone, as before.
