@@ -14,7 +14,7 @@ from observer_gym.estimation.ball_catcher import BallCatcherObserver, PixelEKFOb
 from observer_gym.estimation.ball_catcher.observer import throw_prior, wide_prior
 
 ENV_ID = "observer_gym/BallCatcher-v0"
-SAMPLES = 200_000
+SAMPLES = 50_000
 
 
 @pytest.mark.parametrize(
