@@ -16,6 +16,9 @@ function y = f(K, T_world_cam) of the calibration, to first order
 over those nine parameters c_i (central differences: the functions are OpenCV's PnP and
 the like, which give no derivatives). The error is one constant offset per episode, which
 no innovation sees: observers add Sigma_y to the covariance they report, not to R.
+:func:`calibration_jacobian` gives the columns df / dc_i and their variances themselves,
+for a filter that carries the calibration error as consider parameters (BallCatcher's,
+estimation/ball_catcher/calibration_consider.py).
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import numpy as np
 
 from observer_gym.envs.sensor import SensorSpec
 
-__all__ = ["calibration_covariance", "calibration_variances"]
+__all__ = ["calibration_covariance", "calibration_jacobian", "calibration_variances"]
 
 _STEPS = {"rotation": 1e-4, "translation": 1e-4, "focal": 1e-4, "principal_point": 0.01}
 
@@ -71,6 +74,34 @@ def _perturbed(kind: str, index: int, step: float, K: np.ndarray, T: np.ndarray)
 _AXES = {"rotation": 3, "translation": 3, "focal": 1, "principal_point": 2}
 
 
+def calibration_jacobian(
+    f: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    variances: dict[str, float],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(J (len(y), m), var (m,)): the columns df / dc_i of ``f(K, T_world_cam)`` along the
+    m calibration parameters of ``variances`` (:func:`calibration_variances`; each kind's
+    axes in order: rotation about the camera's x, y, z, translation along them, focal
+    scale, principal point u, v), by central differences, and each parameter's variance.
+    None if ``f`` gives None beside the nominal camera, or nothing is uncertain."""
+    if not variances:
+        return None
+    K, T = np.asarray(K, dtype=float), np.asarray(T_world_cam, dtype=float)
+    columns, var = [], []
+    for kind, kind_var in variances.items():
+        h = _STEPS[kind]
+        for index in range(_AXES[kind]):
+            ahead = f(*_perturbed(kind, index, h, K, T))
+            behind = f(*_perturbed(kind, index, -h, K, T))
+            if ahead is None or behind is None:
+                return None
+            # df/dc_i = (f(c + h) - f(c - h)) / 2h
+            columns.append((np.asarray(ahead, float) - np.asarray(behind, float)) / (2.0 * h))
+            var.append(kind_var)
+    return np.stack(columns, axis=-1), np.array(var)
+
+
 def calibration_covariance(
     f: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
     K: np.ndarray,
@@ -81,18 +112,13 @@ def calibration_covariance(
     (:func:`calibration_variances`); None if ``f`` gives None beside the nominal camera.
     A zero matrix of y's size when nothing is uncertain is left to the caller: with no
     variances this returns None."""
-    if not variances:
+    jacobian = calibration_jacobian(f, K, T_world_cam, variances)
+    if jacobian is None:
         return None
-    K, T = np.asarray(K, dtype=float), np.asarray(T_world_cam, dtype=float)
+    J, var = jacobian
     sigma = None
-    for kind, var in variances.items():
-        h = _STEPS[kind]
-        for index in range(_AXES[kind]):
-            ahead = f(*_perturbed(kind, index, h, K, T))
-            behind = f(*_perturbed(kind, index, -h, K, T))
-            if ahead is None or behind is None:
-                return None
-            column = (np.asarray(ahead, float) - np.asarray(behind, float)) / (2.0 * h)
-            term = var * np.outer(column, column)
-            sigma = term if sigma is None else sigma + term
+    for i in range(len(var)):
+        # Sigma_y = sum_i var_i (df/dc_i)(df/dc_i)^T
+        term = var[i] * np.outer(J[..., i], J[..., i])
+        sigma = term if sigma is None else sigma + term
     return sigma

@@ -12,7 +12,9 @@ each frame's capture time, so aperiodic frames need no offset rows (:meth:`add_f
 the paper's stacked form is :meth:`ViewlineKalmanFilter.add_frames_at_tick`. Frames
 that arrive late (latency) are re-filtered exactly from a short history of estimates, and
 :meth:`ViewlineKalmanFilter.predicted` reads the estimate at any later time without
-changing the filter (the class docstring says how).
+changing the filter (the class docstring says how). The declared calibration uncertainty
+enters as consider parameters (``calibration``,
+:mod:`~observer_gym.estimation.ball_catcher.calibration_consider`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from observer_gym.estimation.ball_catcher.calibration_consider import CalibrationConsider
 from observer_gym.estimation.ball_catcher.models import BallisticModel
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.filters import KalmanFilter, UpdateResult
@@ -59,12 +62,13 @@ class _Checkpoint:
 class _Entry:
     """One processed measurement: a single frame at its capture time (:meth:`add_frame`)
     or a stack of frames at a control tick (:meth:`add_frames_at_tick`), with the
-    estimate right after it (``after``)."""
+    estimate right after it (``after``) and the single frame's camera."""
 
     time_s: float
     frames: tuple[CameraFrame, ...]
     stacked: bool
     after: _Checkpoint
+    camera: int = 0
 
 
 class ViewlineKalmanFilter:
@@ -81,6 +85,11 @@ class ViewlineKalmanFilter:
       all that fixes a single camera's depth: keep it as small as the real flight allows
       (docs/linderoth2010.md).
     - ``history_s``: how long measurements are kept for late frames (below).
+    - ``calibration``: the cameras' declared calibration uncertainty as consider
+      parameters (:class:`CalibrationConsider`); None or one with nothing uncertain: the
+      filter runs on the 6 entries alone. With it the filter's ``KalmanFilter`` holds the
+      augmented state (``kf.x``, ``kf.P``), ``x`` and ``P`` are the ball's part, and
+      :meth:`add_frame` takes the frame's ``camera``.
 
     Late frames (latency). Measurements are processed in the order of their times
     (capture time for :meth:`add_frame`, tick time for :meth:`add_frames_at_tick`). One
@@ -109,18 +118,19 @@ class ViewlineKalmanFilter:
         accel_noise_std: float = 0.5,
         time_s: float = 0.0,
         history_s: float = DEFAULT_HISTORY_S,
+        calibration: CalibrationConsider | None = None,
     ) -> None:
         if not (np.isfinite(pixel_std_px) and pixel_std_px > 0.0):
             raise ValueError(f"ViewlineKalmanFilter: pixel_std_px = {pixel_std_px!r}, must be > 0")
+        self.calibration = calibration if calibration is not None and calibration.active else None
         if not (np.isfinite(history_s) and history_s >= 0.0):
             raise ValueError(f"ViewlineKalmanFilter: history_s = {history_s!r}, must be >= 0")
         self.model = BallisticModel(accel_noise_std)
         self.pixel_std_px = float(pixel_std_px)
         self.history_s = float(history_s)
         gate = None if gate_p is None else PSigmaGate(gate_p)
-        self.kf = KalmanFilter(np.asarray(x0, dtype=float), np.asarray(P0, dtype=float), gate)
-        if self.kf.dim_x != 6:
-            raise ValueError(f"ViewlineKalmanFilter: state has {self.kf.dim_x} entries, not 6")
+        x0, P0 = self._checked_prior(x0, P0, "ViewlineKalmanFilter")
+        self.kf = KalmanFilter(x0, P0, gate)
         self.time_s = float(time_s)
         self.late_count = 0
         self.refiltered_count = 0
@@ -134,11 +144,34 @@ class ViewlineKalmanFilter:
 
     @property
     def x(self) -> np.ndarray:
-        return self.kf.x
+        """The ball's estimate (6,) at ``time_s`` (``kf.x`` itself without consider
+        parameters)."""
+        return self.kf.x if self.calibration is None else self.kf.x[:6]
 
     @property
     def P(self) -> np.ndarray:
-        return self.kf.P
+        """Its covariance (6, 6), the calibration offsets' effect included (``kf.P``
+        itself without consider parameters)."""
+        return self.kf.P if self.calibration is None else self.kf.P[:6, :6]
+
+    def _checked_prior(self, x0, P0, owner: str) -> tuple[np.ndarray, np.ndarray]:
+        """(x0, P0) of the ball (6,), (6, 6), augmented by the consider parameters."""
+        x0 = np.array(x0, dtype=float).reshape(-1)
+        P0 = np.array(P0, dtype=float)
+        if x0.shape != (6,) or P0.shape != (6, 6):
+            raise ValueError(f"{owner}: x0 {x0.shape}, P0 {P0.shape}; expected (6,), (6, 6)")
+        if self.calibration is None:
+            return x0, P0
+        return self.calibration.augmented(x0, P0)
+
+    def _matrices(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Phi, Gamma, R1) over ``dt_s`` of the filter's state (augmented if it is)."""
+        Phi, Gamma, Q = self.model.matrices(dt_s)
+        if self.calibration is None:
+            return Phi, Gamma, Q
+        Phi, Q, Gamma_aug = self.calibration.transition(Phi, Q, Gamma)
+        assert Gamma_aug is not None
+        return Phi, Gamma_aug, Q
 
     @property
     def accepted_count(self) -> int:
@@ -184,11 +217,12 @@ class ViewlineKalmanFilter:
                 f"ViewlineKalmanFilter.predicted: {t_s!r} s is before the newest "
                 f"measurement, at {base.time_s!r} s (only predictions forward from it)"
             )
+        x, P = base.x[:6], base.P[:6, :6]  # the ball's part (the offsets are constant)
         if dt_s == 0.0:
-            return base.x.copy(), base.P.copy()
+            return x.copy(), P.copy()
         Phi, Gamma, Q = self.model.matrices(dt_s)
-        P = Phi @ base.P @ Phi.T + Q  # (1): Phi P Phi^T + R1
-        return Phi @ base.x + Gamma @ self.model.u, 0.5 * (P + P.T)
+        P = Phi @ P @ Phi.T + Q  # (1): Phi P Phi^T + R1
+        return Phi @ x + Gamma @ self.model.u, 0.5 * (P + P.T)
 
     def predict_to(self, t_s: float) -> None:
         """Time update (1) to ``t_s`` with the exact Phi, Gamma, R1 of the interval
@@ -203,7 +237,7 @@ class ViewlineKalmanFilter:
             )
         if dt_s == 0.0:
             return
-        Phi, Gamma, Q = self.model.matrices(dt_s)
+        Phi, Gamma, Q = self._matrices(dt_s)
         self.kf.predict(Phi, Q, Gamma, self.model.u)  # (1), u = 1 (20)
         self.time_s = t_s
 
@@ -217,12 +251,7 @@ class ViewlineKalmanFilter:
         ``restart_count`` counts the restarts. Returns how many measurements were filtered
         again. For an observer whose estimate was lost (see
         :class:`~observer_gym.estimation.ball_catcher.observer.BallCatcherObserver`)."""
-        x0 = np.array(x0, dtype=float).reshape(-1)
-        P0 = np.array(P0, dtype=float)
-        if x0.shape != (6,) or P0.shape != (6, 6):
-            raise ValueError(
-                f"ViewlineKalmanFilter.restart: x0 {x0.shape}, P0 {P0.shape}; expected (6,), (6, 6)"
-            )
+        x0, P0 = self._checked_prior(x0, P0, "ViewlineKalmanFilter.restart")
         time_s, since_s = float(time_s), float(since_s)
         if not time_s <= since_s:
             raise ValueError(
@@ -240,7 +269,7 @@ class ViewlineKalmanFilter:
         self._entries = []
         self.restart_count += 1
         for entry in again:
-            self._add(entry.time_s, entry.frames, entry.stacked)
+            self._add(entry.time_s, entry.frames, entry.stacked, entry.camera)
         self.predict_to(max(resume_s, self.time_s))
         return len(again)
 
@@ -252,10 +281,13 @@ class ViewlineKalmanFilter:
         K: np.ndarray,
         T_world_cam: np.ndarray,
         uv_px: np.ndarray | None,
+        camera: int = 0,
     ) -> UpdateResult:
         """Predict exactly to the frame's capture time, then update with its two rows
         (21)-(22), R2 = diag(std^2) at the predicted position; gated (27)-(30). A frame
-        captured before ``time_s`` is a late frame (see the class docstring).
+        captured before ``time_s`` is a late frame (see the class docstring). ``camera``:
+        the frame's camera (0 .. cameras - 1), whose calibration offset the rows carry
+        when the filter has ``calibration``.
 
         ``uv_px`` None (no detection): prediction only, a missed measurement (a late one
         changes nothing).
@@ -268,7 +300,7 @@ class ViewlineKalmanFilter:
                 self._check_within_history(t_s, "frame captured")
             return self.kf.update(None, np.empty((0, 6)), np.empty((0, 0)))
         frame = CameraFrame(t_s, K, T_world_cam, np.asarray(uv_px, dtype=float))
-        return self._add(t_s, (frame,), stacked=False)
+        return self._add(t_s, (frame,), stacked=False, camera=camera)
 
     def add_frames_at_tick(self, tick_time_s: float, frames: Sequence[CameraFrame]) -> UpdateResult:
         """The paper's timing: predict to ``tick_time_s``, stack the rows of all frames of
@@ -280,8 +312,14 @@ class ViewlineKalmanFilter:
         noise over dt is neglected (R1 over 20 ms is tiny next to R2). The whole stack is
         gated as one measurement, so one outlier rejects the tick's frames. Frames without
         a detection are skipped; none at all: prediction only. A tick before ``time_s`` is
-        late and handled like a late frame (see the class docstring).
+        late and handled like a late frame (see the class docstring). Not with
+        ``calibration`` (the stacked frames carry no camera): ``ValueError``.
         """
+        if self.calibration is not None:
+            raise ValueError(
+                "ViewlineKalmanFilter.add_frames_at_tick: not with calibration consider "
+                "parameters (use add_frame with each frame's camera)"
+            )
         t_s = float(tick_time_s)
         detected = tuple(f for f in frames if f.uv_px is not None)
         if not detected:
@@ -292,14 +330,16 @@ class ViewlineKalmanFilter:
             return self.kf.update(None, np.empty((0, 6)), np.empty((0, 0)))
         return self._add(t_s, detected, stacked=True)
 
-    def _add(self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool) -> UpdateResult:
+    def _add(
+        self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool, camera: int = 0
+    ) -> UpdateResult:
         if t_s >= self.time_s:  # in order: the usual step
-            result = self._apply(t_s, frames, stacked)
-            self._entries.append(_Entry(t_s, frames, stacked, self._checkpoint()))
+            result = self._apply(t_s, frames, stacked, camera)
+            self._entries.append(_Entry(t_s, frames, stacked, self._checkpoint(), camera))
             self._forget_old()
             return result
         self._check_within_history(t_s, "tick" if stacked else "frame captured")
-        return self._refilter(_Entry(t_s, frames, stacked, self._anchor))
+        return self._refilter(_Entry(t_s, frames, stacked, self._anchor, camera))
 
     def _check_within_history(self, t_s: float, what: str) -> None:
         if t_s < self._anchor.time_s:
@@ -321,7 +361,7 @@ class ViewlineKalmanFilter:
         self._entries.insert(i, late)
         result = None
         for entry in self._entries[i:]:
-            r = self._apply(entry.time_s, entry.frames, entry.stacked)
+            r = self._apply(entry.time_s, entry.frames, entry.stacked, entry.camera)
             entry.after = self._checkpoint()
             if entry is late:
                 result = r
@@ -347,7 +387,9 @@ class ViewlineKalmanFilter:
         axis = np.asarray(T_world_cam, dtype=float)[:3, 2]
         return float(axis @ self.kf.P[:3, :3] @ axis)
 
-    def _apply(self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool) -> UpdateResult:
+    def _apply(
+        self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool, camera: int = 0
+    ) -> UpdateResult:
         """Predict to ``t_s`` and update with ``frames`` (all with a detection)."""
         self.predict_to(t_s)
         if not stacked:
@@ -361,7 +403,21 @@ class ViewlineKalmanFilter:
                 self.pixel_std_px,
                 depth_var_m2=self._depth_var_m2(frame.T_world_cam),
             )
-            return self.kf.update(y, C, np.diag(std_m**2))  # (5)-(7), gated (27)-(30)
+            calibration = self.calibration
+            if calibration is None:
+                return self.kf.update(y, C, np.diag(std_m**2))  # (5)-(7), gated (27)-(30)
+            position_m = self.kf.x[:3].copy()
+
+            def residual_m(K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
+                # the rows' residual C p - y through a camera (K, T_world_cam), p predicted
+                C_c, y_c = viewline_rows(projection_matrix(K, T_world_cam), frame.uv_px)
+                return C_c[:, :3] @ position_m - y_c
+
+            # y = C x + J c_camera + e (calibration_consider), gated with that S
+            J = calibration.jacobian(residual_m, frame.K, frame.T_world_cam)
+            result = self.kf.update(y, calibration.rows(C, J, camera), np.diag(std_m**2))
+            self.kf.x, self.kf.P = calibration.reset_consider(self.kf.x, self.kf.P)
+            return result
         g = self.model.gravity_mps2
         rows, values, variances = [], [], []
         for frame in frames:

@@ -29,11 +29,19 @@ NIS: ``Estimate.nis`` sums d^T S^-1 d of this step's accepted frames (two viewli
 each, so ``nis_dof`` = 2 per frame; a late frame's at its capture time); None when none
 was accepted.
 
-Initial estimate (docs/spec/catcher.md, "Initialisation"): the centre of the throw
-distribution's launch region with the velocity of a throw from there to the hole's home
-in the middle of the flight-time range, both with a standard deviation of 10 m and
-10 m/s (the paper's 10^2 variance): large enough that the first frames decide, small
-enough for no round-off in (10).
+Initial estimate: the mean and covariance of the ball's launch state under the env's
+declared throw distribution (:func:`throw_prior`, in closed form from the config's launch
+region, target disc and flight-time range), so that before the first frame arrives the
+reported covariance is what the throws spread over, not the paper's 10^2 variance
+(docs/spec/catcher.md, "Initialisation"). Why (measured, kf at latency_s = 0.1, seeds
+0-2, intercept): with the 10 m prior every step before the first delivered frame (a
+quarter of the 0.44 s flight) reported a 17 m standard deviation against a 0.1 m error,
+NEES/dof 0.000, and the flight's mean NEES/dof fell from 0.49-0.74 at no latency to
+0.29-0.53; from the first frames on the two runs lay alike (0.2-1.2 per 50 ms bin).
+A throw set by hand (``reset(options={"throw": ...})``) can lie outside that
+distribution; the first frames then contradict the prior, the gate rejects them and the
+re-acquisition below restarts from the wide prior (:func:`wide_prior`: 10 m and 10 m/s
+around the same mean, the paper's variance), from which the frames decide.
 
 Re-acquisition. The outlier test (27)-(30) compares a detection with the estimate's own
 covariance, so once false detections (another green object, a reflection) have been
@@ -42,17 +50,17 @@ then rejects every good detection for the rest of the flight; or it sits on one 
 viewline, off along it, where that camera's frames still fit and the other camera's are
 all rejected. So when ``reacquire_after`` (default 3) frames of one camera in a row are
 gated out (frames of other cameras in between do not break the run), the observer takes
-the estimate as lost, not the detections as wrong: the filter restarts from the initial
-prior above (at time 0, so predicted over the elapsed flight with the model's exact Phi
-and R1) and filters again every frame of every camera from the first of that run on
-(:meth:`ViewlineKalmanFilter.restart`). Why this and not an inflated covariance around
-the lost estimate: that estimate can be anywhere, even near a camera centre, through
-which every viewline passes (it fits every frame there, see
-:func:`~observer_gym.estimation.viewline.viewline_noise_std`); the prior is where every
-flight's filter starts, and from it the first frames decide. The frames filtered again
-span at least ``reacquire_after`` frame periods of the failing camera, so with two
-cameras they hold both cameras' viewlines, which fix the position at once; with one
-camera the prior and gravity fix the depth over the next frames, as at the start of a
+the estimate as lost, not the detections as wrong: the filter restarts from the wide
+prior (:func:`wide_prior`, at time 0, so predicted over the elapsed flight with the
+model's exact Phi and R1) and filters again every frame of every camera from the first
+of that run on (:meth:`ViewlineKalmanFilter.restart`). Why this and not an inflated
+covariance around the lost estimate: that estimate can be anywhere, even near a camera
+centre, through which every viewline passes (it fits every frame there, see
+:func:`~observer_gym.estimation.viewline.viewline_noise_std`); from the wide prior the
+frames decide, whatever the throw. The frames filtered again span at least
+``reacquire_after`` frame periods of the failing camera, so with two cameras they hold
+both cameras' viewlines, which fix the position at once; with one camera the prior and
+gravity fix the depth over the next frames, as at the start of a
 flight. A good frame is rejected with probability 0.22 % at p = 3.5, so three in a row
 from one camera happen about once in 10^8 frames of a clean flight. Frames without a
 detection neither break nor extend a run. ``reacquisitions`` counts the restarts. The
@@ -79,15 +87,16 @@ import numpy as np
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
-from observer_gym.envs.ball_catcher.throws import throw_through
+from observer_gym.envs.sim import GRAVITY_MPS2
+from observer_gym.estimation.ball_catcher.calibration_consider import CalibrationConsider
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.r_scale import checked_r_scale
 
-INITIAL_STD_POS_M = 10.0
-INITIAL_STD_VEL_MPS = 10.0
+WIDE_STD_POS_M = 10.0
+WIDE_STD_VEL_MPS = 10.0
 # The detector's error model: 0.095 px RMS in view on noiseless frames and 0.19 px (the
 # larger axis) at the largest image_noise_std, 64 (tests/estimation/
 # test_ball_catcher_observer.py); between them std = hypot(0.095, k sigma_image), k from
@@ -114,18 +123,31 @@ DEFAULT_REACQUIRE_AFTER = 3  # consecutive gate rejections that restart the filt
 
 
 def default_pixel_std_px(env: BallCatcherEnv, r_scale: float = 1.0) -> float:
-    """The pixel noise the BallCatcher filters assume (their noise rule): in measurements
-    mode the declared noise, ``env.sensor_spec.measurement_noise_std_px`` (with its float32
-    floor); the rgb detector's error model (:func:`rgb_pixel_std_px`); plus the declared calibration
-    uncertainty as pixel variance (:func:`calibration_pixel_var_px2`); R = std^2 I times
-    ``r_scale``."""
+    """The pixel noise the BallCatcher filters assume in R (their noise rule): in
+    measurements mode the declared noise, ``env.sensor_spec.measurement_noise_std_px``
+    (with its float32 floor); in rgb mode the detector's error model
+    (:func:`rgb_pixel_std_px`); R = std^2 I times ``r_scale``. The declared calibration
+    uncertainty is not in it: the filters carry it as consider parameters
+    (:func:`calibration_consider`)."""
     r_scale = checked_r_scale(r_scale)
     if env.config.obs_mode == "rgb":
         std = rgb_pixel_std_px(env.sensor_spec.image_noise_std)
     else:
         std = env.sensor_spec.measurement_noise_std_px
-    variance = std**2 + calibration_pixel_var_px2(env)
-    return math.sqrt(variance * r_scale)
+    return math.sqrt(std**2 * r_scale)
+
+
+def calibration_consider(env: BallCatcherEnv, enabled: Any = True) -> CalibrationConsider | None:
+    """The filters' consider parameters for the declared calibration uncertainty
+    (``env.sensor_spec``, every camera of the env; see
+    :mod:`~observer_gym.estimation.ball_catcher.calibration_consider`), or None when
+    ``enabled`` is False (the offsets left out, to show what they do). ``enabled`` must be
+    a bool, else ``ValueError``."""
+    if not isinstance(enabled, (bool, np.bool_)):
+        raise ValueError(f"consider_calibration = {enabled!r}, must be True or False")
+    if not enabled:
+        return None
+    return CalibrationConsider(env.sensor_spec, env.config.cameras)
 
 
 def calibration_pixel_var_px2(env: BallCatcherEnv) -> float:
@@ -134,10 +156,10 @@ def calibration_pixel_var_px2(env: BallCatcherEnv) -> float:
     direction moves a pixel by f s about the camera's x and y axes and by r s about its
     optical axis (r: the distance from the principal point, at most the half-diagonal),
     per-axis variance (f^2 + r^2) s^2 / 3; a focal scale error e_f moves it by e_f r;
-    a principal-point offset of p px, p^2 / 2 per axis. Each camera's error is one
-    constant offset per episode, which the filters take as white noise in R: the
-    viewline filter's rows from several cameras then see it, as a triangulation would.
-    Translation errors are not in it (their pixel shift depends on the ball's depth)."""
+    a principal-point offset of p px, p^2 / 2 per axis. Translation errors are not in it
+    (their pixel shift depends on the ball's depth). Only the triangulating ``raw``
+    observer's covariance uses it, as white pixel noise; the filters carry the offsets as
+    consider parameters (:func:`calibration_consider`)."""
     sensor = env.sensor_spec
     intrinsics = env.camera_intrinsics()[0]
     f = intrinsics.fx_px
@@ -194,17 +216,64 @@ def checked_reacquire_after(reacquire_after: Any, owner: str) -> int:
     return int(reacquire_after)
 
 
+def throw_prior(config: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The mean x0 (6,) and covariance P0 (6, 6) of the ball's launch state (position m,
+    velocity m/s, world frame) at time 0 under ``config``'s throw distribution
+    (envs/ball_catcher/throws.py ``sample_throw``): launch l uniform in the cube of
+    half-side s around l0, crossing c uniform in the disc of radius r around the hole's
+    home in the plane x = const, flight time T uniform in [T1, T2], independent, and
+    v = (c - l) / T + e_z g T / 2. With w = c - l (mean m = c0 - l0, covariance
+    W = s^2/3 I + r^2/4 diag(0, 1, 1)) and a = 1 / T:
+
+        E[a] = ln(T2 / T1) / (T2 - T1),  E[a^2] = 1 / (T1 T2),  Var T = (T2 - T1)^2 / 12
+        E[v] = m E[a] + e_z g E[T] / 2
+        Cov(v) = E[a^2] (W + m m^T) - E[a]^2 m m^T + (g/2)^2 Var T e_z e_z^T
+                 + (g/2) (1 - E[a] E[T]) (m e_z^T + e_z m^T)
+        Cov(l) = s^2/3 I,  Cov(l, v) = -E[a] s^2/3 I
+
+    (checked against sampled throws in tests/estimation/test_ball_catcher_prior.py)."""
+    g = GRAVITY_MPS2
+    launch_m = np.array([config.launch_x_m, 0.0, config.launch_height_m])
+    t1, t2 = float(config.flight_time_min_s), float(config.flight_time_max_s)
+    # E[1/T] = ln(T2/T1) / (T2 - T1), 1/T when T1 = T2
+    mean_inv_t = math.log(t2 / t1) / (t2 - t1) if t2 > t1 else 1.0 / t1
+    mean_inv_t2 = 1.0 / (t1 * t2)  # E[1/T^2]
+    mean_t, var_t = 0.5 * (t1 + t2), (t2 - t1) ** 2 / 12.0
+    launch_var_m2 = config.launch_spread_m**2 / 3.0  # uniform in [-s, s]
+    disc_var_m2 = config.target_radius_m**2 / 4.0  # uniform in a disc, per in-plane axis
+    m = geo.HOLE_HOME_WORLD - launch_m
+    W = launch_var_m2 * np.eye(3) + disc_var_m2 * np.diag([0.0, 1.0, 1.0])
+    e_z = np.array([0.0, 0.0, 1.0])
+    # E[v] = m E[a] + e_z g E[T] / 2
+    mean_v = m * mean_inv_t + e_z * (0.5 * g * mean_t)
+    # Cov(v) = E[a^2] (W + m m^T) - E[a]^2 m m^T + (g/2)^2 Var T e_z e_z^T
+    #          + (g/2) (1 - E[a] E[T]) (m e_z^T + e_z m^T)
+    mm = np.outer(m, m)
+    cross = np.outer(m, e_z)
+    cov_v = (
+        mean_inv_t2 * (W + mm)
+        - mean_inv_t**2 * mm
+        + (0.5 * g) ** 2 * var_t * np.outer(e_z, e_z)
+        + 0.5 * g * (1.0 - mean_inv_t * mean_t) * (cross + cross.T)
+    )
+    P0 = np.zeros((6, 6))
+    P0[:3, :3] = launch_var_m2 * np.eye(3)  # Cov(l)
+    P0[:3, 3:] = P0[3:, :3] = -mean_inv_t * launch_var_m2 * np.eye(3)  # Cov(l, v)
+    P0[3:, 3:] = 0.5 * (cov_v + cov_v.T)
+    return np.concatenate([launch_m, mean_v]), P0
+
+
+def wide_prior(config: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The prior a lost estimate restarts from (see the module docstring): the mean of
+    :func:`throw_prior` with standard deviations 10 m and 10 m/s (the paper's 10^2
+    variance), large enough that the frames decide, small enough for no round-off in (10)."""
+    x0, _ = throw_prior(config)
+    return x0, np.diag([WIDE_STD_POS_M**2] * 3 + [WIDE_STD_VEL_MPS**2] * 3)
+
+
 def initial_estimate(config: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The prior (x0 (6,), P0 (6, 6)) of the ball's (position, velocity), world frame: the
-    launch region's centre with the velocity of a throw from there to the hole's home in
-    the middle of the flight-time range, standard deviations 10 m and 10 m/s (see the
-    module docstring)."""
-    launch = np.array([config.launch_x_m, 0.0, config.launch_height_m])
-    mid_flight_s = 0.5 * (config.flight_time_min_s + config.flight_time_max_s)
-    typical = throw_through(launch, geo.HOLE_HOME_WORLD, mid_flight_s)
-    x0 = np.concatenate([launch, typical.launch_vel_world])
-    P0 = np.diag([INITIAL_STD_POS_M**2] * 3 + [INITIAL_STD_VEL_MPS**2] * 3)
-    return x0, P0
+    """The prior (x0, P0) every flight's filter starts from: :func:`throw_prior`."""
+    return throw_prior(config)
 
 
 class BallCatcherObserver:
@@ -221,6 +290,8 @@ class BallCatcherObserver:
             from the prior and the rejected frames (see the module docstring); an
             integer >= 1.
         r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
+        consider_calibration: carry the declared calibration uncertainty as consider
+            parameters (default True; False leaves it out, to show its effect).
     """
 
     def __init__(
@@ -232,11 +303,13 @@ class BallCatcherObserver:
         detector: BallCatcherDetector | None = None,
         reacquire_after: int = DEFAULT_REACQUIRE_AFTER,
         r_scale: float = 1.0,
+        consider_calibration: bool = True,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(
                 f"BallCatcherObserver needs a BallCatcherEnv, got {type(env).__name__}"
             )
+        self.calibration = calibration_consider(env, consider_calibration)
         self.reacquire_after = checked_reacquire_after(reacquire_after, "BallCatcherObserver")
         cfg = env.config
         self.pixels = FrameReader(cfg, detector, owner="BallCatcherObserver")
@@ -248,6 +321,7 @@ class BallCatcherObserver:
         self.gate_p = gate_p
         self.accel_noise_std = float(accel_noise_std)
         self.x0, self.P0 = initial_estimate(cfg)
+        self.x_lost, self.P_lost = wide_prior(cfg)  # a restart's prior
         self.reset()  # makes self.filter
 
     def reset(self) -> None:
@@ -257,6 +331,7 @@ class BallCatcherObserver:
             pixel_std_px=self.pixel_std_px,
             gate_p=self.gate_p,
             accel_noise_std=self.accel_noise_std,
+            calibration=self.calibration,
         )
         self._rejected = RejectionRuns(self.reacquire_after)
         self.reacquisitions = 0
@@ -299,10 +374,10 @@ class BallCatcherObserver:
         camera. Whether the frame was used (at a restart: any frame filtered again)."""
         kf = self.filter
         t_s = float(frame["capture_time_s"])
-        result = kf.add_frame(t_s, frame["K"], frame["T_world_cam"], uv)
+        camera = frame["camera_id"]
+        result = kf.add_frame(t_s, frame["K"], frame["T_world_cam"], uv, camera)
         if uv is None:
             return False
-        camera = frame["camera_id"]
         if result.accepted:
             self._rejected.used(camera)
             # d^T S^-1 d of the frame's two viewline rows (a late frame's: at its capture time)
@@ -314,5 +389,5 @@ class BallCatcherObserver:
             return False
         self.reacquisitions += 1
         accepted_before = kf.accepted_count
-        kf.restart(self.x0, self.P0, 0.0, since_s)
+        kf.restart(self.x_lost, self.P_lost, 0.0, since_s)
         return kf.accepted_count > accepted_before

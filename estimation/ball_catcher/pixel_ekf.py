@@ -10,24 +10,33 @@ camera centre):
 
     h(x) = (q1 / q3, q2 / q3),   H = dh/dp = [[1/q3, 0, -q1/q3^2], [0, 1/q3, -q2/q3^2]] K R^T
 
-(zero for the velocity), R = ``pixel_std_px``^2 I. The viewline filter (``kf``) instead
-turns each pixel into two planes through the camera centre, which are linear in p, so it
-needs no linearisation; this filter linearises the projection. The outlier gate is the
-same p-sigma test (27)-(30), on the pixel innovation.
+(zero for the velocity), R = ``pixel_std_px``^2 I. The declared calibration uncertainty
+enters as consider parameters (:mod:`~observer_gym.estimation.ball_catcher.
+calibration_consider`): each frame's pixel also carries J c_camera, J = dh/dc of the
+pixel model along each calibration parameter of the frame's camera at the linearisation
+point; the iteration below runs on the augmented state with c held at 0.
+
+The viewline filter (``kf``) instead turns each pixel into two planes through the camera
+centre, which are linear in p, so it needs no linearisation; this filter linearises the
+projection. The outlier gate is the same p-sigma test (27)-(30), on the pixel innovation.
 
 Iterated update (Gauss-Newton, the IEKF): the projection is relinearised at the updated
 estimate, x_{i+1} = x0 + K_i (y - h(x_i) - H_i (x0 - x_i)) with K_i = P0 H_i^T
 (H_i P0 H_i^T + R)^-1, up to ``iterations`` linearisations (default 5; 1 is the plain
 EKF) or until no entry moves more than ITERATION_TOL; the final update is
-:meth:`ExtendedKalmanFilter.update` at the last linearisation (gated, Joseph form). Prior:
-the viewline filter's mean with standard deviations 1 m and 3 m/s, not its 10 m and
+:meth:`ExtendedKalmanFilter.update` at the last linearisation (gated, Joseph form).
+
+Prior: the declared throw distribution's
+(:func:`~observer_gym.estimation.ball_catcher.observer.throw_prior`), as the viewline
+filter's. A restart (below) starts from its mean with standard deviations 1 m and 3 m/s
+(``initial_std_pos_m``, ``initial_std_vel_mps``), not the viewline filter's 10 m and
 10 m/s (still 17 and 6 times the default throws' spread of +-0.1 m and about 0.5 m/s).
 Both measured over 40 flights, position RMSE from 0.2 s to the box (random_offsets /
-alternating at 60 ms latency): the 10 m prior diverged (0.7 m / 0.3 m plain, worse
-iterated); the 1 m prior with the plain EKF still diverged on a few flights (0.21 m /
-0.09 m); iterated, 3.6 / 6.0 mm (kf 3.6 / 6.5 mm over 100 flights). The early frames of
-unsynchronised cameras each fix only a viewline, along which a wide prior leaves the
-linearisation point far off.
+alternating at 60 ms latency), when every flight started from such a prior: the 10 m
+prior diverged (0.7 m / 0.3 m plain, worse iterated); the 1 m prior with the plain EKF
+still diverged on a few flights (0.21 m / 0.09 m); iterated, 3.6 / 6.0 mm (kf 3.6 /
+6.5 mm over 100 flights). The early frames of unsynchronised cameras each fix only a
+viewline, along which a wide prior leaves the linearisation point far off.
 
 Timing: every frame is fused at its capture time, frames delivered late (latency, jitter,
 cameras out of order) included, by :class:`~observer_gym.estimation.latency.CaptureTimeFusion`
@@ -41,7 +50,7 @@ Re-acquisition, as the viewline filter's observer
 docstring says why): when ``reacquire_after`` (default 3, ``DEFAULT_REACQUIRE_AFTER``)
 detections of one camera in a row are not used (frames of other cameras in between do not
 break the run; frames without a detection neither break nor extend it), the estimate is
-taken as lost: the filter restarts from the prior above at time 0 and fuses again, at
+taken as lost: the filter restarts from the restart prior above at time 0 and fuses again, at
 their capture times and each gate decision made anew, every detection delivered so far
 that was captured at or after the first frame of that run (all cameras'), then predicts to
 the step's time. ``reacquisitions`` counts the restarts. Not used means gated out, or
@@ -72,6 +81,7 @@ import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
+from observer_gym.estimation.ball_catcher.calibration_consider import CalibrationConsider
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P
 from observer_gym.estimation.ball_catcher.frames import FrameReader
@@ -80,6 +90,7 @@ from observer_gym.estimation.ball_catcher.observer import (
     ACCEL_NOISE_STD,
     DEFAULT_REACQUIRE_AFTER,
     RejectionRuns,
+    calibration_consider,
     checked_reacquire_after,
     default_pixel_std_px,
     initial_estimate,
@@ -139,7 +150,8 @@ class _Snapshot:
 
 class PixelEKFCore:
     """The pixel EKF as a :class:`~observer_gym.estimation.latency.FilterCore`: ``ekf.x``,
-    ``ekf.P`` at ``time_s``, iterated updates (see the module docstring). ``results`` maps
+    ``ekf.P`` at ``time_s`` (with ``calibration``: the augmented state, ``x`` and ``P``
+    the ball's part), iterated updates (see the module docstring). ``results`` maps
     ``id(measurement)`` to the :class:`UpdateResult` of its latest update; a measurement
     whose latest update skipped it (not in front of the camera) has no entry (the observer
     drops the entries of the measurements it no longer keeps)."""
@@ -153,9 +165,11 @@ class PixelEKFCore:
         gate_p: float | None = DEFAULT_GATE_P,
         time_s: float = 0.0,
         iterations: int = DEFAULT_ITERATIONS,
+        calibration: CalibrationConsider | None = None,
     ) -> None:
         if not (np.isfinite(pixel_std_px) and pixel_std_px > 0.0):
             raise ValueError(f"PixelEKFCore: pixel_std_px = {pixel_std_px!r}, must be > 0")
+        self.calibration = calibration if calibration is not None and calibration.active else None
         if (
             isinstance(iterations, bool)
             or not isinstance(iterations, numbers.Integral)
@@ -164,11 +178,13 @@ class PixelEKFCore:
             raise ValueError(f"PixelEKFCore: iterations = {iterations!r}, must be an integer >= 1")
         self.iterations = int(iterations)
         gate = None if gate_p is None else PSigmaGate(gate_p)
-        self.ekf = ExtendedKalmanFilter(
-            np.asarray(x0, dtype=float), np.asarray(P0, dtype=float), gate
-        )
-        if self.ekf.dim_x != 6:
-            raise ValueError(f"PixelEKFCore: state has {self.ekf.dim_x} entries, not 6")
+        x0 = np.array(x0, dtype=float).reshape(-1)
+        P0 = np.array(P0, dtype=float)
+        if x0.shape != (6,) or P0.shape != (6, 6):
+            raise ValueError(f"PixelEKFCore: x0 {x0.shape}, P0 {P0.shape}; expected (6,), (6, 6)")
+        if self.calibration is not None:
+            x0, P0 = self.calibration.augmented(x0, P0)
+        self.ekf = ExtendedKalmanFilter(x0, P0, gate)
         self.flight = flight
         self.R_px2 = float(pixel_std_px) ** 2 * np.eye(2)
         self.time_s = float(time_s)
@@ -184,18 +200,48 @@ class PixelEKFCore:
             )
         if dt_s == 0.0:
             return
-        x_next, F, Q = self.flight.propagate(self.ekf.x, dt_s)
+        x_next, F, Q = self.flight.propagate(self.ekf.x[:6], dt_s)
+        if self.calibration is not None:  # the offsets are constant
+            F, Q, _ = self.calibration.transition(F, Q)
+            x_next = np.concatenate([x_next, self.ekf.x[6:]])
         self.ekf.predict_nonlinear(x_next, F, Q)  # x <- f(x), P <- F P F^T + R1
         self.time_s = float(time_s)
 
+    @property
+    def x(self) -> np.ndarray:
+        """The ball's estimate (6,) at ``time_s`` (``ekf.x`` itself without consider
+        parameters)."""
+        return self.ekf.x if self.calibration is None else self.ekf.x[:6]
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (6, 6), the calibration offsets' effect included (``ekf.P``
+        itself without consider parameters)."""
+        return self.ekf.P if self.calibration is None else self.ekf.P[:6, :6]
+
     def _linearised(self, m: PixelMeasurement, x: np.ndarray):
-        """(h(x), H (2, 6)) at ``x``, or None when x is not MIN_DEPTH_M in front of the camera."""
-        h_x, H_pos, depth_m = pixel_model(m.K, m.T_world_cam, x[:3])
+        """(h(x), H (2, dim)) at ``x`` (with ``calibration``: the camera's offsets' J in
+        its columns), or None when x is not MIN_DEPTH_M in front of the camera."""
+        position_m = x[:3].copy()
+        h_x, H_pos, depth_m = pixel_model(m.K, m.T_world_cam, position_m)
         if not depth_m > MIN_DEPTH_M:
             return None
         H = np.zeros((2, 6))
         H[:, :3] = H_pos
-        return h_x, H
+        calibration = self.calibration
+        if calibration is None:
+            return h_x, H
+
+        def pixel_px(K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray | None:
+            # the pixel of the linearisation point through a camera (K, T_world_cam)
+            uv, _, depth = pixel_model(K, T_world_cam, position_m)
+            return uv if depth > MIN_DEPTH_M else None
+
+        # h = h(x) + J c_camera (calibration_consider)
+        J = calibration.jacobian(pixel_px, m.K, m.T_world_cam)
+        if J is None:
+            return None
+        return h_x, calibration.rows(H, J, m.camera_id)
 
     def update(self, measurement: PixelMeasurement) -> bool:
         """Fuse one frame's pixel at the current time, iterated (see the module docstring);
@@ -215,6 +261,8 @@ class PixelEKFCore:
             PHt = P_prior @ H.T
             S = H @ PHt + self.R_px2
             x_next = x_prior + PHt @ np.linalg.solve(S, y - h_x - H @ (x_prior - x_lin))
+            if self.calibration is not None:
+                x_next[6:] = 0.0  # the offsets are considered, not estimated
             step_m = float(np.max(np.abs(x_next - x_lin)))
             relinearised = self._linearised(measurement, x_next)
             if relinearised is None:
@@ -226,6 +274,8 @@ class PixelEKFCore:
         # The EKF update linearised at x_lin: pseudo-measurement y - h(x_lin) + H x_lin,
         # innovation y - h(x_lin) - H (x0 - x_lin); gated, Joseph form
         result = ekf.update(y - h_x + H @ x_lin, H, self.R_px2)
+        if self.calibration is not None:
+            ekf.x, ekf.P = self.calibration.reset_consider(ekf.x, ekf.P)
         self.results[id(measurement)] = result
         return result.accepted
 
@@ -255,11 +305,14 @@ class PixelEKFObserver:
         history_s: how far back late frames are fused at their capture time (default
             ``env.sensor_spec.history_s(control_dt_s)``, the declared sensor's).
         iterations: linearisations per update at most (1: the plain EKF).
-        initial_std_pos_m, initial_std_vel_mps: the prior's standard deviations.
+        initial_std_pos_m, initial_std_vel_mps: the restart prior's standard deviations
+            (see the module docstring; the first prior is the throw distribution's).
         r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
         reacquire_after: detections of one camera in a row not used after which the
             filter restarts from the prior and those frames (see the module docstring); an
             integer >= 1.
+        consider_calibration: carry the declared calibration uncertainty as consider
+            parameters (default True; False leaves it out, to show its effect).
     """
 
     def __init__(
@@ -276,9 +329,11 @@ class PixelEKFObserver:
         initial_std_vel_mps: float = INITIAL_STD_VEL_MPS,
         r_scale: float = 1.0,
         reacquire_after: int = DEFAULT_REACQUIRE_AFTER,
+        consider_calibration: bool = True,
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(f"PixelEKFObserver needs a BallCatcherEnv, got {type(env).__name__}")
+        self.calibration = calibration_consider(env, consider_calibration)
         self.reacquire_after = checked_reacquire_after(reacquire_after, "PixelEKFObserver")
         cfg = env.config
         self.pixels = FrameReader(cfg, detector, owner="PixelEKFObserver")
@@ -291,28 +346,30 @@ class PixelEKFObserver:
         spec_history_s = env.sensor_spec.history_s(cfg.control_dt_s)
         self.history_s = float(spec_history_s if history_s is None else history_s)
         self.iterations = iterations
-        self.x0, _ = initial_estimate(cfg)
-        self.P0 = np.diag([initial_std_pos_m**2] * 3 + [initial_std_vel_mps**2] * 3)
+        self.x0, self.P0 = initial_estimate(cfg)
+        self.x_lost = self.x0  # a restart's prior
+        self.P_lost = np.diag([initial_std_pos_m**2] * 3 + [initial_std_vel_mps**2] * 3)
         self.reset()
 
     def reset(self) -> None:
-        self.core = self._new_core()
+        self.core = self._new_core(self.x0, self.P0)
         self.fusion = CaptureTimeFusion(self.core, latency_aware=True, history_s=self.history_s)
         self._rejected = RejectionRuns(self.reacquire_after)
         self.reacquisitions = 0
         # every detection delivered and still needed for a restart (see _forget)
         self._kept: list[TimedMeasurement] = []
 
-    def _new_core(self) -> PixelEKFCore:
-        """The filter at the prior, at time 0."""
+    def _new_core(self, x0: np.ndarray, P0: np.ndarray) -> PixelEKFCore:
+        """The filter at the prior (``x0``, ``P0``), at time 0."""
         return PixelEKFCore(
-            self.x0,
-            self.P0,
+            x0,
+            P0,
             self.flight,
             self.pixel_std_px,
             self.gate_p,
             time_s=0.0,
             iterations=self.iterations,
+            calibration=self.calibration,
         )
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
@@ -335,11 +392,11 @@ class PixelEKFObserver:
         accepted = [r for r in results if r is not None and r.accepted]
         self._forget(now_s)
         mean = np.zeros(STATE_DIM)
-        mean[BALL] = self.core.ekf.x
+        mean[BALL] = self.core.x
         mean[BOX_POS] = info["box_pos_world_m"]
         mean[BOX_VEL] = info["box_vel_world_mps"]
         covariance = np.zeros((STATE_DIM, STATE_DIM))
-        covariance[BALL, BALL] = self.core.ekf.P
+        covariance[BALL, BALL] = self.core.P
         return Estimate(
             mean=mean,
             covariance=covariance,
@@ -364,7 +421,7 @@ class PixelEKFObserver:
         return self._restart(since_s, now_s, action)
 
     def _restart(self, since_s: float, now_s: float, action: np.ndarray | None) -> bool:
-        """Start over from the prior at time 0 and fuse again every kept detection captured
+        """Start over from the restart prior at time 0 and fuse again every kept detection captured
         at or after ``since_s``, predicted to ``now_s``. The counters are those before the
         first detection fused again plus its new decisions (as the viewline filter's), so
         ``accepted_count + rejected_count`` still counts each decided detection once.
@@ -372,7 +429,7 @@ class PixelEKFObserver:
         old = self.core
         again = [m for m in self._kept if m.capture_time_s >= since_s]
         redone = [old.results.get(id(m.measurement)) for m in again]
-        core = self._new_core()
+        core = self._new_core(self.x_lost, self.P_lost)
         core.ekf.accepted_count = old.ekf.accepted_count - sum(
             r is not None and r.accepted for r in redone
         )

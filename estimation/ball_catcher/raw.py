@@ -31,6 +31,7 @@ triangulations; the prior's before. No innovation, so no NIS.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,11 @@ from observer_gym.envs.ball_catcher.layout import (
 )
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.frames import FrameReader
-from observer_gym.estimation.ball_catcher.observer import default_pixel_std_px, initial_estimate
+from observer_gym.estimation.ball_catcher.observer import (
+    calibration_pixel_var_px2,
+    default_pixel_std_px,
+    initial_estimate,
+)
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import CameraFrame, viewline_noise_std, viewline_rows
@@ -101,7 +106,9 @@ class RawObserver:
     Args:
         env: the (unwrapped) BallCatcher env, made with obs_mode "rgb" or "measurements".
         pixel_std_px: the pixel noise for the triangulation's weights and covariance
-            (default: the viewline filter's).
+            (default: the declared pixel noise with the calibration uncertainty as pixel
+            variance, :func:`~observer_gym.estimation.ball_catcher.observer.
+            calibration_pixel_var_px2`).
         max_pair_gap_s: the largest capture-time difference of two detections triangulated
             together (default: one frame period, 1 / ``frame_rate_hz``).
         detector: the rgb detector (default :class:`BallCatcherDetector`).
@@ -118,9 +125,9 @@ class RawObserver:
             raise ValueError(f"RawObserver needs a BallCatcherEnv, got {type(env).__name__}")
         cfg = env.config
         self.pixels = FrameReader(cfg, detector, owner="RawObserver")
-        self.pixel_std_px = float(
-            default_pixel_std_px(env) if pixel_std_px is None else pixel_std_px
-        )
+        # the declared pixel noise and the calibration uncertainty as pixel variance
+        declared_px2 = default_pixel_std_px(env) ** 2 + calibration_pixel_var_px2(env)
+        self.pixel_std_px = float(math.sqrt(declared_px2) if pixel_std_px is None else pixel_std_px)
         if not (np.isfinite(self.pixel_std_px) and self.pixel_std_px > 0.0):
             raise ValueError(f"RawObserver: pixel_std_px = {pixel_std_px!r}, must be > 0")
         gap_s = 1.0 / cfg.frame_rate_hz + 0.5 * cfg.physics_dt_s

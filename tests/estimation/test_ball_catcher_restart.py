@@ -98,9 +98,15 @@ def test_ekf_restarts_after_reacquire_after_rejections_as_kf_does(reacquire_afte
             assert at_restart["frames"][-1]["capture_time_s"] == corrupted_s[-1]
             assert restarts["ekf"][-1] >= 1 and restarts["kf"][-1] >= 1
 
-            # the restarted estimate: prior at 0, then every detection since corrupted_s[0]
+            # restarted: the restart prior at 0, then every detection since corrupted_s[0]
             fresh = PixelEKFCore(
-                ekf.x0, ekf.P0, ekf.flight, ekf.pixel_std_px, ekf.gate_p, 0.0, ekf.iterations
+                ekf.x_lost,
+                ekf.P_lost,
+                ekf.flight,
+                ekf.pixel_std_px,
+                ekf.gate_p,
+                0.0,
+                ekf.iterations,
             )
             since = [
                 f for _, frames, _ in rows[: first["ekf"] + 1] for f in frames

@@ -39,8 +39,9 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
 ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}
 CONFIDENCE = 0.95
 # Estimation errors are measured from this long after the launch (the first 5-10 frames
-# only bring the estimate from its prior, metres off, to the track) until the ball reaches
-# the box's plane (after that it bounces in the box or off it: no ballistic model applies).
+# only bring the estimate from its prior, the throw distribution's, to the track) until
+# the ball reaches the box's plane (after that it bounces in the box or off it: no
+# ballistic model applies).
 SETTLE_S = 0.1
 CONFIG = {"catch_rate_interval": f"Wilson score, {CONFIDENCE:.0%}", "estimate_from_s": SETTLE_S}
 
