@@ -294,9 +294,10 @@ def fit_calibration_cov(
     the ball's pixels, one Gauss-Newton step from ``x``, through a camera moved along each
     calibration parameter (estimation/calibration.py). None without ``variances``, a ball
     or three corners (the fit needs them). The PnP pipelines' offset (the noise rule's) is
-    not the EKF's: on BallTable's 160 px focal length a tilt of 3.8 mrad moves no corner
-    by more than 0.05 px, and PnP and this model settle at different tilts under a focal
-    error (0.01 and -3.8 mrad at 2 %)."""
+    not the EKF's: on BallTable's 160 px focal length the tilt is weakly held by the
+    corners, and under 2 % focal error this model's least-squares fit to one frame's
+    corners settles 3.8 mrad off in tilt (every corner within 0.05 px) where PnP's tilt
+    moves by 0.01 mrad."""
     if not variances or m.ball_px is None or m.corners_px.shape[0] < 3:
         return None
     h_c, H_c = corner_pixels(x, m)
@@ -378,7 +379,7 @@ class PixelEKF:
             self.tilt_cmd = np.asarray(action, dtype=float)
         Phi_t, Gamma_t, Q_t = tilt_model.matrices(dt_s)
         Phi_b, Gamma_b, Q_b = self.ball_model.matrices(dt_s)
-        # theta' = Phi_t theta + Gamma_t u;  c' = c + w_c (the centre's random walk)
+        # theta' = Phi_t theta + Gamma_t u;  c' = c (the calibration's part is constant)
         tilt_next = Phi_t @ x[TILT] + Gamma_t @ self.tilt_cmd
         # b' = Phi_b b + Gamma_b a((theta + theta') / 2) + the table's angular
         # acceleration's increment (as kf's), clamped at the border
