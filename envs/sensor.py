@@ -145,12 +145,9 @@ class SensorConfig(EnvConfig):
         )
 
 
-def float32_ulp_px(image_size_px: tuple[int, int]) -> float:
-    """The spacing of float32 numbers (24 significant bits) at the largest pixel coordinate
-    of an image of ``image_size_px``: a coordinate inside the image is stored to within
-    half of it, a uniform rounding error of variance ulp^2 / 12 (320 x 240: 2^-15 px)."""
-    largest_px = max(2, *image_size_px)
-    return 2.0 ** (math.floor(math.log2(largest_px)) - 23)
+# float32 keeps 24 significant bits: a pixel coordinate below 2048 px is stored to within
+# half of 2^-13 px, a uniform rounding error of variance ulp^2 / 12.
+_FLOAT32_ULP_PX = 2.0**-13
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,8 +187,7 @@ class SensorSpec:
     def __post_init__(self) -> None:
         if self.measurement_noise_std_px < 0.0:
             # Gaussian noise of the declared std, stored as float32 (its rounding floor).
-            rounding_std_px = float32_ulp_px(self.image_size_px) / math.sqrt(12.0)
-            std = math.hypot(self.measurement_noise_px, rounding_std_px)
+            std = math.hypot(self.measurement_noise_px, _FLOAT32_ULP_PX / math.sqrt(12.0))
             object.__setattr__(self, "measurement_noise_std_px", std)
 
     @property
