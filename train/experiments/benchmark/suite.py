@@ -225,7 +225,9 @@ def parse_suite(data: Any, system: System, version: str, path: str) -> SystemSui
     if not levels_data:
         raise read.fail("levels", "must name at least one level")
     config_class = system.env_class().config_class
-    levels, references, taken = [], {}, {}
+    levels: list[Level] = []
+    references: dict[str, References] = {}
+    taken: dict[str, range] = {}
     for name, level_data in levels_data.items():
         where = f"levels.{name}"
         read.get(levels_data, name, "levels", dict)
@@ -239,7 +241,7 @@ def parse_suite(data: Any, system: System, version: str, path: str) -> SystemSui
             raise read.fail(f"{where}.env_options", str(exc)) from None
         start = read.get(level_data, "seed_start", where, int)
         seeds = range(start, start + episodes)
-        if start < 0 or start < DOC_SEEDS.stop:
+        if start < DOC_SEEDS.stop:
             raise read.fail(
                 f"{where}.seed_start",
                 f"is {start}; allowed: an integer >= {DOC_SEEDS.stop} (seeds "
@@ -255,9 +257,9 @@ def parse_suite(data: Any, system: System, version: str, path: str) -> SystemSui
         taken[name] = seeds
         refs_data = read.get(level_data, "references", where, dict)
         read.only(refs_data, _REFS, f"{where}.references")
+        oracle, raw, idle = (read.number(refs_data, k, f"{where}.references") for k in REFERENCES)
         refs = References(
-            *(read.number(refs_data, key, f"{where}.references") for key in REFERENCES),
-            read.get(refs_data, "episodes", f"{where}.references", int),
+            oracle, raw, idle, read.get(refs_data, "episodes", f"{where}.references", int)
         )
         if refs.episodes != episodes:
             raise read.fail(
