@@ -14,6 +14,7 @@ import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder
+from observer_gym.train.experiments.benchmark.references import episode_values
 from observer_gym.train.experiments.benchmark.run import check_benchmark, run_benchmark
 from observer_gym.train.experiments.benchmark.score import normalised, score_levels
 from observer_gym.train.experiments.benchmark.suite import References, load_suite
@@ -150,7 +151,7 @@ def test_a_second_run_reuses_the_finished_levels(folder, tmp_path):
     [
         (["--env", ENV, "--observer", OBSERVER, "--controller", CONTROLLER],
          "--out required"),
-        ([*ARGV[1:], "--episodes", "401"], "episodes must be an integer from 1 to the suite's"),
+        ([*ARGV[1:], "--episodes", "100000"], "episodes must be an integer from 1 to the suite's"),
         (["--env", ENV, "--observer", "nope", "--controller", CONTROLLER], "nope"),
         (["--env", ENV, "--observer", OBSERVER, "--controller", "lqr"], "lqr"),
         (["--check", "x", "--env", ENV], "--check takes no --env"),
@@ -191,6 +192,19 @@ def test_scores_normalise_oracle_to_one_and_floor_to_zero():
         score_levels({"a": [0.1], "b": [0.1, 0.2]}, {"a": refs, "b": refs}, "lower")
 
 
+def test_the_oracle_entry_measures_what_the_references_measured(tmp_path):
+    """The oracle entry's episodes are the references' oracle episodes (the same seeds,
+    options and code path), value for value: so over the official seeds its level means
+    are the references and its scores exactly 1 (the slow test below runs them all)."""
+    suite = load_suite(ENV)
+    request = check_benchmark(ENV, "oracle", suite.controller, episodes=2)
+    run_benchmark(request, tmp_path / "oracle", progress=False)
+    for level in suite.levels:
+        ran = json.loads((tmp_path / "oracle" / "levels" / f"{level.name}.json").read_text())
+        measured = episode_values(suite, level, "oracle", suite.controller, level.seeds(2))
+        assert ran["values"] == measured.tolist()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", ["BallTable-v0", "BallCatcher-v0", "TargetFollower-v0"])
 def test_the_oracle_entry_scores_one_on_every_level(env_id, tmp_path):
@@ -205,3 +219,16 @@ def test_the_oracle_entry_scores_one_on_every_level(env_id, tmp_path):
         assert level.score.low <= 1.0 <= level.score.high
         assert level.metric_mean == pytest.approx(suite.references[level.level].oracle, rel=1e-12)
     assert check_folder(tmp_path / "oracle").startswith(f"{tmp_path / 'oracle'}: OK")
+
+
+def test_folders_of_other_commands_are_refused_both_ways(folder, tmp_path, capsys):
+    copy = _copy(folder, tmp_path)
+    run = ["run", "--env", ENV, "--observer", "oracle", "--controller", CONTROLLER,
+           "--episodes", "1", "--no-progress", "--out", str(copy)]  # fmt: skip
+    assert main(run) == 2
+    assert "holds 'observer-gym benchmark' results" in capsys.readouterr().err
+    other = tmp_path / "run"
+    assert main([*run[:-1], str(other)]) == 0
+    capsys.readouterr()
+    assert main([*ARGV, "--out", str(other)]) == 2
+    assert "holds 'observer-gym run' results" in capsys.readouterr().err
