@@ -119,6 +119,10 @@ def test_check_refuses_a_changed_score_version_or_package(folder, tmp_path):
         "package": (lambda s: s["packages"].update(numpy="0.0"),
                     r"package numpy is '0\.0' in the folder"),
         "official": (lambda s: s.update(official=True), r"scores\.json\.official is true"),
+        "command": (lambda s: s.update(command="observer-gym benchmark --env BallTable-v0"),
+                    r"scores\.json\.command is"),
+        "options": (lambda s: s.update(observer_options={"gain": 2}),
+                    r"scores\.json\.command is .*, re-derived .*--observer-option"),
     }  # fmt: skip
     for name, (edit, match) in cases.items():
         copy = _copy(folder, tmp_path / name)

@@ -64,7 +64,7 @@ def _first_difference(recorded: Any, derived: Any, where: str) -> str | None:
 
 def _short(value: Any) -> str:
     text = json.dumps(value)
-    return text if len(text) <= 50 else text[:47] + "..."
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def check_folder(folder: str | Path) -> str:
@@ -138,7 +138,14 @@ def check_folder(folder: str | Path) -> str:
     extra = sorted({r.level for r in records} - {level.name for level in suite.levels})
     if extra:
         raise FolderCheckError(f"{folder / EPISODES_CSV}: level {extra[0]!r} is not in the suite")
-    entry = {key: doc.get(key) for key in ("observer", "controller", "command")}
+    entry = {key: doc.get(key) for key in ("observer", "controller")}
+    for key in ("observer_options", "controller_options"):
+        options = doc.get(key)
+        if not isinstance(options, dict):
+            raise FolderCheckError(f"{path}: {key} is {_short(options)}, not a table of options")
+        entry[key] = options
+    if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
+        raise FolderCheckError(f"{path}: observer and controller must be names")
     derived, _ = scores_document(suite, {**entry, "episodes": episodes}, records, recorded_packages)
     difference = _first_difference(doc, derived, "scores.json")
     if difference:

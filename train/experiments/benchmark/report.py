@@ -13,13 +13,14 @@ levels) with its interval, whether the run is official, and the sha256 of
 from __future__ import annotations
 
 import hashlib
+import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, EpisodeRecord, csv_text
 from observer_gym.train.experiments.benchmark.score import METHOD, Scores, score_levels
-from observer_gym.train.experiments.benchmark.suite import SystemSuite
+from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, SystemSuite
 from observer_gym.train.reports.outputs import (
     VERSIONED_PACKAGES,
     format_table,
@@ -37,6 +38,27 @@ TABLE_MD = "table.md"
 SCORES_PNG = "scores.png"
 TIMING_JSON = "timing.json"
 PACKAGES = (*VERSIONED_PACKAGES, "scipy", "rliable")
+
+
+def command_line(
+    suite: SystemSuite, observer: str, controller: str, episodes: int,
+    observer_options: Mapping[str, Any], controller_options: Mapping[str, Any],
+) -> str:  # fmt: skip
+    """The ``observer-gym benchmark`` command that computes a run's numbers again (add
+    ``--out DIR``; workers and backend do not change them)."""
+    words = ["observer-gym", "benchmark", "--env", suite.system.short_id,
+             "--observer", observer, "--controller", controller]  # fmt: skip
+    for kind, options in (("observer", observer_options), ("controller", controller_options)):
+        for key, value in options.items():
+            words += [
+                f"--{kind}-option",
+                f"{key}={value!r}" if isinstance(value, str) else f"{key}={value}",
+            ]
+    if suite.version != DEFAULT_VERSION:
+        words += ["--suite", suite.version]
+    if episodes != suite.episodes:
+        words += ["--episodes", str(episodes)]
+    return " ".join(shlex.quote(word) for word in words)
 
 
 def versions() -> dict[str, str]:
@@ -61,7 +83,8 @@ def scores_document(
     package_versions: Mapping[str, str],
 ) -> tuple[dict[str, Any], Scores]:
     """What ``scores.json`` holds (JSON types) and the :class:`Scores` it shows.
-    ``entry``: ``observer``, ``controller``, ``episodes`` (per level), ``command``."""
+    ``entry``: ``observer``, ``controller``, ``observer_options``, ``controller_options``,
+    ``episodes`` (per level); the command is derived from them (:func:`command_line`)."""
     scores = score_levels(values_by_level(suite, records), suite.references, suite.metric.better)
     episodes = entry["episodes"]
     document = {
@@ -69,7 +92,16 @@ def scores_document(
         "env": suite.env_id,
         "observer": entry["observer"],
         "controller": entry["controller"],
-        "command": entry["command"],
+        "observer_options": dict(entry["observer_options"]),
+        "controller_options": dict(entry["controller_options"]),
+        "command": command_line(
+            suite,
+            entry["observer"],
+            entry["controller"],
+            episodes,
+            entry["observer_options"],
+            entry["controller_options"],
+        ),
         "official": episodes == suite.episodes,
         "episodes_per_level": episodes,
         "metric": suite.metric._asdict(),
@@ -192,8 +224,9 @@ def write_outputs(
     entry = {
         "observer": request.observer,
         "controller": request.controller,
+        "observer_options": request.observer_options,
+        "controller_options": request.controller_options,
         "episodes": request.episodes,
-        "command": request.command(),
     }
     document, scores = scores_document(suite, entry, records, versions())
     text = table_markdown(suite, document)

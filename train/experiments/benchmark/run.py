@@ -37,6 +37,7 @@ from observer_gym.train.experiments.benchmark.levels import (
 from observer_gym.train.experiments.benchmark.records import EpisodeRecord, metric_value
 from observer_gym.train.experiments.benchmark.report import (
     BENCHMARK_JSON,
+    command_line,
     write_outputs,
 )
 from observer_gym.train.experiments.benchmark.score import Scores
@@ -108,21 +109,10 @@ class BenchmarkRequest(NamedTuple):
 
     def command(self) -> str:
         """The command line that computes these numbers again (add ``--out DIR``)."""
-        words = [
-            "observer-gym",
-            "benchmark",
-            "--env",
-            self.suite.system.short_id,
-            "--observer",
-            self.observer,
-            "--controller",
-            self.controller,
-        ]
-        if self.suite.version != DEFAULT_VERSION:
-            words += ["--suite", self.suite.version]
-        if not self.official:
-            words += ["--episodes", str(self.episodes)]
-        return " ".join(words)
+        return command_line(
+            self.suite, self.observer, self.controller, self.episodes,
+            self.observer_options, self.controller_options,
+        )  # fmt: skip
 
 
 class BenchmarkResult(NamedTuple):
