@@ -319,7 +319,16 @@ def test_mistakes_are_found_before_the_heavy_imports(case, runs, tmp_path):
     [
         *(
             [command]
-            for command in ("demo", "run", "compare", "sweep", "train", "evaluate", "reproduce")
+            for command in (
+                "demo",
+                "run",
+                "compare",
+                "sweep",
+                "train",
+                "evaluate",
+                "benchmark",
+                "reproduce",
+            )
         ),
         [],
         ["reproduce", "linderoth2010"],

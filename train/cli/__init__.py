@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from importlib import metadata
 
 from observer_gym.train.cli import (
+    benchmark,
     compare,
     demo,
     evaluate,
@@ -40,6 +41,7 @@ COMMANDS = {
     "sweep": sweep.COMMAND,
     "train": train.COMMAND,
     "evaluate": evaluate.COMMAND,
+    "benchmark": benchmark.COMMAND,
     "list": listing.COMMAND,
     "reproduce": reproduce.COMMAND,
 }

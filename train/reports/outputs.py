@@ -291,12 +291,15 @@ def remove_if_empty(created: Sequence[Path]) -> None:
 
 
 def folder_kind(path: str | os.PathLike) -> str | None:
-    """Which command's results ``path`` holds, from the files they leave: "sweep"
+    """Which command's results ``path`` holds, from the files they leave: "benchmark"
+    (``benchmark.json``), "sweep"
     (``sweep.json`` or ``cells/``), "train" (a run's ``config.json``, or ``seeds.json`` of
     ``train --seeds``), "compare" (a ``results.json`` with pairs), "run" (one of ``run`` or
     ``evaluate``), "demo" (``summary.json``); None for a new or empty folder, or one
     holding none of these."""
     path = Path(path)
+    if (path / "benchmark.json").exists():
+        return "benchmark"
     if (path / "sweep.json").exists() or (path / "cells").is_dir():
         return "sweep"
     if (path / "config.json").exists() or (path / "seeds.json").exists():

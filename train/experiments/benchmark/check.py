@@ -1,0 +1,162 @@
+"""``observer-gym benchmark --check DIR``: whether a benchmark folder's scores are what
+its per-episode records and the suite's definition give.
+
+:func:`check_folder` reads ``scores.json`` and ``episodes.csv``, checks the suite version
+(a shipped one), the levels, their env options and seeds (the suite's, first to last),
+the episode count (the suite's for an official run), the package versions recorded (this
+installation's), that every level has every episode, and then derives ``scores.json``
+and ``table.md`` again from ``episodes.csv`` and the suite
+(:func:`~observer_gym.train.experiments.benchmark.report.scores_document`). The first
+difference raises :class:`FolderCheckError` with one line naming it. It finds an edited
+value, seed or score, a missing episode or file; it is no signature (whoever edits the
+records and writes every derived number again is not caught).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, read_csv
+from observer_gym.train.experiments.benchmark.report import (
+    SCORES_JSON,
+    TABLE_MD,
+    scores_document,
+    table_markdown,
+    versions,
+)
+from observer_gym.train.experiments.benchmark.suite import load_suite
+
+
+class FolderCheckError(ValueError):
+    """A benchmark folder that is not what its records and the suite give: one line."""
+
+
+def _first_difference(recorded: Any, derived: Any, where: str) -> str | None:
+    """Where ``recorded`` and ``derived`` (JSON values) first differ, with both values;
+    None if they agree (numbers exactly)."""
+    if isinstance(recorded, bool) or isinstance(derived, bool):
+        same = recorded is derived
+    elif isinstance(recorded, int | float) and isinstance(derived, int | float):
+        same = float(recorded) == float(derived)
+    elif isinstance(recorded, dict) and isinstance(derived, dict):
+        for key in dict.fromkeys([*derived, *recorded]):
+            if key not in recorded or key not in derived:
+                side = "missing" if key not in recorded else "not expected"
+                return f"{where}.{key} is {side}"
+            found = _first_difference(recorded[key], derived[key], f"{where}.{key}")
+            if found:
+                return found
+        return None
+    elif isinstance(recorded, list) and isinstance(derived, list):
+        if len(recorded) != len(derived):
+            return f"{where} has {len(recorded)} entries, the re-derived {len(derived)}"
+        for i, (a, b) in enumerate(zip(recorded, derived, strict=True)):
+            found = _first_difference(a, b, f"{where}[{i}]")
+            if found:
+                return found
+        return None
+    else:
+        same = recorded == derived
+    return None if same else f"{where} is {_short(recorded)}, re-derived {_short(derived)}"
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def check_folder(folder: str | Path) -> str:
+    """A one-line confirmation if ``folder`` checks out (see the module docstring).
+
+    Raises:
+        FolderCheckError: one line naming the first thing that differs.
+    """
+    folder = Path(folder)
+    path = folder / SCORES_JSON
+    if not path.is_file():
+        raise FolderCheckError(f"{folder} has no {SCORES_JSON}: not a finished benchmark folder")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        version, env, episodes = doc["suite"], doc["env"], doc["episodes_per_level"]
+        levels = doc["levels"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise FolderCheckError(f"{path} cannot be read as a benchmark's scores: {exc!r}") from None
+    try:
+        suite = load_suite(str(env), str(version))
+    except ValueError as exc:
+        raise FolderCheckError(f"{path}: {exc}") from None
+    if (
+        isinstance(episodes, bool)
+        or not isinstance(episodes, int)
+        or not (1 <= episodes <= suite.episodes)
+    ):
+        raise FolderCheckError(
+            f"{path}: episodes_per_level is {episodes!r}; suite {version} allows 1 to "
+            f"{suite.episodes}"
+        )
+    names = [row.get("level") if isinstance(row, dict) else None for row in levels]
+    if names != [level.name for level in suite.levels]:
+        raise FolderCheckError(
+            f"{path}: its levels are {names}, suite {version}'s are "
+            f"{[level.name for level in suite.levels]}"
+        )
+    for row, level in zip(levels, suite.levels, strict=True):
+        if row.get("seeds") != level.seeds(episodes):
+            raise FolderCheckError(
+                f"{path}: level {level.name!r}'s seeds are not suite {version}'s "
+                f"{level.seed_start} to {level.seed_start + episodes - 1}"
+            )
+    recorded_packages = doc.get("packages")
+    here = versions()
+    if not isinstance(recorded_packages, dict):
+        raise FolderCheckError(f"{path}: no package versions recorded")
+    for name, version_here in here.items():
+        if recorded_packages.get(name) != version_here:
+            raise FolderCheckError(
+                f"{path}: package {name} is {recorded_packages.get(name)!r} in the folder, "
+                f"{version_here!r} here"
+            )
+    try:
+        records = read_csv(folder / EPISODES_CSV, suite.metric.name)
+    except ValueError as exc:
+        raise FolderCheckError(str(exc)) from None
+    for level in suite.levels:
+        rows = [r for r in records if r.level == level.name]
+        if len(rows) != episodes:
+            raise FolderCheckError(
+                f"{folder / EPISODES_CSV}: level {level.name!r} has {len(rows)} episodes, "
+                f"not {episodes}"
+            )
+        for i, (row, seed) in enumerate(zip(rows, level.seeds(episodes), strict=True)):
+            if row.episode != i or row.seed != seed:
+                raise FolderCheckError(
+                    f"{folder / EPISODES_CSV}: level {level.name!r}'s row {i} is episode "
+                    f"{row.episode}, seed {row.seed}; the suite's episode {i} has seed {seed}"
+                )
+    extra = sorted({r.level for r in records} - {level.name for level in suite.levels})
+    if extra:
+        raise FolderCheckError(f"{folder / EPISODES_CSV}: level {extra[0]!r} is not in the suite")
+    entry = {key: doc.get(key) for key in ("observer", "controller")}
+    for key in ("observer_options", "controller_options"):
+        options = doc.get(key)
+        if not isinstance(options, dict):
+            raise FolderCheckError(f"{path}: {key} is {_short(options)}, not a table of options")
+        entry[key] = options
+    if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
+        raise FolderCheckError(f"{path}: observer and controller must be names")
+    derived, _ = scores_document(suite, {**entry, "episodes": episodes}, records, recorded_packages)
+    difference = _first_difference(doc, derived, "scores.json")
+    if difference:
+        raise FolderCheckError(f"{folder}: {difference}")
+    table = folder / TABLE_MD
+    if not table.is_file() or table.read_text(encoding="utf-8") != table_markdown(suite, derived):
+        raise FolderCheckError(f"{table} is missing or not the table of {SCORES_JSON}")
+    status = "official" if derived["official"] else "unofficial"
+    return (
+        f"{folder}: OK, suite {version} {suite.system.short_id}, {derived['observer']} + "
+        f"{derived['controller']}, {len(suite.levels)} levels x {episodes} episodes "
+        f"({status}), IQM {derived['aggregate']['iqm']:.3f} "
+        f"[{derived['aggregate']['low']:.3f}, {derived['aggregate']['high']:.3f}] re-derived"
+    )

@@ -1,0 +1,304 @@
+"""``observer-gym benchmark``: one entry (observer + controller) on every level of its
+system's suite, scored, resumable.
+
+:func:`check_benchmark` resolves the request once (the entries by name, import path or
+entry point, as ``compare`` and ``sweep`` take them:
+:func:`~observer_gym.train.experiments.request.resolve_request`) against the suite
+(:func:`~observer_gym.train.experiments.benchmark.suite.load_suite`). :func:`run_benchmark`
+runs every level's episodes (episode i of a level resets with its i-th fixed seed), in
+worker processes or as Ray tasks, under the output folder's lock
+(:func:`~observer_gym.train.reports.outputs.output_folder`), writes each finished level
+at once to ``levels/<level>.json`` (:mod:`~observer_gym.train.experiments.benchmark.levels`),
+and assembles the outputs from the level files alone
+(:mod:`~observer_gym.train.experiments.benchmark.report`): a resumed run writes the
+numbers of an uninterrupted one. ``--episodes N`` below the suite's count runs the first
+N seeds of each level and is marked unofficial.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from collections.abc import Generator, Mapping, Sequence
+from contextlib import closing
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from tqdm import tqdm
+
+from observer_gym.train.experiments.benchmark.levels import (
+    LEVELS_DIR,
+    BenchmarkWarning,
+    level_file,
+    level_problem,
+    plan_digest,
+)
+from observer_gym.train.experiments.benchmark.records import EpisodeRecord, metric_value
+from observer_gym.train.experiments.benchmark.report import (
+    BENCHMARK_JSON,
+    command_line,
+    write_outputs,
+)
+from observer_gym.train.experiments.benchmark.score import Scores
+from observer_gym.train.experiments.benchmark.suite import (
+    DEFAULT_VERSION,
+    Level,
+    SystemSuite,
+    load_suite,
+)
+from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
+from observer_gym.train.experiments.request import resolve_request
+from observer_gym.train.experiments.sweep import sweep_episode
+from observer_gym.train.reports.outputs import (
+    OutputFolderError,
+    check_folder_kind,
+    output_folder,
+    write_json_atomic,
+)
+
+
+class BenchmarkRequest(NamedTuple):
+    """A checked ``benchmark`` request."""
+
+    suite: SystemSuite
+    observer: str
+    controller: str
+    episodes: int  # per level
+    workers: int
+    backend: str
+    address: str | None
+    observer_options: dict[str, Any]
+    controller_options: dict[str, Any]
+
+    @property
+    def official(self) -> bool:
+        """Whether the run uses the suite's full episode count on every level."""
+        return self.episodes == self.suite.episodes
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the run's numbers (``benchmark.json`` holds it; JSON types)."""
+        return {
+            "suite": self.suite.version,
+            "env": self.suite.env_id,
+            "observer": self.observer,
+            "controller": self.controller,
+            "observer_options": self.observer_options,
+            "controller_options": self.controller_options,
+            "episodes": self.episodes,
+            "official": self.official,
+            "levels": {level.name: level.env_options for level in self.suite.levels},
+        }
+
+    def digest(self) -> str:
+        return plan_digest(self.identity())
+
+    def specs(self, level: Level) -> list[EpisodeSpec]:
+        return [
+            EpisodeSpec.of(
+                self.suite.env_id,
+                self.observer,
+                self.controller,
+                seed,
+                env_kwargs=level.env_options,
+                observer_options=self.observer_options,
+                controller_options=self.controller_options,
+            )
+            for seed in level.seeds(self.episodes)
+        ]
+
+    def command(self) -> str:
+        """The command line that computes these numbers again (add ``--out DIR``)."""
+        return command_line(
+            self.suite, self.observer, self.controller, self.episodes,
+            self.observer_options, self.controller_options,
+        )  # fmt: skip
+
+
+class BenchmarkResult(NamedTuple):
+    """What :func:`run_benchmark` did."""
+
+    out_dir: Path
+    scores: Scores
+    official: bool
+    reused: tuple[str, ...]  # the levels reused from the folder
+    text: str  # the table
+
+
+def check_benchmark(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    version: str = DEFAULT_VERSION,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+) -> BenchmarkRequest:
+    """The checked request; ValueError naming what is wrong and what is allowed (the
+    suite, the entries, ``episodes`` from 1 to the suite's count, workers, backend)."""
+    suite = load_suite(env_id, version)
+    if episodes is None:
+        episodes = suite.episodes
+    if (
+        isinstance(episodes, bool)
+        or not isinstance(episodes, int)
+        or not (1 <= episodes <= suite.episodes)
+    ):
+        raise ValueError(
+            f"episodes must be an integer from 1 to the suite's {suite.episodes} per level "
+            f"(fewer: an unofficial run), got {episodes!r}"
+        )
+    request = resolve_request(
+        suite.env_id,
+        [observer],
+        [controller],
+        suite.levels[0].seeds(episodes),
+        workers=workers,
+        backend=backend,
+        address=address,
+        observer_options=observer_options,
+        controller_options=controller_options,
+    )
+    if request.seed_groups:
+        raise ValueError(
+            f"controller {controller!r} is a multi-seed agent folder; benchmark one seed's "
+            f"agent at a time: {', '.join(request.seed_groups[controller])}"
+        )
+    return BenchmarkRequest(
+        suite,
+        observer,
+        controller,
+        episodes,
+        workers,
+        backend,
+        address,
+        request.observer(observer).options,
+        request.controller(controller).options,
+    )
+
+
+def check_out_dir(out_dir: Path, request: BenchmarkRequest) -> None:
+    """OutputFolderError unless ``out_dir`` is new, empty, or holds this same run."""
+    check_folder_kind(out_dir, "benchmark")
+    path = out_dir / BENCHMARK_JSON
+    if not path.exists():
+        return
+    try:
+        recorded = json.loads(path.read_text(encoding="utf-8")).get("identity")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    if recorded != json.loads(json.dumps(request.identity())):
+        raise OutputFolderError(
+            f"{out_dir} holds another benchmark run (its {BENCHMARK_JSON} differs); use "
+            "another output folder, or the same arguments to resume it"
+        )
+
+
+def _finished_levels(out_dir: Path, request: BenchmarkRequest) -> dict[str, dict[str, Any]]:
+    """The level files in ``out_dir`` that are this run's levels as written; a
+    :class:`BenchmarkWarning` for each other one (it runs again)."""
+    finished = {}
+    for level in request.suite.levels:
+        path = out_dir / LEVELS_DIR / f"{level.name}.json"
+        if not path.exists():
+            continue
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            data = None
+        problem = level_problem(data, request.digest(), level.name, level.seeds(request.episodes))
+        if problem is None:
+            finished[level.name] = data
+        else:
+            warnings.warn(
+                BenchmarkWarning(f"level {level.name!r} in {path} runs again: {problem}"),
+                stacklevel=2,
+            )
+    return finished
+
+
+def _episodes(
+    request: BenchmarkRequest, specs: Sequence[EpisodeSpec]
+) -> Generator[tuple[int, Any], None, None]:
+    if request.backend == "ray":
+        from observer_gym.train.experiments.ray_backend import iter_episodes_ray  # imports Ray
+
+        return iter_episodes_ray(specs, request.address, sweep_episode)
+    return iter_episodes(specs, request.workers, sweep_episode)
+
+
+def _run_levels(
+    out_dir: Path, request: BenchmarkRequest, levels: Sequence[Level], progress: bool
+) -> dict[str, dict[str, Any]]:
+    """Run every episode of ``levels`` in one batch; write each level's file as soon as
+    its last episode is in; the level files' contents by name."""
+    specs, owner = [], []
+    for k, level in enumerate(levels):
+        for i, spec in enumerate(request.specs(level)):
+            specs.append(spec)
+            owner.append((k, i))
+    if not specs:
+        return {}
+    (out_dir / LEVELS_DIR).mkdir(exist_ok=True)
+    n = request.episodes
+    values: list[list[float]] = [[0.0] * n for _ in levels]
+    times: list[list[float]] = [[0.0] * n for _ in levels]
+    missing = [n] * len(levels)
+    metric = request.suite.metric.name
+    written = {}
+    bar = tqdm(total=len(specs), unit="episode", desc="benchmark", disable=not progress)
+    with bar, closing(_episodes(request, specs)) as episodes:
+        for index, episode in episodes:
+            k, i = owner[index]
+            where = f"level {levels[k].name!r}, episode {i} (seed {specs[index].seed})"
+            values[k][i] = metric_value(episode["metrics"].get(metric), metric, where)
+            times[k][i] = episode["time_s"]
+            missing[k] -= 1
+            if missing[k] == 0:
+                level = levels[k]
+                data = level_file(request.digest(), level.name, level.seeds(n), values[k], times[k])
+                write_json_atomic(out_dir / LEVELS_DIR / f"{level.name}.json", data)
+                written[level.name] = data
+            bar.update(1)
+    return written
+
+
+def run_benchmark(
+    request: BenchmarkRequest,
+    out_dir: str | Path,
+    progress: bool = True,
+    cli_args: Mapping[str, Any] | None = None,
+) -> BenchmarkResult:
+    """Run (or resume) ``request`` into ``out_dir``; see the module docstring.
+
+    Raises:
+        OutputFolderError: ``out_dir`` holds other results.
+        FolderBusyError: another command holds ``out_dir``.
+        ValueError: an episode failed (naming it and its seed), or had no headline value.
+    """
+    out_dir = Path(out_dir)
+    tic_s = time.perf_counter()
+    with output_folder(out_dir, "benchmark", check=lambda p: check_out_dir(p, request)):
+        write_json_atomic(
+            out_dir / BENCHMARK_JSON,
+            {
+                "identity": request.identity(),
+                "command": request.command(),
+                "arguments": dict(cli_args or {}),
+            },
+        )
+        finished = _finished_levels(out_dir, request)
+        todo = [level for level in request.suite.levels if level.name not in finished]
+        levels = {**finished, **_run_levels(out_dir, request, todo, progress)}
+        records = [
+            EpisodeRecord(level.name, i, seed, value)
+            for level in request.suite.levels
+            for i, (seed, value) in enumerate(
+                zip(levels[level.name]["seeds"], levels[level.name]["values"], strict=True)
+            )
+        ]
+        scores, text = write_outputs(out_dir, request, records, time.perf_counter() - tic_s)
+    return BenchmarkResult(out_dir, scores, request.official, tuple(finished), text)
