@@ -13,14 +13,14 @@ levels) with its interval, whether the run is official, and the sha256 of
 from __future__ import annotations
 
 import hashlib
-import shlex
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, EpisodeRecord, csv_text
+from observer_gym.train.experiments.benchmark.request import BenchmarkRequest, command_line
 from observer_gym.train.experiments.benchmark.score import METHOD, Scores, score_levels
-from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, SystemSuite
+from observer_gym.train.experiments.benchmark.suite import SystemSuite
 from observer_gym.train.reports.outputs import (
     VERSIONED_PACKAGES,
     format_table,
@@ -29,36 +29,12 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 
-if TYPE_CHECKING:
-    from observer_gym.train.experiments.benchmark.run import BenchmarkRequest
-
 BENCHMARK_JSON = "benchmark.json"
 SCORES_JSON = "scores.json"
 TABLE_MD = "table.md"
 SCORES_PNG = "scores.png"
 TIMING_JSON = "timing.json"
 PACKAGES = (*VERSIONED_PACKAGES, "scipy", "rliable")
-
-
-def command_line(
-    suite: SystemSuite, observer: str, controller: str, episodes: int,
-    observer_options: Mapping[str, Any], controller_options: Mapping[str, Any],
-) -> str:  # fmt: skip
-    """The ``observer-gym benchmark`` command that computes a run's numbers again (add
-    ``--out DIR``; workers and backend do not change them)."""
-    words = ["observer-gym", "benchmark", "--env", suite.system.short_id,
-             "--observer", observer, "--controller", controller]  # fmt: skip
-    for kind, options in (("observer", observer_options), ("controller", controller_options)):
-        for key, value in options.items():
-            words += [
-                f"--{kind}-option",
-                f"{key}={value!r}" if isinstance(value, str) else f"{key}={value}",
-            ]
-    if suite.version != DEFAULT_VERSION:
-        words += ["--suite", suite.version]
-    if episodes != suite.episodes:
-        words += ["--episodes", str(episodes)]
-    return " ".join(shlex.quote(word) for word in words)
 
 
 def versions() -> dict[str, str]:

@@ -32,19 +32,14 @@ from observer_gym.train.experiments.benchmark.levels import (
     BenchmarkWarning,
     level_file,
     level_problem,
-    plan_digest,
 )
 from observer_gym.train.experiments.benchmark.records import EpisodeRecord, metric_value
-from observer_gym.train.experiments.benchmark.report import (
-    BENCHMARK_JSON,
-    command_line,
-    write_outputs,
-)
+from observer_gym.train.experiments.benchmark.report import BENCHMARK_JSON, write_outputs
+from observer_gym.train.experiments.benchmark.request import BenchmarkRequest
 from observer_gym.train.experiments.benchmark.score import Scores
 from observer_gym.train.experiments.benchmark.suite import (
     DEFAULT_VERSION,
     Level,
-    SystemSuite,
     load_suite,
 )
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
@@ -56,63 +51,6 @@ from observer_gym.train.reports.outputs import (
     output_folder,
     write_json_atomic,
 )
-
-
-class BenchmarkRequest(NamedTuple):
-    """A checked ``benchmark`` request."""
-
-    suite: SystemSuite
-    observer: str
-    controller: str
-    episodes: int  # per level
-    workers: int
-    backend: str
-    address: str | None
-    observer_options: dict[str, Any]
-    controller_options: dict[str, Any]
-
-    @property
-    def official(self) -> bool:
-        """Whether the run uses the suite's full episode count on every level."""
-        return self.episodes == self.suite.episodes
-
-    def identity(self) -> dict[str, Any]:
-        """What decides the run's numbers (``benchmark.json`` holds it; JSON types)."""
-        return {
-            "suite": self.suite.version,
-            "env": self.suite.env_id,
-            "observer": self.observer,
-            "controller": self.controller,
-            "observer_options": self.observer_options,
-            "controller_options": self.controller_options,
-            "episodes": self.episodes,
-            "official": self.official,
-            "levels": {level.name: level.env_options for level in self.suite.levels},
-        }
-
-    def digest(self) -> str:
-        return plan_digest(self.identity())
-
-    def specs(self, level: Level) -> list[EpisodeSpec]:
-        return [
-            EpisodeSpec.of(
-                self.suite.env_id,
-                self.observer,
-                self.controller,
-                seed,
-                env_kwargs=level.env_options,
-                observer_options=self.observer_options,
-                controller_options=self.controller_options,
-            )
-            for seed in level.seeds(self.episodes)
-        ]
-
-    def command(self) -> str:
-        """The command line that computes these numbers again (add ``--out DIR``)."""
-        return command_line(
-            self.suite, self.observer, self.controller, self.episodes,
-            self.observer_options, self.controller_options,
-        )  # fmt: skip
 
 
 class BenchmarkResult(NamedTuple):

@@ -1,0 +1,92 @@
+"""A checked ``observer-gym benchmark`` request, and the command line that computes its
+numbers again: what the runner (run.py) and the outputs (report.py) share."""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+from observer_gym.train.experiments.benchmark.levels import plan_digest
+from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
+from observer_gym.train.experiments.episode import EpisodeSpec
+
+__all__ = ["BenchmarkRequest", "command_line"]
+
+
+def command_line(
+    suite: SystemSuite, observer: str, controller: str, episodes: int,
+    observer_options: Mapping[str, Any], controller_options: Mapping[str, Any],
+) -> str:  # fmt: skip
+    """The ``observer-gym benchmark`` command that computes a run's numbers again (add
+    ``--out DIR``; workers and backend do not change them)."""
+    words = ["observer-gym", "benchmark", "--env", suite.system.short_id,
+             "--observer", observer, "--controller", controller]  # fmt: skip
+    for kind, options in (("observer", observer_options), ("controller", controller_options)):
+        for key, value in options.items():
+            words += [
+                f"--{kind}-option",
+                f"{key}={value!r}" if isinstance(value, str) else f"{key}={value}",
+            ]
+    if suite.version != DEFAULT_VERSION:
+        words += ["--suite", suite.version]
+    if episodes != suite.episodes:
+        words += ["--episodes", str(episodes)]
+    return " ".join(shlex.quote(word) for word in words)
+
+
+class BenchmarkRequest(NamedTuple):
+    """A checked ``benchmark`` request."""
+
+    suite: SystemSuite
+    observer: str
+    controller: str
+    episodes: int  # per level
+    workers: int
+    backend: str
+    address: str | None
+    observer_options: dict[str, Any]
+    controller_options: dict[str, Any]
+
+    @property
+    def official(self) -> bool:
+        """Whether the run uses the suite's full episode count on every level."""
+        return self.episodes == self.suite.episodes
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the run's numbers (``benchmark.json`` holds it; JSON types)."""
+        return {
+            "suite": self.suite.version,
+            "env": self.suite.env_id,
+            "observer": self.observer,
+            "controller": self.controller,
+            "observer_options": self.observer_options,
+            "controller_options": self.controller_options,
+            "episodes": self.episodes,
+            "official": self.official,
+            "levels": {level.name: level.env_options for level in self.suite.levels},
+        }
+
+    def digest(self) -> str:
+        return plan_digest(self.identity())
+
+    def specs(self, level: Level) -> list[EpisodeSpec]:
+        return [
+            EpisodeSpec.of(
+                self.suite.env_id,
+                self.observer,
+                self.controller,
+                seed,
+                env_kwargs=level.env_options,
+                observer_options=self.observer_options,
+                controller_options=self.controller_options,
+            )
+            for seed in level.seeds(self.episodes)
+        ]
+
+    def command(self) -> str:
+        """The command line that computes these numbers again (add ``--out DIR``)."""
+        return command_line(
+            self.suite, self.observer, self.controller, self.episodes,
+            self.observer_options, self.controller_options,
+        )  # fmt: skip
