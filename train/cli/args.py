@@ -188,6 +188,36 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
 
 
+def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--workers W``, ``--backend {local,ray}`` and ``--address ADDR``: where the episodes
+    of ``compare``, ``sweep`` and ``benchmark`` run (the results do not depend on it)."""
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        default=1,
+        metavar="W",
+        help="local backend: run episodes in W processes; results are identical (default: 1)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help=(
+            "local: this machine's processes; ray: Ray tasks, same results "
+            "(pip install 'observer-gym[distributed]') (default: %(default)s)"
+        ),
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help=(
+            "with --backend ray: the Ray cluster to use ('auto' for the one 'ray start' set "
+            "up here, or HOST:PORT) (default: start a local Ray instance)"
+        ),
+    )
+
+
 def controller_name(text: str) -> str:
     """argparse type: a controller of some system, a trained agent ``ALGO:DIR``, a
     stable-baselines3 zip ``ALGO:PATH.zip`` or an outside controller (an import path or an

@@ -20,6 +20,7 @@ from observer_gym.train.cli.args import (
     PER_ENV,
     TRUST_HELP,
     Command,
+    add_backend_arguments,
     add_entry_option_arguments,
     env_name,
     error_line,
@@ -75,25 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="output folder; the same command again resumes it (its finished levels are "
         "checked and reused)",
     )
-    parser.add_argument(
-        "--workers",
-        type=positive_int,
-        default=1,
-        metavar="W",
-        help="local backend: run episodes in W processes; same results (default: 1)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="local processes or Ray tasks, same results (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--address",
-        default=None,
-        metavar="ADDR",
-        help="with --backend ray: the cluster ('auto' or HOST:PORT) (default: a local instance)",
-    )
+    add_backend_arguments(parser)
     parser.add_argument(
         "--check",
         type=folder_path,

@@ -19,6 +19,7 @@ from observer_gym.train.cli.args import (
     PER_ENV,
     TRUST_HELP,
     Command,
+    add_backend_arguments,
     add_entry_option_arguments,
     add_env_option_argument,
     add_output_arguments,
@@ -97,31 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help="explicit seeds, one episode each: 0-9, 3,7,20-24 (instead of --episodes/--seed)",
     )
-    parser.add_argument(
-        "--workers",
-        type=positive_int,
-        default=1,
-        metavar="W",
-        help="local backend: run episodes in W processes; results are identical (default: 1)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help=(
-            "local: this machine's processes; ray: Ray tasks, same results "
-            "(pip install 'observer-gym[distributed]') (default: %(default)s)"
-        ),
-    )
-    parser.add_argument(
-        "--address",
-        default=None,
-        metavar="ADDR",
-        help=(
-            "with --backend ray: the Ray cluster to use ('auto' for the one 'ray start' set "
-            "up here, or HOST:PORT) (default: start a local Ray instance)"
-        ),
-    )
+    add_backend_arguments(parser)
     parser.add_argument(
         "--steps",
         type=positive_int,
