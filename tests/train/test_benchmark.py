@@ -159,6 +159,11 @@ def test_a_second_run_reuses_the_finished_levels(folder, tmp_path):
         (["--env", ENV, "--observer", "nope", "--controller", CONTROLLER], "nope"),
         (["--env", ENV, "--observer", OBSERVER, "--controller", "lqr"], "lqr"),
         (["--check", "x", "--env", ENV], "--check takes no --env"),
+        (["--env", ENV, "--policy", "ppo:ball_catcher-estimate", "--controller", CONTROLLER],
+         "give --controller or --policy, not both"),
+        (["--env", ENV, "--policy", CONTROLLER], "is not a trained agent"),
+        (["--env", ENV, "--policy", "ppo:no/such/run"], "no/such/run"),
+        (["--check", "x", "--policy", "ppo:ball_catcher-estimate"], "--check takes no --policy"),
     ],
 )  # fmt: skip
 def test_a_mistake_is_one_line_and_exit_code_2(argv, message, tmp_path, capsys):
@@ -236,3 +241,33 @@ def test_folders_of_other_commands_are_refused_both_ways(folder, tmp_path, capsy
     capsys.readouterr()
     assert main([*ARGV, "--out", str(other)]) == 2
     assert "holds 'observer-gym run' results" in capsys.readouterr().err
+
+
+def test_a_policy_enters_with_its_observer_and_its_env_options(tmp_path, capsys):
+    """--policy takes the agent's training observer and env options (the shipped
+    BallCatcher agent: kf-measurements, shaping_weight 5); --check re-derives them."""
+    out = tmp_path / "policy"
+    argv = ["benchmark", "--env", ENV, "--policy", "ppo:ball_catcher-estimate",
+            "--episodes", "1", "--no-progress", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["observer"] == "kf-measurements"
+    assert scores["controller"] == "ppo:ball_catcher-estimate"
+    assert scores["agent_env_options"] == {"shaping_weight": 5.0}
+    request = check_benchmark(ENV, "kf-measurements", "ppo:ball_catcher-estimate", episodes=1)
+    field = request.suite.level("field")
+    (spec,) = request.specs(field)
+    # the level's sensor options over the agent's own
+    assert spec.env_kwargs == {"shaping_weight": 5.0, **field.env_options}
+    capsys.readouterr()
+    assert main(["benchmark", "--check", str(out)]) == 0
+    doc = json.loads((out / "scores.json").read_text())
+    doc["agent_env_options"] = {"shaping_weight": 1.0}
+    (out / "scores.json").write_text(json.dumps(doc))
+    with pytest.raises(FolderCheckError, match="shaping_weight"):
+        check_folder(out)
+
+
+def test_a_classical_entry_records_no_agent_env_options(folder):
+    assert "agent_env_options" not in json.loads((folder / "scores.json").read_text())
+    assert "agent_env_options" not in check_benchmark(ENV, OBSERVER, CONTROLLER, 1).identity()

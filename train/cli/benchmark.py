@@ -56,6 +56,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             + OUTSIDE_CONTROLLERS_HELP
         ),
     )
+    parser.add_argument(
+        "--policy",
+        default=None,
+        metavar="ALGO:DIR",
+        help="a trained agent as the entry (one seed's run, or ALGO:NAME of a shipped "
+        "agent), in place of --controller: it reads the observer it was trained on unless "
+        "--observer is given, and gets the env options it was trained with (image size, "
+        "reward shaping) under each level's options",
+    )
     add_entry_option_arguments(parser)
     parser.add_argument(
         "--suite", default="v1", metavar="VERSION", help="the suite version (default: %(default)s)"
@@ -96,7 +105,7 @@ def _error(message: object) -> int:
 def _check(args: argparse.Namespace) -> int:
     given = [
         f"--{k}"
-        for k in ("env", "observer", "controller", "out", "episodes")
+        for k in ("env", "observer", "controller", "policy", "out", "episodes")
         if getattr(args, k) is not None
     ]
     if given:
@@ -117,11 +126,23 @@ def run(args: argparse.Namespace) -> int:
     check out, 130 for Ctrl-C or SIGTERM (the finished levels are kept)."""
     if args.check is not None:
         return _check(args)
+    if args.policy is not None:
+        if args.controller is not None:
+            return _error("give --controller or --policy, not both: both name the entry's actor")
+        from observer_gym.train.experiments.benchmark.run import agent_entry
+
+        try:
+            trained_on = agent_entry(args.policy).observer
+        except ValueError as exc:
+            return _error(exc)
+        args.controller = args.policy
+        if args.observer is None:
+            args.observer = trained_on
     missing = [
         f"--{k}" for k in ("env", "observer", "controller", "out") if getattr(args, k) is None
     ]
     if missing:
-        return _error(f"{', '.join(missing)} required (or --check DIR)")
+        return _error(f"{', '.join(missing)} required (or --policy ALGO:DIR, or --check DIR)")
     from observer_gym.train.cli.compare import check_pairs
 
     try:
@@ -181,7 +202,8 @@ COMMAND = Command(
     help="score one observer + controller on every sensor level of a system's benchmark suite",
     description=(
         "Run one entry (--observer and --controller, by name, import path or entry point; "
-        "a trained agent as --controller ALGO:DIR) on every level of the system's "
+        "a trained agent as --policy ALGO:DIR, with the observer it was trained on) on every "
+        "level of the system's "
         "benchmark suite (--suite, default v1: ideal, lab, field; docs/benchmark.md), on "
         "the suite's fixed seeds, locally in worker processes (--workers) or as Ray tasks. "
         "Writes episodes.csv (one row per episode), scores.json (per level the headline "

@@ -67,8 +67,29 @@ def _short(value: Any) -> str:
     return text if len(text) <= 120 else text[:117] + "..."
 
 
-def check_folder(folder: str | Path) -> str:
+def _agent_options_problem(controller: str, recorded: dict[str, Any]) -> str | None:
+    """Where the recorded agent env options differ from the agent's own config, if the
+    agent (``ALGO:DIR`` or a shipped ``ALGO:NAME``) is on this machine; None otherwise."""
+    from observer_gym.train.experiments.benchmark.run import agent_entry
+
+    try:
+        trained = agent_entry(controller).env_options
+    except ValueError:  # not an agent, or not here: nothing to compare with
+        return None
+    if trained != recorded:
+        return (
+            f"agent_env_options is {_short(recorded)}, but agent {controller} was trained "
+            f"with {_short(trained)}"
+        )
+    return None
+
+
+def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     """A one-line confirmation if ``folder`` checks out (see the module docstring).
+
+    ``same_packages=False`` skips the comparison of the recorded package versions with
+    this installation's (the leaderboard, whose rows span releases, shows them instead);
+    the scores are still derived with the recorded versions.
 
     Raises:
         FolderCheckError: one line naming the first thing that differs.
@@ -113,7 +134,7 @@ def check_folder(folder: str | Path) -> str:
     if not isinstance(recorded_packages, dict):
         raise FolderCheckError(f"{path}: no package versions recorded")
     for name, version_here in here.items():
-        if recorded_packages.get(name) != version_here:
+        if same_packages and recorded_packages.get(name) != version_here:
             raise FolderCheckError(
                 f"{path}: package {name} is {recorded_packages.get(name)!r} in the folder, "
                 f"{version_here!r} here"
@@ -144,8 +165,18 @@ def check_folder(folder: str | Path) -> str:
         if not isinstance(options, dict):
             raise FolderCheckError(f"{path}: {key} is {_short(options)}, not a table of options")
         entry[key] = options
+    if "agent_env_options" in doc:
+        options = doc["agent_env_options"]
+        if not isinstance(options, dict) or not options:
+            raise FolderCheckError(
+                f"{path}: agent_env_options is {_short(options)}, not a table of options"
+            )
+        entry["agent_env_options"] = options
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
+    problem = _agent_options_problem(entry["controller"], entry.get("agent_env_options", {}))
+    if problem:
+        raise FolderCheckError(f"{path}: {problem}")
     derived, _ = scores_document(suite, {**entry, "episodes": episodes}, records, recorded_packages)
     difference = _first_difference(doc, derived, "scores.json")
     if difference:

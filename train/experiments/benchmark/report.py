@@ -60,7 +60,9 @@ def scores_document(
 ) -> tuple[dict[str, Any], Scores]:
     """What ``scores.json`` holds (JSON types) and the :class:`Scores` it shows.
     ``entry``: ``observer``, ``controller``, ``observer_options``, ``controller_options``,
-    ``episodes`` (per level); the command is derived from them (:func:`command_line`)."""
+    ``episodes`` (per level), and ``agent_env_options`` if the controller is an agent
+    trained with env options (recorded only when there are some); the command is derived
+    from them (:func:`command_line`)."""
     scores = score_levels(values_by_level(suite, records), suite.references, suite.metric.better)
     episodes = entry["episodes"]
     document = {
@@ -70,6 +72,11 @@ def scores_document(
         "controller": entry["controller"],
         "observer_options": dict(entry["observer_options"]),
         "controller_options": dict(entry["controller_options"]),
+        **(
+            {"agent_env_options": dict(entry["agent_env_options"])}
+            if entry.get("agent_env_options")
+            else {}
+        ),
         "command": command_line(
             suite,
             entry["observer"],
@@ -202,6 +209,7 @@ def write_outputs(
         "controller": request.controller,
         "observer_options": request.observer_options,
         "controller_options": request.controller_options,
+        "agent_env_options": request.agent_env_options,
         "episodes": request.episodes,
     }
     document, scores = scores_document(suite, entry, records, versions())

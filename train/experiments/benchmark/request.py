@@ -47,6 +47,9 @@ class BenchmarkRequest(NamedTuple):
     address: str | None
     observer_options: dict[str, Any]
     controller_options: dict[str, Any]
+    # a trained agent's env options (its config's env_kwargs: image size, reward
+    # shaping), under every level's options; empty for any other controller
+    agent_env_options: dict[str, Any]
 
     @property
     def official(self) -> bool:
@@ -65,6 +68,8 @@ class BenchmarkRequest(NamedTuple):
             "episodes": self.episodes,
             "official": self.official,
             "levels": {level.name: level.env_options for level in self.suite.levels},
+            # only when there are some: folders of other entries keep their identity
+            **({"agent_env_options": self.agent_env_options} if self.agent_env_options else {}),
         }
 
     def digest(self) -> str:
@@ -77,7 +82,8 @@ class BenchmarkRequest(NamedTuple):
                 self.observer,
                 self.controller,
                 seed,
-                env_kwargs=level.env_options,
+                # the level's sensor options win over the agent's own
+                env_kwargs={**self.agent_env_options, **level.env_options},
                 observer_options=self.observer_options,
                 controller_options=self.controller_options,
             )

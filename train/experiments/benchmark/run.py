@@ -105,6 +105,9 @@ def check_benchmark(
             f"controller {controller!r} is a multi-seed agent folder; benchmark one seed's "
             f"agent at a time: {', '.join(request.seed_groups[controller])}"
         )
+    agent_env_options: dict[str, Any] = {}
+    if request.controller(controller).kind == "agent":
+        agent_env_options = agent_entry(controller).env_options
     return BenchmarkRequest(
         suite,
         observer,
@@ -115,7 +118,35 @@ def check_benchmark(
         address,
         request.observer(observer).options,
         request.controller(controller).options,
+        agent_env_options,
     )
+
+
+class AgentEntry(NamedTuple):
+    """What a trained agent's folder says it needs to act as trained."""
+
+    observer: str  # the observer it was trained on ("pixels" for an rgb agent)
+    env_options: dict[str, Any]  # its env_kwargs (image size, reward shaping)
+
+
+def agent_entry(policy: str) -> AgentEntry:
+    """The observer and env options an agent ``ALGO:DIR`` (or a shipped ``ALGO:NAME``)
+    was trained with, from its config.json (checked against its recorded hash).
+
+    Raises:
+        ValueError: ``policy`` is not ``ALGO:DIR`` or names no training run.
+    """
+    from observer_gym.train.rl.run_dir import parse_agent_spec, read_config
+
+    spec = parse_agent_spec(policy)
+    if spec is None:
+        raise ValueError(
+            f"policy {policy!r} is not a trained agent; expected ALGO:DIR (one seed's run) "
+            "or ALGO:NAME of a shipped agent (observer-gym list)"
+        )
+    algo, run_dir = spec
+    config = read_config(run_dir, algo)
+    return AgentEntry(str(config["observer"]), dict(config.get("env_kwargs") or {}))
 
 
 def check_out_dir(out_dir: Path, request: BenchmarkRequest) -> None:

@@ -1,0 +1,344 @@
+"""The leaderboard of a benchmark suite, generated from published results folders.
+
+A published folder is the part of a finished, official ``observer-gym benchmark`` folder
+that its scores rest on: ``episodes.csv``, ``scores.json`` and ``table.md``
+(:data:`PUBLISHED`; no level files, timing or plot). They live under one root per suite
+version, one folder per system and entry: ``docs/results/benchmark/v1/ball_table/
+kf-measurements--lqr/``. Two commands::
+
+    # copy finished runs' published files into the root (each checked first)
+    python -m observer_gym.train.experiments.benchmark.leaderboard publish RUN_DIR... \\
+        --into docs/results/benchmark/v1
+    # docs/leaderboard.md and one figure per system from every folder under the root
+    python -m observer_gym.train.experiments.benchmark.leaderboard generate \\
+        docs/results/benchmark/v1 --out docs/leaderboard.md --figures docs/results/img
+
+``generate`` re-derives every folder's scores from its episodes and the suite, as
+``benchmark --check`` does (:func:`~observer_gym.train.experiments.benchmark.check.
+check_folder`), except that a row's package versions may differ from this installation's
+(rows span releases: the table shows the observer-gym version each was measured with),
+and refuses an unofficial folder. The page ranks each system's entries by their IQM over
+the levels; the figure draws the intervals with rliable's ``plot_interval_estimates``.
+Mistakes are one line on stderr and exit code 2; a folder that does not check out is one
+line and exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder
+from observer_gym.train.experiments.benchmark.records import EPISODES_CSV
+from observer_gym.train.experiments.benchmark.report import SCORES_JSON, TABLE_MD
+from observer_gym.train.experiments.benchmark.suite import SystemSuite, load_suite
+
+PUBLISHED = (EPISODES_CSV, SCORES_JSON, TABLE_MD)
+PROG = "python -m observer_gym.train.experiments.benchmark.leaderboard"
+AGENT_PREFIXES = ("ppo:", "sac:", "td3:")
+
+
+class Row(NamedTuple):
+    """One entry of the leaderboard: what ``scores.json`` says about it."""
+
+    folder: Path
+    suite: str  # "v1"
+    env: str  # "observer_gym/BallTable-v0"
+    observer: str
+    controller: str
+    command: str
+    levels: tuple[tuple[str, float, float, float], ...]  # (level, score, low, high)
+    iqm: tuple[float, float, float]  # (iqm, low, high)
+    version: str  # observer-gym's, as recorded
+
+    @property
+    def entry(self) -> str:
+        return f"{self.observer} + {self.controller}"
+
+    @property
+    def kind(self) -> str:
+        """``agent`` (a trained policy), ``true state`` (the oracle observer: no camera)
+        or ``classical`` (an observer on the camera and a designed controller)."""
+        if self.controller.startswith(AGENT_PREFIXES):
+            return "agent"
+        if self.observer == "oracle":
+            return "true state"
+        return "classical"
+
+
+def slug(observer: str, controller: str) -> str:
+    """A published folder's name: ``kf-measurements--lqr``, ``kf-measurements--ppo-NAME``."""
+    return f"{observer}--{controller}".replace(":", "-").replace("/", "_")
+
+
+def _read(folder: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads((folder / SCORES_JSON).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise FolderCheckError(f"{folder / SCORES_JSON} cannot be read: {exc}") from None
+    if not isinstance(doc, dict):
+        raise FolderCheckError(f"{folder / SCORES_JSON} is not a benchmark's scores")
+    return doc
+
+
+def _suite_of(doc: dict[str, Any], folder: Path) -> SystemSuite:
+    try:
+        return load_suite(str(doc["env"]), str(doc["suite"]))
+    except (KeyError, ValueError) as exc:
+        raise FolderCheckError(f"{folder}: {exc}") from None
+
+
+def publish(run_dir: str | Path, root: str | Path, *, same_packages: bool = True) -> Path:
+    """Copy a finished, official benchmark folder's published files into
+    ``root/<system>/<slug>/`` (replacing an older copy); the folder written.
+    ``same_packages``: as :func:`~observer_gym.train.experiments.benchmark.check.
+    check_folder` takes it (publish what this installation ran).
+
+    Raises:
+        FolderCheckError: the folder does not check out (see ``benchmark --check``), or
+            is unofficial.
+    """
+    run_dir = Path(run_dir)
+    check_folder(run_dir, same_packages=same_packages)
+    doc = _read(run_dir)
+    if not doc.get("official"):
+        raise FolderCheckError(f"{run_dir} is an unofficial run (--episodes): not published")
+    suite = _suite_of(doc, run_dir)
+    dest = Path(root) / suite.system.name / slug(doc["observer"], doc["controller"])
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in PUBLISHED:
+        shutil.copyfile(run_dir / name, dest / name)
+    return dest
+
+
+def read_rows(root: str | Path, *, verify: bool = True) -> list[Row]:
+    """Every published folder under ``root`` (``root/<system>/<entry>/scores.json``), in
+    path order; with ``verify``, each re-derived from its episodes first.
+
+    Raises:
+        FolderCheckError: a folder does not check out, is unofficial, or belongs to
+            another suite version than the root's other folders.
+    """
+    rows: list[Row] = []
+    versions: set[str] = set()
+    for path in sorted(Path(root).glob(f"*/*/{SCORES_JSON}")):
+        folder = path.parent
+        if verify:
+            check_folder(folder, same_packages=False)
+        doc = _read(folder)
+        if not doc.get("official"):
+            raise FolderCheckError(f"{folder} is an unofficial run: a leaderboard has none")
+        versions.add(str(doc.get("suite")))
+        if len(versions) > 1:
+            raise FolderCheckError(
+                f"{folder}: suite versions {sorted(versions)} under one root; one per root"
+            )
+        rows.append(
+            Row(
+                folder=folder,
+                suite=str(doc["suite"]),
+                env=doc["env"],
+                observer=doc["observer"],
+                controller=doc["controller"],
+                command=doc["command"],
+                levels=tuple(
+                    (lv["level"], lv["score"], lv["score_low"], lv["score_high"])
+                    for lv in doc["levels"]
+                ),
+                iqm=(doc["aggregate"]["iqm"], doc["aggregate"]["low"], doc["aggregate"]["high"]),
+                version=doc["packages"].get("observer-gym", "?"),
+            )
+        )
+    return rows
+
+
+def _by_env(rows: Sequence[Row]) -> dict[str, list[Row]]:
+    """Rows grouped by env (in env order), each group ranked by IQM, best first (ties by
+    entry name)."""
+    groups: dict[str, list[Row]] = {}
+    for row in sorted(rows, key=lambda r: r.env):
+        groups.setdefault(row.env, []).append(row)
+    return {env: sorted(group, key=lambda r: (-r.iqm[0], r.entry)) for env, group in groups.items()}
+
+
+def _cell(score: float, low: float, high: float) -> str:
+    return f"{score:.3f} [{low:.3f}, {high:.3f}]"
+
+
+def figure_name(suite: SystemSuite) -> str:
+    return f"leaderboard_{suite.version}_{suite.system.name}.png"
+
+
+def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> str:
+    """docs/leaderboard.md's text. ``root`` and ``figures_dir`` are written as given
+    (paths relative to the page)."""
+    if not rows:
+        raise FolderCheckError(f"no published benchmark folders under {root}")
+    groups = _by_env(rows)
+    version = rows[0].suite
+    lines = [
+        f"# Leaderboard: observer-gym benchmark suite {version}",
+        "",
+        "Generated; do not edit by hand. Every row is an official run of `observer-gym "
+        "benchmark` (the protocol, the levels and the normalised score: "
+        "[benchmark.md](benchmark.md)), re-derived from its per-episode records by the "
+        "command that wrote this page:",
+        "",
+        "```",
+        command,
+        "```",
+        "",
+        f"The results folders: `{root}/<system>/<entry>/` (`episodes.csv`, `scores.json`, "
+        "`table.md`). Scores: 1 = the oracle observer with the system's reference "
+        "controller, 0 = the floor (the worse of the raw camera and doing nothing); each "
+        "level's mean score and the IQM over the levels, with their 95 % bootstrap "
+        "intervals. Entries are ranked by the IQM; two entries whose intervals overlap are "
+        "not told apart by this suite. Kinds: `classical` is an observer on the camera with a "
+        "designed controller, `agent` a trained policy (train/rl/agents/), `true state` the "
+        "oracle observer (no camera; with the reference controller it is 1 by definition).",
+        "",
+    ]
+    for env, group in groups.items():
+        suite = load_suite(env, version)
+        level_names = [name for name, *_ in group[0].levels]
+        short = env.split("/")[-1]
+        lines += [
+            f"## {short}",
+            "",
+            f"Metric per episode: `{suite.metric.name}` ({suite.metric.better} is better); "
+            f"reference controller `{suite.controller}`; {suite.episodes} episodes per level.",
+            "",
+        ]
+        header = ["rank", "observer", "controller", "kind", *level_names, "IQM [95 %]", "version"]
+        table = [header, ["---"] * len(header)]
+        for rank, row in enumerate(group, start=1):
+            table.append(
+                [
+                    str(rank),
+                    f"`{row.observer}`",
+                    f"`{row.controller}`",
+                    row.kind,
+                    *(_cell(s, lo, hi) for _, s, lo, hi in row.levels),
+                    _cell(*row.iqm),
+                    row.version,
+                ]
+            )
+        lines += ["| " + " | ".join(cells) + " |" for cells in table]
+        lines += [
+            "",
+            f"![{short}: interval estimates per level and of the IQM]"
+            f"({figures_dir}/{figure_name(suite)})",
+            "",
+            "Commands, by rank:",
+            "",
+        ]
+        lines += [f"{rank}. `{row.command}`" for rank, row in enumerate(group, start=1)]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def draw_figures(rows: Sequence[Row], figures_dir: Path) -> list[Path]:
+    """One PNG per system: each entry's level scores and IQM with their intervals
+    (rliable's ``plot_interval_estimates``); the files written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from rliable import plot_utils
+
+    written = []
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    for env, group in _by_env(rows).items():
+        suite = load_suite(env, group[0].suite)
+        metrics = [name for name, *_ in group[0].levels] + ["IQM"]
+        points = {}
+        intervals = {}
+        for row in group:
+            triples = [(s, lo, hi) for _, s, lo, hi in row.levels] + [row.iqm]
+            points[row.entry] = np.array([t[0] for t in triples])
+            intervals[row.entry] = np.array([[t[1] for t in triples], [t[2] for t in triples]])
+        fig, axes = plot_utils.plot_interval_estimates(
+            points,
+            intervals,
+            metric_names=metrics,
+            algorithms=[row.entry for row in group][::-1],
+            xlabel=f"normalised score, {env.split('/')[-1]}",
+            subfigure_width=3.0,
+            row_height=0.32,
+            xlabel_y_coordinate=-0.6 / (0.32 * len(group)),
+        )
+        # one range on every panel, 0 (floor) and 1 (oracle) always in view
+        lowest = min(0.0, *(float(iv[0].min()) for iv in intervals.values()))
+        highest = max(1.0, *(float(iv[1].max()) for iv in intervals.values()))
+        for ax in np.atleast_1d(axes):
+            ax.set_xlim(lowest - 0.03, highest + 0.03)
+            ax.axvline(1.0, color="grey", lw=0.8, ls="--")
+        path = figures_dir / figure_name(suite)
+        fig.savefig(path, dpi=100, bbox_inches="tight")
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def generate_command(root: str, out: str, figures: str) -> str:
+    """The command that writes the page, as the page quotes it."""
+    return f"{PROG} generate {root} --out {out} --figures {figures}"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    pub = commands.add_parser("publish", help="copy finished official runs into a results root")
+    pub.add_argument("runs", nargs="+", metavar="RUN_DIR", help="finished benchmark folders")
+    pub.add_argument("--into", required=True, metavar="ROOT", help="the suite's results root")
+    gen = commands.add_parser("generate", help="write the leaderboard page and its figures")
+    gen.add_argument("root", metavar="ROOT", help="the suite's results root")
+    gen.add_argument("--out", required=True, metavar="FILE", help="the Markdown page to write")
+    gen.add_argument("--figures", required=True, metavar="DIR", help="where the PNGs go")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``publish`` or ``generate`` (see the module docstring); the exit code."""
+    import os
+
+    from observer_gym.train.cli.args import error_line
+
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "publish":
+            for run_dir in args.runs:
+                print(publish(run_dir, args.into))
+            return 0
+        root = Path(args.root)
+        if not root.is_dir():
+            print(error_line(PROG, f"{root} is not a folder"), file=sys.stderr)
+            return 2
+        out = Path(args.out)
+        figures = Path(args.figures)
+        rows = read_rows(root)
+        command = generate_command(args.root, args.out, args.figures)
+        page_dir = out.parent
+        text = markdown(
+            rows,
+            os.path.relpath(root, page_dir),
+            os.path.relpath(figures, page_dir),
+            command,
+        )
+        draw_figures(rows, figures)
+        out.write_text(text, encoding="utf-8")
+        print(f"{out}: {len(rows)} entries; figures in {figures}")
+        return 0
+    except FolderCheckError as exc:
+        print(error_line(PROG, exc), file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
