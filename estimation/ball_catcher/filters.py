@@ -71,6 +71,16 @@ class _Entry:
     camera: int = 0
 
 
+def _detected(frame: CameraFrame) -> np.ndarray:
+    """A fused frame's pixels; the filter takes only frames with a detection."""
+    if frame.uv_px is None:
+        raise ValueError(
+            "ViewlineKalmanFilter: a frame without a detection (uv_px None) reached an "
+            "update; a frame without a detection is not fused"
+        )
+    return frame.uv_px
+
+
 class ViewlineKalmanFilter:
     """Kalman filter (filter form (5)-(7)) on :class:`BallisticModel` with viewline rows.
 
@@ -369,6 +379,8 @@ class ViewlineKalmanFilter:
         self.late_count += 1
         self.refiltered_count += len(self._entries) - i - 1
         self._forget_old()
+        if result is None:  # late is among the entries processed: a bug otherwise
+            raise RuntimeError("ViewlineKalmanFilter: the late measurement was not processed")
         return result
 
     def _forget_old(self) -> None:
@@ -394,11 +406,12 @@ class ViewlineKalmanFilter:
         self.predict_to(t_s)
         if not stacked:
             (frame,) = frames
-            C, y = viewline_rows(projection_matrix(frame.K, frame.T_world_cam), frame.uv_px)
+            uv_px = _detected(frame)
+            C, y = viewline_rows(projection_matrix(frame.K, frame.T_world_cam), uv_px)
             std_m = viewline_noise_std(  # R2 from pixel noise and predicted depth
                 frame.K,
                 frame.T_world_cam,
-                frame.uv_px,
+                uv_px,
                 self.kf.x[:3],
                 self.pixel_std_px,
                 depth_var_m2=self._depth_var_m2(frame.T_world_cam),
@@ -410,7 +423,7 @@ class ViewlineKalmanFilter:
 
             def residual_m(K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
                 # the rows' residual C p - y through a camera (K, T_world_cam), p predicted
-                C_c, y_c = viewline_rows(projection_matrix(K, T_world_cam), frame.uv_px)
+                C_c, y_c = viewline_rows(projection_matrix(K, T_world_cam), uv_px)
                 return C_c[:, :3] @ position_m - y_c
 
             # y = C x + J c_camera + e (calibration_consider), gated with that S
@@ -422,7 +435,7 @@ class ViewlineKalmanFilter:
         rows, values, variances = [], [], []
         for frame in frames:
             dt_s = float(frame.capture_time_s) - t_s
-            uv = np.asarray(frame.uv_px, dtype=float)
+            uv = np.asarray(_detected(frame), dtype=float)
             C, y = viewline_rows(projection_matrix(frame.K, frame.T_world_cam), uv, dt_s)  # (26)
             y = y + C[:, 2] * (0.5 * g * dt_s * dt_s)  # gravity over dt (not in the paper)
             pos_at_capture = self.kf.x[:3] + dt_s * self.kf.x[3:]

@@ -4,6 +4,8 @@ linear (:class:`BallisticModel`, the viewline filter's) and nonlinear with optio
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 from observer_gym.envs.ball_catcher.geometry import BALL_RADIUS_M
@@ -135,6 +137,14 @@ class BallFlight:
         """The state ``dt_s`` (>= 0) later, without noise."""
         return self.propagate(x, dt_s, with_jacobian=False)[0]
 
+    @overload
+    def propagate(
+        self, x: np.ndarray, dt_s: float, with_jacobian: Literal[True] = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    @overload
+    def propagate(
+        self, x: np.ndarray, dt_s: float, with_jacobian: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]: ...
     def propagate(
         self, x: np.ndarray, dt_s: float, with_jacobian: bool = True
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

@@ -156,6 +156,12 @@ class PixelEKFCore:
     whose latest update skipped it (not in front of the camera) has no entry (the observer
     drops the entries of the measurements it no longer keeps)."""
 
+    ekf: ExtendedKalmanFilter
+    flight: BallFlight
+    iterations: int
+    R_px2: np.ndarray
+    time_s: float
+
     def __init__(
         self,
         x0: np.ndarray,
@@ -385,8 +391,8 @@ class PixelEKFObserver:
         used = self.fusion.step(now_s, action, timed)
         # The run of each camera, frame by frame in capture order (as the viewline
         # filter's observer adds them); a restart fuses this step's later frames again.
-        for m in sorted(timed, key=lambda m: m.capture_time_s):
-            used |= self._count(m, now_s, action)
+        for tm in sorted(timed, key=lambda t: t.capture_time_s):
+            used |= self._count(tm, now_s, action)
         # NIS of this step's accepted frames (each at its capture time), 2 per frame
         results = [self.core.results.get(id(m.measurement)) for m in timed]
         accepted = [r for r in results if r is not None and r.accepted]
