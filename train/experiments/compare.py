@@ -244,7 +244,7 @@ def run_pairs(request: Request, progress: bool = True) -> PairRuns:
             controller.name,
             seed,
             max_steps=request.steps,
-            env_kwargs=request.env_kwargs,
+            env_kwargs=request.env_kwargs_for(controller),
             observer_options=observer.options,
             controller_options=controller.options,
         )
@@ -362,6 +362,12 @@ def run_comparison(
                 "episodes": len(seeds),
                 "steps": request.steps,
                 "env_kwargs": request.env_kwargs,
+                # only when an agent has some: other folders keep their bytes
+                **(
+                    {"agent_env_options": request.agent_env_options}
+                    if request.agent_env_options
+                    else {}
+                ),
                 "env_config": env_config,
                 "workers": request.workers,
                 "backend": request.backend,

@@ -44,7 +44,7 @@ from observer_gym.train.experiments.observer_env import observer_setup
 from observer_gym.train.experiments.systems import resolve_env_id
 from observer_gym.train.experiments.tasks import task_of
 from observer_gym.train.reports.aggregate import check_rliable
-from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec
+from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, read_config
 
 
 class ObserverEntry(NamedTuple):
@@ -74,6 +74,9 @@ class ControllerEntry(NamedTuple):
     kind: str  # "design" (the package's), "agent" (ALGO:DIR), "policy" (ALGO:PATH.zip), "outside"
     plugin: Plugin | None  # an outside controller's entry
     options: dict[str, Any]  # its factory's keyword arguments (outside controllers only)
+    # a trained agent's env options (its config's env_kwargs: image size, reward shaping),
+    # under the request's own for its pairs' episodes; empty for any other controller
+    env_options: dict[str, Any] = {}  # noqa: RUF012 (a NamedTuple default, never mutated)
 
 
 class Request(NamedTuple):
@@ -103,6 +106,17 @@ class Request(NamedTuple):
 
     def controller(self, name: str) -> ControllerEntry:
         return next(entry for entry in self.controllers if entry.name == name)
+
+    def env_kwargs_for(self, controller: ControllerEntry) -> dict[str, Any]:
+        """The ``gym.make`` options of ``controller``'s episodes: a trained agent's own
+        env options, and the request's over them."""
+        return {**controller.env_options, **self.env_kwargs}
+
+    @property
+    def agent_env_options(self) -> dict[str, dict[str, Any]]:
+        """Each trained agent's own env options, for the agents that have some (what
+        results record beside ``env_kwargs``)."""
+        return {c.name: c.env_options for c in self.controllers if c.env_options}
 
     @property
     def observer_names(self) -> list[str]:
@@ -189,8 +203,13 @@ def _observer_entry(system: System, name: str, options: dict) -> ObserverEntry:
 def _controller_entry(system: System, name: str, options: dict) -> ControllerEntry:
     spec = parse_agent_spec(name)
     if spec is not None:
-        kind = "policy" if is_policy_file(spec[1]) else "agent"
-        return ControllerEntry(name, kind, None, {})
+        if is_policy_file(spec[1]):
+            return ControllerEntry(name, "policy", None, {})
+        try:
+            trained_with = dict(read_config(spec[1], spec[0]).get("env_kwargs") or {})
+        except ValueError:  # not a run: check_controller names what is wrong
+            trained_with = {}
+        return ControllerEntry(name, "agent", None, {}, trained_with)
     if name in controllers_of(system):
         return ControllerEntry(name, "design", None, {})
     plugin = find_plugin("controller", name)

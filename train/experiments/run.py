@@ -129,7 +129,7 @@ def _run_into(
 ) -> dict[str, Any]:
     """:func:`run_experiment`'s episodes and outputs, its request checked."""
     observer, controller = request.observers[0], request.controllers[0]
-    task, env_kwargs, seeds = request.task, request.env_kwargs, request.seeds
+    task, env_kwargs, seeds = request.task, request.env_kwargs_for(controller), request.seeds
     specs = [
         EpisodeSpec.of(
             request.env_id,

@@ -142,6 +142,11 @@ class SweepPlan:
                             else {}
                         ),
                         **(
+                            {"agent_env_options": self.request.agent_env_options}
+                            if self.request.agent_env_options
+                            else {}
+                        ),
+                        **(
                             {"controller_options": dict(self.controller_options)}
                             if self.controller_options
                             else {}
@@ -158,9 +163,10 @@ class SweepPlan:
 
     def specs(self, cell: Cell) -> list[EpisodeSpec]:
         """The cell's episodes: episode i resets with ``seeds[i]``."""
-        env_kwargs = {**self.env_kwargs, **cell.point}
         observer = self.request.observer(cell.observer)
         controller = self.request.controller(cell.controller)
+        # an agent's own env options, under the sweep's fixed ones and the cell's point
+        env_kwargs = {**controller.env_options, **self.env_kwargs, **cell.point}
         return [
             EpisodeSpec.of(
                 self.env_id,

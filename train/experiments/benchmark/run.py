@@ -105,9 +105,6 @@ def check_benchmark(
             f"controller {controller!r} is a multi-seed agent folder; benchmark one seed's "
             f"agent at a time: {', '.join(request.seed_groups[controller])}"
         )
-    agent_env_options: dict[str, Any] = {}
-    if request.controller(controller).kind == "agent":
-        agent_env_options = agent_entry(controller).env_options
     return BenchmarkRequest(
         suite,
         observer,
@@ -118,7 +115,7 @@ def check_benchmark(
         address,
         request.observer(observer).options,
         request.controller(controller).options,
-        agent_env_options,
+        request.controller(controller).env_options,
     )
 
 
