@@ -18,6 +18,7 @@ from observer_gym.estimation.models import LinearModel, readonly
 
 __all__ = [
     "BALL_CENTRE_HEIGHT_M",
+    "KF_ROTATION_HEIGHTS_M",
     "ROLLING_ACCEL_FACTOR",
     "RollingBallModel",
     "RollingBallParams",
@@ -30,6 +31,13 @@ ROLLING_ACCEL_FACTOR = 5.0 / 7.0
 # centre of its top surface (envs/ball_table/scene.py, command_tilt; table.urdf's frame),
 # and the ball's centre rests one radius above it.
 BALL_CENTRE_HEIGHT_M = BALL_RADIUS_M
+# kf's heights (tilt_x axis, tilt_y axis) of the ball's centre above the axes the table
+# turns about as the arm drives it: the ball's radius, and 18.6 mm more about y, where the
+# ball's x error over a step is -18.6 mm times the tilt_y angular acceleration
+# (least squares over 10 episodes of the LQR; the arm's joints lag, so the table's centre
+# swings as it turns; ``python benchmarks/ball_table_model_error.py``).
+KF_ROTATION_HEIGHTS_M = BALL_CENTRE_HEIGHT_M + np.array([0.0, 0.017])
+KF_ROTATION_HEIGHTS_M.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -120,7 +128,7 @@ class RollingBallModel(LinearModel):
         rate_after: np.ndarray,
         tilt_change: np.ndarray,
         dt_s: float,
-        height_m: float = BALL_CENTRE_HEIGHT_M,
+        height_m: float | np.ndarray = BALL_CENTRE_HEIGHT_M,
     ) -> np.ndarray:
         """What the table's angular acceleration adds to the state (6,) over an interval.
 
@@ -133,8 +141,9 @@ class RollingBallModel(LinearModel):
         Integrated over the interval from the rate just before it (``rate_before``) to
         the rate at its end (``rate_after``) with the tilt moving by ``tilt_change``:
         dv = h (rate_after - rate_before) and dp = h (tilt_change - rate_before dt), each
-        with the axes' signs; w is untouched. (The table's translation, when the arm's
-        joints lag, and the centrifugal p theta'^2 are left out.)
+        with the axes' signs; w is untouched. ``height_m`` is h, or h per tilt axis (2,)
+        (:data:`KF_ROTATION_HEIGHTS_M`). (The table's translation, when the arm's joints
+        lag, and the centrifugal p theta'^2 are left out.)
         """
         dv = height_m * (np.asarray(rate_after, float) - np.asarray(rate_before, float))
         dp = height_m * (np.asarray(tilt_change, float) - np.asarray(rate_before, float) * dt_s)

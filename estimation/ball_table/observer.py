@@ -27,7 +27,13 @@ Per frame:
 Both filters' R and the ball's process noise come from the noise rule
 (estimation/ball_table/noise.py): from the declared pixel noise through the geometry
 stage's Jacobian (measurements), or the rgb detector's measured error, and for ``kf`` a
-term for the frame's age; Q from the pushes and the model's measured error.
+term for the frame's age; Q from the pushes and the model's measured error, which
+follows the table's motion: a floor plus a term in the lag model's angular
+acceleration and squared rate over each step (``measured_model_error``; and the table
+turns about tilt_y as about an axis 17 mm below its top, the arm's measured lever arm,
+models.KF_ROTATION_HEIGHTS_M). The reported tilt rate's model error follows the rate
+the same way (:func:`rate_model_var`), and ``kf`` fusing at delivery reports what the
+ball did over its frames' age (the filter holds the ball of the capture).
 When a frame is dropped or the ball is not seen, the estimate is the prediction. A
 detection with a non-finite tilt or ball position (NaN, inf: e.g. from NaN pixels in a
 measurement) is no detection of that part: it neither updates a filter nor counts as a
@@ -55,11 +61,18 @@ from observer_gym.estimation.ball_table.frames import FrameReader, detected_part
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
 from observer_gym.estimation.ball_table.models import (
+    BALL_CENTRE_HEIGHT_M,
+    KF_ROTATION_HEIGHTS_M,
     RollingBallModel,
     RollingBallParams,
     TiltLagModel,
 )
-from observer_gym.estimation.ball_table.noise import BallTableNoiseRule, ball_process_params
+from observer_gym.estimation.ball_table.noise import (
+    KF_ACCEL_FLOOR_MPS2,
+    BallTableNoiseRule,
+    ball_process_params,
+    motion_accel_var,
+)
 from observer_gym.estimation.filter_copy import copy_filter
 from observer_gym.estimation.filters import KalmanFilter
 from observer_gym.estimation.gating import ChiSquareGate
@@ -90,6 +103,12 @@ class BallTableObserverParams:
     # Both filters take the converged-gain path (KalmanFilter.converged_rtol) once a cycle
     # moves P by less than this, relative; None runs the full recursion on every frame.
     converged_rtol: float | None = 1e-9
+    # kf's measured model errors (noise.py, "Q"): the table's tilt_y axis lies deeper
+    # (models.KF_ROTATION_HEIGHTS_M), the ball's process noise follows the table's motion
+    # from a floor (noise.motion_accel_var), the tilt rate's reported variance too
+    # (rate_model_var), and a delivery-time filter reports what the ball did over its
+    # frames' age. Off: the model ekf shares (sigma_w from ball_process_params' default).
+    measured_model_error: bool = False
 
 
 class TiltBallDetection(NamedTuple):
@@ -156,6 +175,7 @@ class TiltBallFilters:
         # start and its rate just before it), or None.
         self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
         self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.measured_model_error = params.measured_model_error
         self.tilt_kf = self._start_tilt(tilt, start_R[0])
         self.ball_kf = self._start_ball(ball, start_R[1])
 
@@ -286,11 +306,31 @@ class TiltBallFilters:
         u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + tilt_after))))
         Phi, Gamma, Q = model.matrices(dt_s)
         kf = self.ball_kf
-        kf.predict(Phi, Q, Gamma, u)
         # the table's angular acceleration: the lag model's tilt rates at both ends
         rate_after = self.tilt_model.rate(self._lag_tilt, self.tilt_cmd)
+        if self.measured_model_error:
+            # the model's error from the table's motion over the interval, std s_i per axis
+            # (an acceleration; noise.py, "Q"), claimed as it comes and as it persists:
+            s2 = motion_accel_var(
+                (rate_after - rate_before) / dt_s, 0.5 * (rate_after + rate_before)
+            )
+            # as it persists, driving w2 (correlation time 1 / beta): Q += D Q2 D, Q2 the
+            # discrete Q of w2 alone at a stationary std of 1 m/s^2, D = diag(s)
+            scale = np.sqrt(np.tile(s2, 3))
+            Q = Q + scale[:, None] * _unit_w2_q(model, dt_s) * scale[None, :]
+            # as it comes, a white acceleration held over the interval: Q += s^2 G G^T,
+            # G = (dt^2 / 2, dt) on each axis's (p, v)
+            g = np.array([0.5 * dt_s**2, dt_s])
+            for axis in (0, 1):
+                idx = [axis, 2 + axis]
+                Q[np.ix_(idx, idx)] += s2[axis] * np.outer(g, g)
+        kf.predict(Phi, Q, Gamma, u)
         turned = model.rotation_increment(
-            rate_before, rate_after, self._lag_tilt - lag_before, dt_s
+            rate_before,
+            rate_after,
+            self._lag_tilt - lag_before,
+            dt_s,
+            KF_ROTATION_HEIGHTS_M if self.measured_model_error else BALL_CENTRE_HEIGHT_M,
         )
         kf.x, kf.P = model.clamp_to_border(kf.x + turned, kf.P)
 
@@ -332,19 +372,64 @@ class TiltBallFilters:
         mean[6:8] = self.tilt_model.rate(tilt, self.tilt_cmd)
         return mean
 
+    def _add_frame_age(self, cov: np.ndarray, P_ball: np.ndarray) -> None:
+        """A delivery-time filter's ball is the ball of its frames' capture, a (the frame's
+        age) before now: add to its (p, v) block what the ball did over a, which the
+        filter does not hold (E[a^2] = the noise rule's ``age_sq_s2``)."""
+        assert self.noise is not None
+        age_sq_s2 = self.noise.age_sq_s2
+        v = self.ball_kf.x[2:4]
+        # the acceleration the model drives the ball with: gravity at the tilt + w2
+        accel = self.ball_model.gravity_acceleration(up_in_table(*self.tilt_kf.x))
+        accel = accel + self.ball_kf.x[4:6]
+        # position: E[a^2] (v v^T + P_v); velocity: E[a^2] accel accel^T
+        cov[0:2, 0:2] += age_sq_s2 * (np.outer(v, v) + P_ball[2:4, 2:4])
+        cov[2:4, 2:4] += age_sq_s2 * np.outer(accel, accel)
+        # and the model's process noise over a: Q(sqrt(E[a^2]))'s (p, v) block
+        _, _, Q_age = self.ball_model.matrices(round(float(np.sqrt(age_sq_s2)), 9))
+        cov[0:4, 0:4] += Q_age[0:4, 0:4]
+
     def covariance(self) -> np.ndarray:
-        """Read-only; the same array while both filters keep their P (converged)."""
+        """Read-only; the same array while both filters keep their P (converged), unless
+        the rate's variance follows the motion (``measured_model_error``)."""
         self._settle()
         P_ball, P_tilt = self.ball_kf.P, self.tilt_kf.P
         cached = self._cov_cache
-        if cached is not None and cached[0] is P_ball and cached[1] is P_tilt:
+        if (
+            cached is not None
+            and cached[0] is P_ball
+            and cached[1] is P_tilt
+            and not self.measured_model_error
+        ):
             return cached[2]
         cov = np.zeros((STATE_DIM, STATE_DIM))
         cov[0:4, 0:4] = P_ball[0:4, 0:4]
-        tilt_covariance_blocks(cov, P_tilt, self.tilt_model.rate_gain_per_s)
+        if self.noise is not None and self.measured_model_error:
+            self._add_frame_age(cov, P_ball)
+        rate_var = (
+            rate_model_var(self.tilt_model.rate(self._lag_tilt, self.tilt_cmd))
+            if self.measured_model_error
+            else None
+        )
+        tilt_covariance_blocks(cov, P_tilt, self.tilt_model.rate_gain_per_s, rate_var)
         cov.flags.writeable = False
         self._cov_cache = (P_ball, P_tilt, cov)
         return cov
+
+
+def _unit_w2_q(model: RollingBallModel, dt_s: float) -> np.ndarray:
+    """The discrete Q (6, 6) over ``dt_s`` of ``model``'s w2 alone at a stationary std of
+    1 m/s^2 (w1 made negligible), cached per model and step."""
+    cache = model.__dict__.setdefault("_unit_w2_q", {})
+    key = float(dt_s)
+    if key not in cache:
+        unit = RollingBallModel(
+            RollingBallParams(
+                sigma_w=1.0, beta=model.params.beta, sigma_v_m=1.0, w1_psd_time_s=1e-12
+            )
+        )
+        cache[key] = unit.matrices(key)[2]
+    return cache[key]
 
 
 def restart_from(
@@ -389,14 +474,39 @@ def restart_from(
 TILT_RATE_MODEL_STD_RADPS = 0.005
 
 
-def tilt_covariance_blocks(cov: np.ndarray, P_tilt: np.ndarray, gain_per_s: float) -> None:
+# kf's variance model of the same departure (``rate_model_var``; ekf keeps the constant
+# above). It is quadratic in the rate: e_x = 0.026 s theta_x' theta_y' and e_y = -0.017 s
+# theta_x'^2 leave 6e-5 and 1.6e-4 rad/s RMS of the 1.5 and 2.2 mrad/s over 10 episodes of
+# the LQR with pushes at 0.5 Hz; the floors are what is left once calm (steps 50-300),
+# 3e-5 and 1e-4 rad/s RMS (python benchmarks/ball_table_model_error.py --push-rate-hz 0.5).
+CALM_RATE_MODEL_STD_RADPS = (3e-5, 1e-4)
+RATE_SQ_MODEL_COEF_S = (0.026, 0.017)
+
+
+def rate_model_var(rate_radps: np.ndarray) -> np.ndarray:
+    """The variance (2,) in (rad/s)^2 of the arm's tilt rate's departure from the lag
+    model's g (u - theta) at the lag model's rate ``rate_radps`` (tilt_x, tilt_y)."""
+    rate_x, rate_y = np.asarray(rate_radps, dtype=float)
+    c_x, c_y = RATE_SQ_MODEL_COEF_S
+    # sigma_e^2 = floor^2 + (c_x theta_x' theta_y')^2 on x, floor^2 + (c_y theta_x'^2)^2 on y
+    quadratic = np.array([c_x * rate_x * rate_y, c_y * rate_x**2])
+    return np.square(CALM_RATE_MODEL_STD_RADPS) + np.square(quadratic)
+
+
+def tilt_covariance_blocks(
+    cov: np.ndarray,
+    P_tilt: np.ndarray,
+    gain_per_s: float,
+    rate_var: np.ndarray | None = None,
+) -> None:
     """Write the tilt and tilt-rate blocks of the state covariance ``cov`` from the tilt's
     covariance: rate = g (u - theta) + e with u known and e the lag model's error
     (TILT_RATE_MODEL_STD_RADPS, independent of theta) gives cov(rate) = g^2 P +
     sigma_e^2 I and cov(theta, rate) = -g P."""
     cov[4:6, 4:6] = P_tilt
     cov[4:6, 6:8] = cov[6:8, 4:6] = -gain_per_s * P_tilt
-    cov[6:8, 6:8] = gain_per_s**2 * P_tilt + TILT_RATE_MODEL_STD_RADPS**2 * np.eye(2)
+    var = TILT_RATE_MODEL_STD_RADPS**2 * np.ones(2) if rate_var is None else rate_var
+    cov[6:8, 6:8] = gain_per_s**2 * P_tilt + np.diag(var)
 
 
 class BallTableObserver(FusedObserver):
@@ -420,7 +530,8 @@ class BallTableObserver(FusedObserver):
     ) -> None:
         cfg = env.config
         self.params = params or BallTableObserverParams(
-            ball=ball_process_params(cfg, RGB_BALL_STD_M)
+            ball=ball_process_params(cfg, RGB_BALL_STD_M, KF_ACCEL_FLOOR_MPS2),
+            measured_model_error=True,
         )
         self.ball_model = RollingBallModel(self.params.ball)
         self.tilt_model = TiltLagModel.from_arm(
