@@ -78,6 +78,8 @@ OBSERVER_ROLES = {
     "ekf": "one extended Kalman filter on the image features' pixels",
     "raw": "the detector alone: the newest detection held, rates by finite differences",
     "oracle-visible": "the true state while the camera sees it, predicted otherwise",
+    "learned": "a network trained on the simulator's truth: the newest frames' detections "
+    "to the estimate and its covariance (no filter)",
 }
 
 

@@ -7,6 +7,7 @@ process and control models, and the observer pipelines (docs/spec/table_ball.md)
 
 from functools import partial
 
+from observer_gym.estimation.ball_table.learned import LearnedObserver
 from observer_gym.estimation.ball_table.observer import BallTableObserver, BallTableObserverParams
 from observer_gym.estimation.ball_table.oracle_visible import OracleVisibleObserver
 from observer_gym.estimation.ball_table.pixel_ekf import PixelEKFObserver, PixelEKFParams
@@ -18,12 +19,14 @@ OBSERVERS = {
     "ekf": PixelEKFObserver,
     "raw": RawObserver,
     "oracle-visible": OracleVisibleObserver,
+    "learned": LearnedObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "BallTableObserver",
     "BallTableObserverParams",
+    "LearnedObserver",
     "OracleVisibleObserver",
     "PixelEKFObserver",
     "PixelEKFParams",

@@ -1,0 +1,140 @@
+"""The Gaussian network of a learned observer, and its weight files.
+
+:class:`GaussianMLP` maps a feature vector to a mean and a diagonal covariance of the
+state (per entry a log-variance head): trained with the Gaussian negative log-likelihood,
+its variance is part of what it learns. Inputs and targets are standardised with the
+training data's mean and standard deviation, kept as buffers, so the weight file is the
+whole model.
+
+A weight file (``<name>.pt``: ``torch.save`` of the state dict and the architecture,
+read back with ``weights_only=True``, which unpickles no code) has a report beside it
+(``<name>.json``: the command that trained it, the data, the held-out errors, and the
+file's sha256). :func:`load_network` refuses a weight file whose sha256 is not the
+report's, in one line naming both.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+__all__ = ["GaussianMLP", "file_sha256", "load_network", "save_network"]
+
+# log-variance heads are clamped to this range (standardised units): exp(-14) ~ 1e-6 of
+# the target's spread, exp(6) ~ 400 times; keeps the NLL finite early in training
+LOG_VAR_RANGE = (-14.0, 6.0)
+
+
+class GaussianMLP(nn.Module):
+    """features (n_in,) -> mean (n_out,), variance (n_out,), in the targets' units.
+
+    Two hidden layers of ``hidden`` units (tanh), a mean head and a log-variance head.
+    """
+
+    def __init__(self, n_in: int, n_out: int, hidden: int = 128) -> None:
+        super().__init__()
+        self.n_in, self.n_out, self.hidden = n_in, n_out, hidden
+        self.body = nn.Sequential(
+            nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh()
+        )
+        self.mean_head = nn.Linear(hidden, n_out)
+        self.log_var_head = nn.Linear(hidden, n_out)
+        for name, size in (("x_mean", n_in), ("y_mean", n_out)):
+            self.register_buffer(name, torch.zeros(size, dtype=torch.float64))
+        for name, size in (("x_std", n_in), ("y_std", n_out)):
+            self.register_buffer(name, torch.ones(size, dtype=torch.float64))
+        self._frozen: dict[str, np.ndarray] | None = None
+
+    def set_scaling(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Standardise with the training data's mean and std (a constant column: std 1)."""
+        for name, data in (("x", x), ("y", y)):
+            mean, std = data.mean(axis=0), data.std(axis=0)
+            std = np.where(std > 0.0, std, 1.0)
+            getattr(self, f"{name}_mean").copy_(torch.as_tensor(mean))
+            getattr(self, f"{name}_std").copy_(torch.as_tensor(std))
+
+    def standardised(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean, log-variance) in standardised target units, for the loss."""
+        h = self.body(((x - self.x_mean) / self.x_std).float())
+        return self.mean_head(h), self.log_var_head(h).clamp(*LOG_VAR_RANGE)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean, variance) in the targets' units (float64)."""
+        mean_z, log_var_z = self.standardised(x)
+        # y = y_mean + y_std z:  E[y] = y_mean + y_std E[z],  Var[y] = y_std^2 Var[z]
+        mean = self.y_mean + self.y_std * mean_z.double()
+        variance = self.y_std**2 * torch.exp(log_var_z.double())
+        return mean, variance
+
+    def predict(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One feature vector (n_in,) -> (mean (n_out,), covariance (n_out, n_out)).
+
+        The same arithmetic as :meth:`forward` in NumPy (float64), on weights copied once
+        (:meth:`freeze`): one sample through torch costs ~100 us of call overhead and
+        wakes its thread pool every step; this costs ~20 us."""
+        w = self._frozen if self._frozen is not None else self.freeze()
+        h = np.tanh(w["W1"] @ ((features - w["x_mean"]) / w["x_std"]) + w["b1"])
+        h = np.tanh(w["W2"] @ h + w["b2"])
+        log_var_z = np.clip(w["Wv"] @ h + w["bv"], *LOG_VAR_RANGE)
+        mean = w["y_mean"] + w["y_std"] * (w["Wm"] @ h + w["bm"])
+        return mean, np.diag(w["y_std"] ** 2 * np.exp(log_var_z))
+
+    def freeze(self) -> dict[str, np.ndarray]:
+        """The weights as float64 arrays for :meth:`predict` (call again after training)."""
+        layers = {"1": self.body[0], "2": self.body[2], "m": self.mean_head, "v": self.log_var_head}
+        w = {f"W{k}": m.weight.detach().double().numpy().copy() for k, m in layers.items()}
+        w |= {f"b{k}": m.bias.detach().double().numpy().copy() for k, m in layers.items()}
+        for name in ("x_mean", "x_std", "y_mean", "y_std"):
+            w[name] = getattr(self, name).detach().numpy().copy()
+        self._frozen = w
+        return w
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def save_network(net: GaussianMLP, path: Path, report: dict[str, Any]) -> None:
+    """Write ``path`` (.pt) and its report (.json, with the file's sha256)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    architecture = {"n_in": net.n_in, "n_out": net.n_out, "hidden": net.hidden}
+    torch.save({"architecture": architecture, "state_dict": net.state_dict()}, path)
+    report = {**report, "architecture": architecture, "sha256": file_sha256(path)}
+    path.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+
+
+def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
+    """The network in ``path`` and its report, in evaluation mode.
+
+    Raises:
+        ValueError: no weight file or report there, or the file's sha256 is not the
+            report's (a changed or other file).
+    """
+    path = Path(path)
+    report_path = path.with_suffix(".json")
+    if not path.is_file() or not report_path.is_file():
+        raise ValueError(
+            f"learned observer weights {path} (and their report {report_path.name}) not "
+            "found; train them with python -m observer_gym.estimation.learned.train"
+        )
+    report = json.loads(report_path.read_text(encoding="utf-8"))
+    found = file_sha256(path)
+    if found != report.get("sha256"):
+        raise ValueError(
+            f"learned observer weights {path} have sha256 {found[:12]}..., their report "
+            f"{report_path.name} says {str(report.get('sha256'))[:12]}...: a changed file "
+            "is refused; train it again or restore the shipped file"
+        )
+    data = torch.load(path, weights_only=True)
+    net = GaussianMLP(**data["architecture"])
+    net.load_state_dict(data["state_dict"])
+    net.eval()
+    net.freeze()
+    return net, report

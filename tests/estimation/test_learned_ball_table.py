@@ -1,0 +1,141 @@
+"""BallTable's learned observer (estimation/ball_table/learned.py): its features, the
+shipped weights (layout, covariance, refusal of a changed file), its error and NEES on a
+new seed against the bounds its report measured, and reproducible training."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from observer_gym.controllers import make_controller
+from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.ball_table.learned import (
+    HISTORY_FRAMES,
+    MISSING_AGE_S,
+    N_FEATURES,
+    PER_FRAME,
+    WEIGHTS,
+    LearnedFeatures,
+    collect,
+)
+from observer_gym.estimation.learned.network import load_network
+from observer_gym.estimation.learned.train import main as train_main
+from observer_gym.estimation.learned.training import Dataset, fit
+
+ENV = "observer_gym/BallTable-v0"
+
+
+def _measurement(ball_found: bool = True) -> dict[str, np.ndarray]:
+    return {
+        "table_corners_px": np.arange(8, dtype=np.float32) + 100.0,
+        "ball_px": np.array([160.0, 120.0, 10.0], dtype=np.float32),
+        "detected": np.array([1, int(ball_found)], dtype=np.int8),
+    }
+
+
+def test_features_hold_the_newest_frames_with_their_ages_and_flags():
+    features = LearnedFeatures()
+    empty = features.vector(0.5, None)
+    assert empty.shape == (N_FEATURES,)
+    assert np.all(empty[PER_FRAME - 1 :: PER_FRAME][:HISTORY_FRAMES] == MISSING_AGE_S)
+    features.new_frame(_measurement(), 0.10)
+    features.new_frame(_measurement(ball_found=False), 0.12)
+    v = features.vector(0.15, np.array([0.01, -0.02]))
+    newest, older = v[:PER_FRAME], v[PER_FRAME : 2 * PER_FRAME]
+    assert newest[8:11].tolist() == [0.0, 0.0, 0.0] and newest[11:13].tolist() == [1.0, 0.0]
+    assert newest[13] == pytest.approx(0.03) and older[13] == pytest.approx(0.05)
+    assert older[8:11].tolist() == [160.0, 120.0, 10.0]
+    assert v[-2:].tolist() == [0.01, -0.02]
+    for k in range(HISTORY_FRAMES + 2):
+        features.new_frame(_measurement(), 0.2 + 0.02 * k)
+    assert features.frames_seen == HISTORY_FRAMES
+
+
+def test_the_shipped_estimate_has_the_state_layout_and_a_diagonal_covariance():
+    env = VisionObserver(gym.make(ENV, obs_mode="measurements"), observer="learned")
+    try:
+        estimate, info = env.reset(seed=0)
+        assert estimate.shape == (8,)
+        P = info["estimate"]["covariance"]
+        assert P.shape == (8, 8) and np.all(np.diag(P) > 0.0)
+        assert np.count_nonzero(P - np.diag(np.diag(P))) == 0
+    finally:
+        env.close()
+
+
+def test_from_rendered_frames_it_refuses_in_one_line():
+    with pytest.raises(ValueError, match="measurements only"):
+        VisionObserver(gym.make(ENV, obs_mode="rgb"), observer="learned")
+
+
+def test_a_changed_weight_file_is_refused(tmp_path):
+    weights = tmp_path / WEIGHTS.name
+    shutil.copy(WEIGHTS, weights)
+    shutil.copy(WEIGHTS.with_suffix(".json"), weights.with_suffix(".json"))
+    load_network(weights)  # the untouched copy loads
+    data = bytearray(weights.read_bytes())
+    data[-100] ^= 0xFF
+    weights.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="a changed file is refused"):
+        load_network(weights)
+
+
+def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
+    """The LQR on the learned estimate (closed loop), 3 episodes of 300 steps on seeds the
+    training never drew (10**6...), at 1 px of pixel noise (inside the training ranges):
+    position RMSE within the report's held-out RMSE (measured 3.5 and 2.9 mm against its
+    6.1 and 6.0 mm), median NEES/dof within [1/3, 3] (measured 2.2)."""
+    report = json.loads(WEIGHTS.with_suffix(".json").read_text())
+    held_rmse = np.array(report["held_out"]["rmse"])
+    errors, nees = [], []
+    for seed in range(10**6, 10**6 + 3):
+        env = VisionObserver(
+            gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0), observer="learned"
+        )
+        try:
+            controller = make_controller("lqr", env)
+            estimate, info = env.reset(seed=seed)
+            for _ in range(300):
+                action, _ = controller.predict(estimate, deterministic=True)
+                estimate, _, terminated, _, info = env.step(action)
+                e = info["estimate"]["mean"] - info["state"]
+                errors.append(e)
+                nees.append(np.sum(e**2 / np.diag(info["estimate"]["covariance"])) / 8)
+                assert not terminated, f"seed {seed}: the ball left the table"
+        finally:
+            env.close()
+    rmse = np.sqrt(np.mean(np.square(errors), axis=0))
+    assert np.all(rmse[:2] < held_rmse[:2]), (rmse, held_rmse)
+    assert 1 / 3 <= np.median(nees) <= 3, np.median(nees)
+
+
+def test_training_is_reproducible_from_its_seed():
+    data = Dataset(*collect(5, seed=3, steps=60))
+    a, report_a = fit(data, seed=3, epochs=2)
+    b, report_b = fit(data, seed=3, epochs=2)
+    for (name, ta), tb in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        assert torch.equal(ta, tb), name
+    assert report_a == report_b
+    assert report_a["held_out_episodes"] == 1 and report_a["train_episodes"] == 4
+
+
+def test_the_training_command_refuses_an_unknown_env_in_one_line(capsys):
+    assert train_main(["--env", "TargetFollower-v0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no learned observer for 'TargetFollower-v0' yet" in err and "\n" not in err
+
+
+def test_predict_is_the_networks_forward_pass():
+    net, _ = load_network(WEIGHTS)
+    x = np.random.default_rng(0).normal(100.0, 50.0, (5, N_FEATURES))
+    with torch.no_grad():
+        mean, variance = net(torch.as_tensor(x))
+    for k in range(5):
+        m, P = net.predict(x[k])
+        np.testing.assert_allclose(m, mean[k].numpy(), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(np.diag(P), variance[k].numpy(), rtol=1e-4)
