@@ -25,9 +25,10 @@ the first round alone, the network erred by 6 mm on its held-out episodes, but t
 on its estimate made it err by 56 mm (RMS, 3 episodes at 1 px): it had seen no data where
 its own errors took the ball. After four rounds: 3.5 and 2.9 mm, velocity 47 and 36 mm/s,
 tilt 6 and 8 mrad, median NEES/dof 2.2 (the LQR on the truth: 2.1 and 1.5 mm, NEES/dof
-0.46). ``kf`` on the same measurements errs by about 0.02-1.5 mm (docs/observers.md). Outside those ranges (more noise, longer latency,
-calibration error, head motion, occluders) the network has seen nothing: its estimate
-and its covariance are not to be trusted there.
+0.46). ``kf`` on the same measurements errs by about 0.02-1.5 mm (docs/observers.md).
+Outside those ranges (more noise, longer latency, calibration error, head motion,
+occluders) the network has seen nothing: its estimate and its covariance are not to be
+trusted there.
 
 From rendered frames it is not trained yet: the ``learned`` (rgb) observer refuses at
 construction. Trained by::
@@ -44,6 +45,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from gymnasium import spaces
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
@@ -138,7 +140,10 @@ class LearnedObserver:
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
-        self.measurement_space = env.observation_space
+        space = env.observation_space
+        if not isinstance(space, spaces.Dict):
+            raise ValueError(f"LearnedObserver: a measurements env has a Dict space, not {space}")
+        self.measurement_space = space
         self.features = LearnedFeatures()
         self._newest_capture_s = -np.inf
 
@@ -176,10 +181,15 @@ def collect(
     rng = np.random.default_rng(seed)
     xs, ys, eps = [], [], []
     for episode in range(episodes):
-        options = {key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()}
+        options: dict[str, Any] = {
+            key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()
+        }
         env = gym.make("observer_gym/BallTable-v0", obs_mode="measurements", **options)
         try:
             controller = make_controller("lqr", env)
+            box = env.action_space
+            if not isinstance(box, spaces.Box):
+                raise ValueError(f"BallTable's action space is a Box, got {box}")
             features = LearnedFeatures()
             newest_s = -np.inf
             obs, info = env.reset(seed=int(rng.integers(2**31)))
@@ -198,7 +208,7 @@ def collect(
                     acted_on, _ = act_with.predict(xs[-1])
                 planned, _ = controller.predict(acted_on, deterministic=True)
                 noise = rng.normal(0.0, ACTION_NOISE_RAD, 2)
-                action = np.clip(planned + noise, env.action_space.low, env.action_space.high)
+                action = np.clip(planned + noise, box.low, box.high)
                 obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
                 if terminated or truncated:
                     break

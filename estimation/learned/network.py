@@ -37,6 +37,12 @@ class GaussianMLP(nn.Module):
     Two hidden layers of ``hidden`` units (tanh), a mean head and a log-variance head.
     """
 
+    # standardisation of the inputs and the targets (buffers, saved with the weights)
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+
     def __init__(self, n_in: int, n_out: int, hidden: int = 128) -> None:
         super().__init__()
         self.n_in, self.n_out, self.hidden = n_in, n_out, hidden
@@ -87,11 +93,14 @@ class GaussianMLP(nn.Module):
 
     def freeze(self) -> dict[str, np.ndarray]:
         """The weights as float64 arrays for :meth:`predict` (call again after training)."""
-        layers = {"1": self.body[0], "2": self.body[2], "m": self.mean_head, "v": self.log_var_head}
+        first, second = (m for m in self.body if isinstance(m, nn.Linear))
+        layers = {"1": first, "2": second, "m": self.mean_head, "v": self.log_var_head}
         w = {f"W{k}": m.weight.detach().double().numpy().copy() for k, m in layers.items()}
         w |= {f"b{k}": m.bias.detach().double().numpy().copy() for k, m in layers.items()}
-        for name in ("x_mean", "x_std", "y_mean", "y_std"):
-            w[name] = getattr(self, name).detach().numpy().copy()
+        buffers = {"x_mean": self.x_mean, "x_std": self.x_std}
+        buffers |= {"y_mean": self.y_mean, "y_std": self.y_std}
+        for name, buffer in buffers.items():
+            w[name] = buffer.detach().numpy().copy()
         self._frozen = w
         return w
 
