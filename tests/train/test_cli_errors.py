@@ -101,6 +101,60 @@ CASES = {
         [*TRAIN, "--env-option", "obs_mode=rgb"],
         "obs_mode is not allowed: --obs decides it",
     ),
+    # --- train --randomize: the form, the key, the range the env takes at both ends
+    "train-randomize-unknown-key": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency=0:0.01"],
+        "randomize latency: BallCatcher-v0 has no option 'latency'; allowed: ",
+    ),
+    "train-randomize-low-above-high": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0.02:0.01"],
+        "randomize latency_s: LOW=0.02 is above HIGH=0.01; need LOW <= HIGH",
+    ),
+    "train-randomize-not-numbers": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=none:0.01"],
+        "latency_s: LOW and HIGH must be numbers, got 'none:0.01'",
+    ),
+    "train-randomize-no-range": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0.01"],
+        "latency_s: expected LOW:HIGH or A|B|...",
+    ),
+    "train-randomize-high-out-of-range": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0:0.9"],
+        "randomize latency_s=0.9: BallCatcher-v0 refuses it: latency_s=0.9 is out of range; "
+        "allowed: [0.0, 0.5]",
+    ),
+    "train-randomize-low-out-of-range": (
+        [*TRAIN, "--env=TargetFollower-v0", "--randomize", "calib_focal_error=-0.1:0.05"],
+        "randomize calib_focal_error=-0.1: TargetFollower-v0 refuses it: "
+        "calib_focal_error=-0.1 is out of range; allowed: [0.0, 0.5]",
+    ),
+    "train-randomize-bad-choice": (
+        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "camera_preset=alternating|offsets"],
+        "randomize camera_preset='offsets': BallCatcher-v0 refuses it: "
+        "camera_preset='offsets' is not allowed; choose one of",
+    ),
+    "train-randomize-and-env-option": (
+        [
+            *TRAIN,
+            "--env=BallCatcher-v0",
+            "--randomize=latency_s=0:0.01",
+            "--env-option=latency_s=0",
+        ],
+        "--randomize and --env-option both give latency_s",
+    ),
+    "train-randomize-twice": (
+        [
+            *TRAIN,
+            "--env=BallCatcher-v0",
+            "--randomize=latency_s=0:0.01",
+            "--randomize=latency_s=0:0.02",
+        ],
+        "--randomize gives latency_s more than once",
+    ),
+    "train-resume-with-randomize": (
+        ["train", "--no-progress", "--resume", STATE_RUN, "--randomize", "latency_s=0:0.01"],
+        "--resume continues a run with its own settings; drop --randomize",
+    ),
     # --- an observer the env does not have
     "run-stkf-on-balltable": (
         [*RUN, "--env", "BallTable-v0", "--observer", "stkf", "--controller", "lqr"],
@@ -303,6 +357,9 @@ print(code, heavy)
         "run-unknown-env-option",
         "compare-bad-env-option",
         "train-unknown-env-option",
+        "train-randomize-unknown-key",
+        "train-randomize-high-out-of-range",
+        "train-randomize-and-env-option",
     ],
 )
 def test_mistakes_are_found_before_the_heavy_imports(case, runs, tmp_path):

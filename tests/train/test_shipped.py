@@ -25,9 +25,19 @@ def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
     assert fingerprint_difference(folder) <= 1e-6
     agent = Agent.load(folder)
     assert agent.timesteps == model_files(folder)[2] > 0
-    assert name == f"{system_for_id(config['env_id']).name}-{config['obs']}"
+    # <system>-<obs>, and -randomized for an agent trained with --randomize
+    randomized = "-randomized" if config.get("randomize") else ""
+    assert name == f"{system_for_id(config['env_id']).name}-{config['obs']}{randomized}"
     readme = (folder / shipped.README_FILE).read_text()
     assert "observer-gym train" in readme and f"--seed {config['seed']}" in readme
+    # the README's command draws what the run drew: every key, with its range or choices
+    for key, spec in (config.get("randomize") or {}).items():
+        drawn = (
+            "|".join(map(str, spec["choices"]))
+            if "choices" in spec
+            else (f"{spec['low']}:{spec['high']}")
+        )
+        assert f"--randomize {key}={drawn}" in readme.replace("'", ""), key
     assert sum(p.stat().st_size for p in folder.iterdir()) < MAX_AGENT_BYTES
 
 

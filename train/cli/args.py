@@ -321,6 +321,18 @@ def add_env_option_argument(parser: argparse.ArgumentParser, help_text: str) -> 
     )
 
 
+def randomize_option(text: str) -> tuple[str, dict[str, object]]:
+    """argparse type: ``KEY=LOW:HIGH`` (numbers, LOW <= HIGH) or ``KEY=A|B|...`` (values
+    read as Python literals, else text) of ``train --randomize``
+    (:func:`observer_gym.train.rl.randomize.parse_randomize_text`)."""
+    from observer_gym.train.rl.randomize import parse_randomize_text  # gymnasium, numpy
+
+    try:
+        return parse_randomize_text(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def hyperparam_option(text: str) -> tuple[str, object]:
     """argparse type: ``KEY=VALUE`` with a dotted key for nested values
     (``learning_rate=1e-4``, ``normalize.norm_reward=False``); the value is read as a

@@ -20,6 +20,7 @@ from observer_gym.train.cli.args import (
     hyperparam_option,
     nonnegative_int,
     positive_int,
+    randomize_option,
     recorded_args,
 )
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
@@ -151,6 +152,23 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_env_option_argument(parser, "a gym.make option of the env, repeatable; --obs sets obs_mode")
     parser.add_argument(
+        "--randomize",
+        type=randomize_option,
+        action="append",
+        default=[],
+        metavar="KEY=LOW:HIGH|KEY=A|B",
+        help=(
+            "domain randomisation, repeatable: every training episode draws the env option "
+            "KEY anew, KEY=LOW:HIGH a number uniform in [LOW, HIGH] (an integer option: an "
+            "integer in LOW..HIGH), KEY=A|B|... one of the values, each equally likely (e.g. "
+            "latency_s=0:0.01, camera_preset='alternating|random_offsets', "
+            "air_drag='False|True'). The world is rebuilt with the drawn options at every "
+            "reset; the draws come from the run's seed. Not with --env-option of the same "
+            "KEY; recorded in config.json and continued by --resume; the evaluation curve, "
+            "evaluate, run, compare and benchmark use the fixed options"
+        ),
+    )
+    parser.add_argument(
         "--tensorboard", action="store_true", help="also write TensorBoard logs (logs/)"
     )
     parser.add_argument(
@@ -185,6 +203,7 @@ _TRAIN_RUN_OPTIONS = (
     "vec_env",
     "hyperparam",
     "env_option",
+    "randomize",
     "out",
 )
 
@@ -272,6 +291,7 @@ def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict
         "vec_env": args.vec_env,
         "hyperparams": dict(args.hyperparam),
         "env_kwargs": dict(args.env_option),
+        "randomize": dict(args.randomize) or None,
         "tensorboard": args.tensorboard,
     }
 
@@ -281,10 +301,20 @@ def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> N
     stable-baselines3, whose classes know their hyperparameters) ``check_training``."""
     from observer_gym.train.cli.checks import check_training_request, training_overrides
 
+    keys = [key for key, _ in args.randomize]
+    repeated = sorted({key for key in keys if keys.count(key) > 1})
+    if repeated:
+        raise ValueError(f"--randomize gives {', '.join(repeated)} more than once; give each once")
+    fixed = sorted(set(keys) & set(options["env_kwargs"]))
+    if fixed:
+        raise ValueError(
+            f"--randomize and --env-option both give {', '.join(fixed)}: an option is either "
+            "drawn every episode or fixed"
+        )
     overrides = training_overrides(
         options["hyperparams"], args.timesteps, args.n_envs, args.vec_env
     )
-    check_training_request(
+    params = check_training_request(
         args.env,
         args.algo,
         args.obs,
@@ -295,6 +325,17 @@ def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> N
         args.tensorboard,
         args.observer,
     )
+    if options["randomize"]:  # both ends of every range, without PyTorch
+        from observer_gym.train.cli.checks import agent_observer, observer_mode
+        from observer_gym.train.rl.randomize import check_randomize
+
+        observer = agent_observer(args.env, args.obs, args.estimate_from, args.observer)
+        check_randomize(
+            args.env,
+            observer_mode(args.env, observer),
+            {**params["env_kwargs"], **options["env_kwargs"]},
+            options["randomize"],
+        )
     from observer_gym.train.rl.training import check_training  # deferred: PyTorch
 
     check_training(**options)

@@ -28,6 +28,7 @@ actions back to the env's units itself, so recorded actions are physical.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from typing import Any, cast
 
@@ -166,15 +167,45 @@ def make_agent_env(
     image: Mapping[str, Any] | None = None,
     observer: str | None = None,
     features: str | None = None,
+    randomize: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
     (``observer_gym.train.experiments.observer_env.make_env``), for ``rgb`` with
     :func:`wrap_images` (``image``:
     :class:`ImageOptions` fields), through the feature set ``features``, and the action
     space rescaled to [-1, 1]. A top-level function of plain arguments, so
-    ``functools.partial`` of it pickles into spawned SubprocVecEnv workers."""
+    ``functools.partial`` of it pickles into spawned SubprocVecEnv workers.
+
+    With ``randomize`` (a checked randomisation,
+    :func:`observer_gym.train.rl.randomize.check_randomize`) the env is a
+    :class:`~observer_gym.train.rl.randomize.RandomizedEnv` that builds this env anew at
+    every reset with options drawn over ``env_kwargs``."""
+    if randomize:
+        from observer_gym.train.rl.randomize import RandomizedEnv
+
+        fixed = dict(env_kwargs or {})
+        make_inner = functools.partial(
+            _drawn_agent_env, env_id, obs, estimate_from, fixed, image, observer, features
+        )
+        return RandomizedEnv(make_inner, env_id, randomize)
     env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
     return finish_agent_env(env, obs, image, features)
+
+
+def _drawn_agent_env(
+    env_id: str,
+    obs: str,
+    estimate_from: str,
+    env_kwargs: Mapping[str, Any],
+    image: Mapping[str, Any] | None,
+    observer: str | None,
+    features: str | None,
+    drawn: Mapping[str, Any],
+) -> gym.Env:
+    """:func:`make_agent_env` with the options ``drawn`` over ``env_kwargs``."""
+    return make_agent_env(
+        env_id, obs, estimate_from, {**env_kwargs, **drawn}, image, observer, features
+    )
 
 
 def finish_agent_env(

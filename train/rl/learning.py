@@ -51,8 +51,16 @@ EVAL_COLUMNS = (
 )
 
 
-def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Path | None):
-    """The training (or evaluation, ``monitor_dir`` None and one env) vector env."""
+def _vec_env(
+    config: Mapping[str, Any],
+    n_envs: int,
+    seed: int,
+    monitor_dir: Path | None,
+    randomize: bool = False,
+):
+    """The training (or evaluation, ``monitor_dir`` None and one env) vector env; with
+    ``randomize``, drawing the run's randomised options (config ``randomize``) anew at
+    every reset (:class:`~observer_gym.train.rl.randomize.RandomizedEnv`)."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -67,6 +75,7 @@ def _vec_env(config: Mapping[str, Any], n_envs: int, seed: int, monitor_dir: Pat
         # it as chosen are the estimate_from default, which is what observer_for gives)
         config.get("observer") if config["obs"] == "estimate" else None,
         config["hyperparams"].get("features"),  # absent from runs written before it existed
+        (config.get("randomize") or None) if randomize else None,
     )
     subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
     return make_vec_env(
@@ -139,7 +148,9 @@ def learn(
 
     train_seed = TRAIN_SEED_OFFSET + SEED_STRIDE * seed + start_steps
     eval_seed = EVAL_SEED_OFFSET + SEED_STRIDE * seed
-    venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor")
+    # training draws the randomised options (if any); the evaluation curve scores the
+    # agent on the run's fixed options, as evaluate, run, compare and benchmark load it
+    venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor", randomize=True)
     eval_env = _vec_env(config, 1, eval_seed, None)
     try:
         normalize = training["normalize"]

@@ -78,6 +78,7 @@ def train_agent(
     vec_env: str | None = None,
     hyperparams: Mapping[str, Any] | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    randomize: Mapping[str, Any] | None = None,
     tensorboard: bool = False,
     progress: bool = True,
     cli_args: Mapping[str, Any] | None = None,
@@ -99,6 +100,10 @@ def train_agent(
         hyperparams: dotted-key overrides of the YAML's values.
         env_kwargs: ``gym.make`` options (not obs_mode: ``obs`` decides it), over the
             YAML's ``env_kwargs``.
+        randomize: options each training episode draws anew, ``{KEY: {"low": LOW,
+            "high": HIGH}}`` or ``{KEY: {"choices": [A, B]}}``, none of ``env_kwargs``
+            (:mod:`observer_gym.train.rl.randomize`); recorded in config.json, continued by
+            a resume; the evaluation curve and every loaded agent use the fixed options.
         tensorboard: also write TensorBoard logs (needs the tensorboard package).
         progress: show SB3's progress bar.
         cli_args: the command line, recorded in config.json.
@@ -126,6 +131,7 @@ def train_agent(
         vec_env=vec_env,
         hyperparams=hyperparams,
         env_kwargs=env_kwargs,
+        randomize=randomize,
         tensorboard=tensorboard,
         cli_args=cli_args,
     )
@@ -150,6 +156,7 @@ def run_config(
     vec_env: str | None = None,
     hyperparams: Mapping[str, Any] | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    randomize: Mapping[str, Any] | None = None,
     tensorboard: bool = False,
     cli_args: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -160,7 +167,7 @@ def run_config(
     Raises:
         ValueError: any bad argument or hyperparameter.
     """
-    env_id, feeding, params, env_kwargs = check_training(
+    env_id, feeding, params, env_kwargs, randomize = check_training(
         env_id,
         algo,
         obs,
@@ -173,6 +180,7 @@ def run_config(
         vec_env=vec_env,
         hyperparams=hyperparams,
         env_kwargs=env_kwargs,
+        randomize=randomize,
         tensorboard=tensorboard,
     )
     probe = make_agent_env(
@@ -198,6 +206,7 @@ def run_config(
             "estimate_from": estimate_from if obs == "estimate" else None,
             "observer": feeding,
             "env_kwargs": env_kwargs,
+            **({"randomize": randomize} if randomize else {}),
             "seed": int(seed),
             "hyperparams": params,
             "tensorboard": bool(tensorboard),
@@ -232,8 +241,9 @@ def check_training(
     vec_env: str | None = None,
     hyperparams: Mapping[str, Any] | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    randomize: Mapping[str, Any] | None = None,
     tensorboard: bool = False,
-) -> tuple[str, str, dict[str, Any], dict[str, Any]]:
+) -> tuple[str, str, dict[str, Any], dict[str, Any], dict[str, dict[str, Any]]]:
     """The checks of :func:`train_agent` (same arguments), which build no env and write
     nothing: the env, ``obs`` and ``estimate_from``, the seed, the env options, the
     output folder and TensorBoard (:func:`observer_gym.train.cli.checks.check_training_request`),
@@ -242,15 +252,22 @@ def check_training(
 
     Returns:
         The registered env id, the observer that feeds the agent, the resolved
-        hyperparameters and the env's ``gym.make`` options (the YAML's with
-        ``env_kwargs`` over them).
+        hyperparameters, the env's ``gym.make`` options (the YAML's with
+        ``env_kwargs`` over them) and the checked randomisation
+        (:func:`~observer_gym.train.rl.randomize.check_randomize`: every key an option of
+        the env, none of ``env_kwargs``, both ends of every range taken by the env).
 
     Raises:
         ValueError: naming the bad argument or hyperparameter and what is allowed.
     """
-    from observer_gym.train.cli.checks import check_training_request, training_overrides
+    from observer_gym.train.cli.checks import (
+        check_training_request,
+        observer_mode,
+        training_overrides,
+    )
     from observer_gym.train.experiments.systems import resolve_env_id
     from observer_gym.train.rl.hyperparams import check_algorithm_keys
+    from observer_gym.train.rl.randomize import check_randomize
 
     env_id = resolve_env_id(env_id)
     feeding = observer_for(env_id, obs, estimate_from, observer)
@@ -278,7 +295,16 @@ def check_training(
             raise ValueError(
                 f"hyperparameter image must have only {fields}, got {params['image']!r}"
             ) from None
-    return env_id, feeding, params, {**params["env_kwargs"], **dict(env_kwargs or {})}
+    merged = {**params["env_kwargs"], **dict(env_kwargs or {})}
+    checked = check_randomize(
+        env_id,
+        observer_mode(env_id, feeding),
+        merged,
+        randomize,
+        fixed=env_kwargs,
+        fixed_by="--env-option / env_kwargs",
+    )
+    return env_id, feeding, params, merged, checked
 
 
 def check_features(env_id: str, obs: str, features: str | None) -> None:

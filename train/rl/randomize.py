@@ -1,0 +1,300 @@
+"""Domain randomisation of the env's options while training (``observer-gym train
+--randomize KEY=LOW:HIGH``, ``KEY=A|B``).
+
+A randomisation maps ``gym.make`` options to what each training episode draws for them:
+
+- ``{"low": LOW, "high": HIGH}``: a number uniform in [LOW, HIGH] (an integer option: an
+  integer uniform in LOW..HIGH, both included);
+- ``{"choices": [A, B, ...]}``: one of the values, each equally likely (for options that
+  are no numbers: ``camera_preset``, ``air_drag``).
+
+:class:`RandomizedEnv` is the training env of a randomised run: at each reset it draws the
+options, closes the world it holds and builds a new one (the env and its observer stack,
+exactly as training builds it for fixed options, with the drawn options over the fixed
+ones): only a rebuilt world equals a fresh one. Its draws come from a generator seeded at
+``reset(seed=s)`` with ``s``, which training derives from the run's seed and the env's rank
+(:mod:`observer_gym.train.rl.learning`), so a run repeats with its seed; each episode draws
+its options first, then the new world's seed.
+
+Only training randomises: a run records its randomisation in config.json (``randomize``)
+beside its fixed ``env_kwargs``, ``--resume`` continues it, and ``evaluate``, ``run``,
+``compare`` and ``benchmark`` (and the run's own evaluation curve) load the agent on the
+fixed options.
+
+This module imports no PyTorch and builds no world to check a randomisation
+(:func:`check_randomize`: the env's configuration class at both ends of every range).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+# gym.make keywords that no randomisation may draw
+NOT_RANDOMIZED = ("obs_mode", "render_mode", "max_episode_steps", "disable_env_checker")
+FORMS = "KEY=LOW:HIGH (a number uniform in [LOW, HIGH]) or KEY=A|B|... (one of the values)"
+
+
+def _literal(text: str) -> Any:
+    """``text`` read as a Python literal (``True``, ``2``, ``'a'``), else kept as text."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def _is_number(value: Any) -> bool:
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(float(value))
+    )
+
+
+def parse_randomize_text(text: str) -> tuple[str, dict[str, Any]]:
+    """``KEY=LOW:HIGH`` or ``KEY=A|B|...`` read as ``(KEY, spec)`` (see the module
+    docstring); a choice's values are read as Python literals (``True``, ``2``), else kept
+    as text. ValueError naming what is wrong and the forms allowed."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise ValueError(f"expected {FORMS}, got {text!r}")
+    if "|" in value:
+        choices = [_literal(part.strip()) for part in value.split("|")]
+        if any(part.strip() == "" for part in value.split("|")):
+            raise ValueError(f"{key}: an empty choice in {value!r}; expected {FORMS}")
+        return key, _checked_spec(key, {"choices": choices})
+    low_text, sep, high_text = value.partition(":")
+    if not sep:
+        raise ValueError(f"{key}: expected LOW:HIGH or A|B|..., got {value!r} ({FORMS})")
+    try:
+        low, high = float(low_text), float(high_text)
+    except ValueError:
+        raise ValueError(f"{key}: LOW and HIGH must be numbers, got {value!r}") from None
+    # an integer written as one stays an integer (for integer options)
+    bounds = [
+        int(number) if part.strip().lstrip("+-").isdigit() else number
+        for part, number in ((low_text, low), (high_text, high))
+    ]
+    return key, _checked_spec(key, {"low": bounds[0], "high": bounds[1]})
+
+
+def _checked_spec(key: str, spec: Any) -> dict[str, Any]:
+    """``spec`` as a plain dict, or ValueError naming ``key`` and what is allowed."""
+    if not isinstance(spec, Mapping):
+        raise ValueError(
+            f"randomize {key}: expected {{'low': LOW, 'high': HIGH}} or "
+            f"{{'choices': [...]}}, got {spec!r}"
+        )
+    if set(spec) == {"low", "high"}:
+        low, high = spec["low"], spec["high"]
+        if not (_is_number(low) and _is_number(high)):
+            raise ValueError(f"randomize {key}: LOW and HIGH must be finite numbers, got {spec!r}")
+        if low > high:
+            raise ValueError(f"randomize {key}: LOW={low} is above HIGH={high}; need LOW <= HIGH")
+        return {"low": low, "high": high}
+    if set(spec) == {"choices"}:
+        choices = list(spec["choices"]) if isinstance(spec["choices"], list | tuple) else None
+        if not choices:
+            raise ValueError(f"randomize {key}: choices must be a non-empty list, got {spec!r}")
+        if any(not isinstance(c, str | int | float | bool) for c in choices):
+            raise ValueError(
+                f"randomize {key}: choices must be numbers, text or True/False, got {choices!r}"
+            )
+        if len({(type(c), c) for c in choices}) != len(choices):
+            raise ValueError(f"randomize {key}: a choice is listed twice in {choices!r}")
+        return {"choices": choices}
+    raise ValueError(
+        f"randomize {key}: expected {{'low': LOW, 'high': HIGH}} or {{'choices': [...]}}, "
+        f"got {dict(spec)!r}"
+    )
+
+
+def check_randomize(
+    env_id: str,
+    obs_mode: str,
+    env_kwargs: Mapping[str, Any],
+    randomize: Mapping[str, Any] | None,
+    fixed: Mapping[str, Any] | None = None,
+    fixed_by: str = "env_kwargs",
+) -> dict[str, dict[str, Any]]:
+    """``randomize`` checked against ``env_id``'s options, as a plain dict.
+
+    Every key must be an option of the env's configuration class (not ``obs_mode`` or a
+    ``gym.make`` keyword), none of ``fixed`` (the options given as fixed ones, named
+    ``fixed_by`` in the message), and the env must take every end of a range and every
+    choice with the others at ``env_kwargs`` (the run's fixed options), and all ranges'
+    low ends together and high ends together. A range of an integer option must have
+    integer ends. Imports the env's module; builds no world.
+
+    Raises:
+        ValueError: naming the key, what was wrong and what is allowed.
+    """
+    from observer_gym.envs import system_for_id
+
+    if not randomize:
+        return {}
+    system = system_for_id(env_id)
+    config_class = system.env_class().config_class
+    fields = {f.name: f for f in dataclasses.fields(config_class)}
+    checked: dict[str, dict[str, Any]] = {}
+    for key, spec in randomize.items():
+        if key in NOT_RANDOMIZED:
+            raise ValueError(f"randomize {key}: not an option a training episode can draw")
+        if key not in fields:
+            allowed = ", ".join(k for k in fields if k not in NOT_RANDOMIZED)
+            raise ValueError(
+                f"randomize {key}: {system.short_id} has no option {key!r}; allowed: {allowed}"
+            )
+        if fixed and key in fixed:
+            raise ValueError(
+                f"randomize {key}: also given as a fixed option ({fixed_by}); give it one way"
+            )
+        spec = _checked_spec(key, spec)
+        default = fields[key].default
+        if "low" in spec:
+            if isinstance(default, bool) or not isinstance(default, int | float):
+                raise ValueError(
+                    f"randomize {key}: {system.short_id}'s {key} is no number "
+                    f"(default {default!r}); draw it from choices: {key}=A|B"
+                )
+            if isinstance(default, int) and not all(isinstance(spec[e], int) for e in spec):
+                raise ValueError(
+                    f"randomize {key}: {key} is an integer option; LOW and HIGH must be "
+                    f"integers, got {spec['low']}:{spec['high']}"
+                )
+        checked[key] = spec
+    base = {k: v for k, v in env_kwargs.items() if k not in NOT_RANDOMIZED}
+
+    def build(options: Mapping[str, Any], what: str) -> None:
+        try:
+            config_class.from_kwargs(obs_mode=obs_mode, **{**base, **options})
+        except ValueError as exc:
+            raise ValueError(
+                f"randomize {what}: {system.short_id} refuses it: {' '.join(str(exc).split())}"
+            ) from None
+
+    for key, spec in checked.items():
+        for value in spec.get("choices", [spec.get("low"), spec.get("high")]):
+            build({key: value}, f"{key}={value!r}")
+    ranges = {k: s for k, s in checked.items() if "low" in s}
+    if len(ranges) > 1:
+        build({k: s["low"] for k, s in ranges.items()}, "with every LOW together")
+        build({k: s["high"] for k, s in ranges.items()}, "with every HIGH together")
+    return checked
+
+
+def draw_options(
+    randomize: Mapping[str, Mapping[str, Any]],
+    rng: np.random.Generator,
+    integer_keys: frozenset[str] = frozenset(),
+) -> dict[str, Any]:
+    """One episode's options: each key of ``randomize`` drawn with ``rng``, in the
+    randomisation's order (a number uniform in [low, high], an integer option's integer
+    uniform in low..high, or one of the choices)."""
+    drawn: dict[str, Any] = {}
+    for key, spec in randomize.items():
+        if "choices" in spec:
+            drawn[key] = spec["choices"][int(rng.integers(len(spec["choices"])))]
+        elif key in integer_keys:
+            drawn[key] = int(rng.integers(int(spec["low"]), int(spec["high"]) + 1))
+        else:
+            drawn[key] = float(rng.uniform(float(spec["low"]), float(spec["high"])))
+    return drawn
+
+
+def integer_options(env_id: str) -> frozenset[str]:
+    """The options of ``env_id`` that are integers (drawn as integers)."""
+    from observer_gym.envs import system_for_id
+
+    config_class = system_for_id(env_id).env_class().config_class
+    return frozenset(
+        f.name
+        for f in dataclasses.fields(config_class)
+        if isinstance(f.default, int) and not isinstance(f.default, bool)
+    )
+
+
+class RandomizedEnv(gym.Env):
+    """A training env whose options are drawn anew at every reset (module docstring).
+
+    Args:
+        make_inner: builds the inner env (the env, its observer stack and the agent's
+            wrappers) for the options it is given, over the run's fixed ones.
+        env_id: the env, whose integer options are drawn as integers.
+        randomize: the checked randomisation (:func:`check_randomize`).
+
+    Attributes:
+        inner: the world of the current episode.
+        options: the options drawn for it.
+        episodes: how many worlds this env has built.
+    """
+
+    def __init__(
+        self,
+        make_inner: Callable[[Mapping[str, Any]], gym.Env],
+        env_id: str,
+        randomize: Mapping[str, Mapping[str, Any]],
+    ) -> None:
+        self._make_inner = make_inner
+        self.randomize = {k: dict(v) for k, v in randomize.items()}
+        self._integers = integer_options(env_id)
+        # until the first reset(seed=...); training seeds every env's first reset
+        self._rng = np.random.default_rng(0)
+        self.options = draw_options(self.randomize, np.random.default_rng(0), self._integers)
+        self.inner: gym.Env | None = make_inner(self.options)
+        self.episodes = 1
+        self._first = True  # the world built here has not run an episode yet
+        self.observation_space = self.inner.observation_space
+        self.action_space = self.inner.action_space
+        self.metadata = dict(self.inner.metadata)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        drawn = draw_options(self.randomize, self._rng, self._integers)
+        world_seed = int(self._rng.integers(2**31 - 1))
+        if not (self._first and drawn == self.options):
+            self._rebuild(drawn)
+        self._first = False
+        assert self.inner is not None  # built above or at construction
+        observation, info = self.inner.reset(seed=world_seed, options=options)
+        return observation, {**info, "randomized": dict(self.options)}
+
+    def _rebuild(self, drawn: dict[str, Any]) -> None:
+        if self.inner is not None:
+            self.inner.close()
+            self.inner = None
+        inner = self._make_inner(drawn)
+        if (
+            inner.observation_space != self.observation_space
+            or inner.action_space != self.action_space
+        ):
+            inner.close()
+            raise ValueError(
+                f"randomized options {drawn} change the env's spaces "
+                f"({inner.observation_space} / {inner.action_space}, first "
+                f"{self.observation_space} / {self.action_space}); randomise only options "
+                "that keep them"
+            )
+        self.inner, self.options = inner, drawn
+        self.episodes += 1
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        assert self.inner is not None, "reset the env first"
+        return self.inner.step(action)
+
+    def render(self) -> Any:
+        return None if self.inner is None else self.inner.render()
+
+    def close(self) -> None:
+        if self.inner is not None:
+            self.inner.close()
+            self.inner = None
