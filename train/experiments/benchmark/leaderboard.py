@@ -62,11 +62,12 @@ class Row(NamedTuple):
 
     @property
     def kind(self) -> str:
-        """``agent`` (a trained policy), ``true state`` (the oracle observer: no camera)
-        or ``classical`` (an observer on the camera and a designed controller)."""
+        """``agent`` (a trained policy), ``true state`` (an observer that reads the
+        simulator's truth: ``oracle``, ``oracle-visible``) or ``classical`` (an observer on
+        the camera and a designed controller)."""
         if self.controller.startswith(AGENT_PREFIXES):
             return "agent"
-        if self.observer == "oracle":
+        if self.observer.split("-measurements")[0] in ("oracle", "oracle-visible"):
             return "true state"
         return "classical"
 
@@ -199,8 +200,10 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
         "level's mean score and the IQM over the levels, with their 95 % bootstrap "
         "intervals. Entries are ranked by the IQM; two entries whose intervals overlap are "
         "not told apart by this suite. Kinds: `classical` is an observer on the camera with a "
-        "designed controller, `agent` a trained policy (train/rl/agents/), `true state` the "
-        "oracle observer (no camera; with the reference controller it is 1 by definition).",
+        "designed controller, `agent` a trained policy (train/rl/agents/), `true state` an "
+        "observer that reads the simulator's truth, for analysis: `oracle` (no camera; "
+        "with the reference controller 1 by definition) and `oracle-visible` (the truth "
+        "while the camera sees the target, predicted otherwise).",
         "",
     ]
     for env, group in groups.items():
