@@ -48,7 +48,9 @@ disturbance model (envs/ball_table/disturbances.py) and what the model leaves ou
   at ``push_rate_hz`` on the ball of mass m, which set its velocity by J / m and roll on
   at 5/7 of that: w1's intensity gains rate (5/7 J / m)^2 / 6 per axis (exact for the
   jumps' variance);
-- ``kf``'s model error, which follows the table's motion (``python
+- ``kf``'s model error on the perfect detector's measurements, which follows the
+  table's motion (from rendered frames ``kf`` keeps MODEL_ACCEL_STD_MPS2 at every step:
+  estimation/ball_table/observer.py says why) (``python
   benchmarks/ball_table_model_error.py [--push-rate-hz 0.5]``: the LQR on the truth, 10
   episodes of 300 steps). The ball's acceleration over a 20 ms step departs from (5/7) g
   sin(tilt) plus the table's angular acceleration h theta'' (RollingBallModel.

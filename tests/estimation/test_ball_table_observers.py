@@ -396,10 +396,10 @@ def test_ekf_keeps_the_ball_when_the_table_is_hidden():
 
 def test_ekf_from_pixels_beats_the_pnp_pipeline_on_position():
     """From rendered frames (6 s): the EKF's position and tilt errors are below kf's (no
-    PnP of a square seen nearly head-on), its velocity error far below raw's but 3x kf's
-    (kf's process noise follows the table's motion, ekf's is sigma_w = 0.5 m/s^2 at every
-    step: estimation/ball_table/noise.py); both filters' NIS per dimension is plausible
-    (kf's tilt noise is set cautiously)."""
+    PnP of a square seen nearly head-on), its velocity error like kf's, far below raw's;
+    both filters' NIS per dimension is plausible (kf's tilt noise is set cautiously).
+    From rendered frames kf keeps sigma_w = 0.5 m/s^2 at every step (its measured model
+    error is for measurements only: estimation/ball_table/observer.py)."""
     truth, estimates, _ = watch(["kf", "ekf", "raw"], 300, obs_mode="rgb")
     pos = {name: rmse(est, truth, slice(0, 2)) for name, est in estimates.items()}
     vel = {name: rmse(est, truth, slice(2, 4)) for name, est in estimates.items()}
@@ -417,15 +417,13 @@ def test_ekf_from_pixels_beats_the_pnp_pipeline_on_position():
         + f"\nekf average NEES (4 dof) {nees.mean():.2f}"
         + "".join(f", {n} NIS per dof {nis_per_dof(estimates[n]):.2f}" for n in ("kf", "ekf"))
     )
-    # measured 0.17 against 0.32 mm (0.42 before kf's measured model errors)
-    assert pos["ekf"] < 0.7 * pos["kf"]
+    assert pos["ekf"] < 0.5 * pos["kf"]  # measured 0.17 against 0.42 mm
     assert tilt["ekf"] < tilt["kf"]  # measured 1.8 against 2.3 mrad
-    # measured 7.0 against kf's 2.1 (5.3 before kf's measured model errors) and raw's 11.0
-    # mm/s (the measured pixel errors in R: the EKF follows the ball's pixel more closely
-    # than kf's 0.3 mm on the table)
-    assert vel["ekf"] < 0.7 * vel["raw"]
+    # measured 7.0 against 5.3 and 11.0 mm/s (the measured pixel errors in R: the EKF
+    # follows the ball's pixel more closely than kf's 0.3 mm on the table)
+    assert vel["ekf"] < 1.5 * vel["kf"] and vel["ekf"] < 0.7 * vel["raw"]
     assert 0.3 < nees.mean() < 4.0
-    assert 0.05 < nis_per_dof(estimates["kf"]) < 2.0  # measured 0.25 (0.13 before)
+    assert 0.05 < nis_per_dof(estimates["kf"]) < 2.0  # measured 0.13
     assert 0.3 < nis_per_dof(estimates["ekf"]) < 2.0  # measured 0.65
 
 
