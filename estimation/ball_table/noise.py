@@ -38,8 +38,9 @@ position (and, through the observers' rate g (u - tilt), on the tilt rate); ``kf
 it to the covariance it reports (:meth:`reported`), not to R (no innovation sees a
 constant offset). The tilt's offset also offsets the gravity input the ball filter
 computes from the tilt, an acceleration the real ball does not have: ``kf`` estimates
-that offset as two states (observer.py, ``gravity_offset_cov``). ``ekf`` reports the offset as its own pixel model reads the frame
-(estimation/ball_table/pixel_ekf.py, ``fit_calibration_cov``, through :meth:`reported`):
+that offset as two states (observer.py, ``gravity_offset_cov``). ``ekf`` reports the
+offset as its own pixel model reads the frame (estimation/ball_table/pixel_ekf.py,
+``fit_calibration_cov``, through :meth:`reported`):
 it takes the part a translation of the table explains in its state, and under a focal
 error settles at another tilt than PnP does.
 

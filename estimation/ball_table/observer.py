@@ -186,9 +186,9 @@ class TiltBallFilters:
         # measurements' noise (the estimated tilt's noise, times the lag's gain g, would
         # shake the ball's velocity every frame).
         self._lag_tilt = np.zeros(2) if tilt is None else np.array(tilt, dtype=float)
-        # The ball's prediction still to make: (dt, the lag model's tilt at the interval's
-        # start and its rate just before it), or None.
-        self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
+        # The ball's prediction still to make: (dt, the estimated tilt at the interval's
+        # start, the lag model's tilt there and its rate just before it), or None.
+        self._pending: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._cov_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.measured_model_error = params.measured_model_error
         # b's prior covariance (2, 2), or None: no offset states
@@ -363,7 +363,8 @@ class TiltBallFilters:
         )
         if self._offset_prior is not None:
             turned = np.concatenate([turned, np.zeros(2)])
-        kf.x, kf.P = model.clamp_to_border(kf.x + turned, kf.P)
+        # (the clamp keeps P: the same object, so the converged-gain path stays)
+        kf.x = model.clamp_to_border(kf.x + turned)[0]
 
     def _update_ball(
         self, ball_pos_table_m: np.ndarray, R: np.ndarray | None, measurement: Fused

@@ -455,6 +455,7 @@ class PixelEKF:
         if not self.ball_seen:
             self.ball_seen = self._restart_ball(m)
             return self.ball_seen
+        assert m.ball_px is not None  # update() calls this only with the ball seen
         h, H = ball_pixel(self.ekf.x, m)
         R = np.eye(2) * m.ball_std_px**2
         self.ekf.gate = self._gate
@@ -548,8 +549,8 @@ class PixelEKFObserver(FusedObserver):
             std = dict(RGB_STD_PX)
         else:
             # the declared pixel noise, with the floor for what the model leaves out
-            noise = math.hypot(MEASUREMENT_FLOOR_PX, env.sensor_spec.measurement_noise_std_px)
-            std = {RED_TOP: noise, BORDER_OUTLINE: noise, "ball": noise}
+            std_px = math.hypot(MEASUREMENT_FLOOR_PX, env.sensor_spec.measurement_noise_std_px)
+            std = {RED_TOP: std_px, BORDER_OUTLINE: std_px, "ball": std_px}
         std = {k: v * math.sqrt(self.r_scale) for k, v in std.items()}  # R times r_scale
         given = {
             RED_TOP: self.params.corner_std_px,
@@ -580,7 +581,7 @@ class PixelEKFObserver(FusedObserver):
         """The EKF's measurement from the image stage's features: every corner with a
         finite pixel, and the ball's image when all of it is finite."""
         models = []
-        if features.corners_px is not None:
+        if features.corners_px is not None and features.corner_model is not None:
             models.append((features.corner_model, features.corners_px))
             if features.corner_model == RED_TOP and features.outline_corners_px is not None:
                 models.append((BORDER_OUTLINE, features.outline_corners_px))
