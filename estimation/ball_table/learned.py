@@ -92,6 +92,16 @@ class LearnedFeatures:
     def reset(self) -> None:
         self._frames: list[_Frame] = []  # newest first
 
+    def newest_capture_s(self, info: dict) -> float | None:
+        """The capture time of the step's newest frame (``info["frames"]``) if it is newer
+        than the last one taken, else None (no new frame this step)."""
+        frames = info["frames"]
+        if not frames:
+            return None
+        capture_s = float(frames[-1]["capture_time_s"])
+        newest_s = self._frames[0].capture_s if self._frames else -np.inf
+        return capture_s if capture_s > newest_s else None
+
     def new_frame(self, measurement: dict[str, np.ndarray], capture_s: float) -> None:
         corners = np.asarray(measurement[CORNERS_PX], dtype=float)
         ball = np.asarray(measurement[BALL_PX], dtype=float)
@@ -145,20 +155,17 @@ class LearnedObserver:
             raise ValueError(f"LearnedObserver: a measurements env has a Dict space, not {space}")
         self.measurement_space = space
         self.features = LearnedFeatures()
-        self._newest_capture_s = -np.inf
 
     def reset(self) -> None:
         self.features.reset()
-        self._newest_capture_s = -np.inf
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         used = False
         measurement = None
-        frames = info["frames"]
-        if frames and frames[-1]["capture_time_s"] > self._newest_capture_s:
+        capture_s = self.features.newest_capture_s(info)
+        if capture_s is not None:
             measurement = checked_measurement("LearnedObserver", obs, self.measurement_space)
-            self._newest_capture_s = float(frames[-1]["capture_time_s"])
-            self.features.new_frame(measurement, self._newest_capture_s)
+            self.features.new_frame(measurement, capture_s)
             used = True
         now_s = float(info["time_s"])
         mean, covariance = self.net.predict(self.features.vector(now_s, action))
@@ -191,14 +198,12 @@ def collect(
             if not isinstance(box, spaces.Box):
                 raise ValueError(f"BallTable's action space is a Box, got {box}")
             features = LearnedFeatures()
-            newest_s = -np.inf
             obs, info = env.reset(seed=int(rng.integers(2**31)))
             action = None
             for _ in range(steps):
-                frames = info["frames"]
-                if frames and frames[-1]["capture_time_s"] > newest_s:
-                    newest_s = float(frames[-1]["capture_time_s"])
-                    features.new_frame(obs, newest_s)
+                capture_s = features.newest_capture_s(info)
+                if capture_s is not None:
+                    features.new_frame(obs, capture_s)
                 xs.append(features.vector(float(info["time_s"]), action))
                 ys.append(np.asarray(info["state"], dtype=float))
                 eps.append(episode)

@@ -44,7 +44,7 @@ from observer_gym.train.experiments.observer_env import observer_setup
 from observer_gym.train.experiments.systems import resolve_env_id
 from observer_gym.train.experiments.tasks import task_of
 from observer_gym.train.reports.aggregate import check_rliable
-from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, read_config
+from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
 
 
 class ObserverEntry(NamedTuple):
@@ -206,10 +206,10 @@ def _controller_entry(system: System, name: str, options: dict) -> ControllerEnt
         if is_policy_file(spec[1]):
             return ControllerEntry(name, "policy", None, {})
         try:
-            trained_with = dict(read_config(spec[1], spec[0]).get("env_kwargs") or {})
+            env_options = trained_with(spec[1], spec[0]).env_options
         except ValueError:  # not a run: check_controller names what is wrong
-            trained_with = {}
-        return ControllerEntry(name, "agent", None, {}, trained_with)
+            env_options = {}
+        return ControllerEntry(name, "agent", None, {}, env_options)
     if name in controllers_of(system):
         return ControllerEntry(name, "design", None, {})
     plugin = find_plugin("controller", name)

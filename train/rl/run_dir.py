@@ -16,7 +16,7 @@ import json
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
@@ -169,6 +169,20 @@ def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
     if algo is not None and config["algo"] != algo:
         raise ValueError(f"{run_dir} holds a {config['algo']} agent, not {algo}")
     return config
+
+
+class TrainedWith(NamedTuple):
+    """What a trained agent's folder says it needs to act as trained."""
+
+    observer: str  # the observer it was trained on ("pixels" for an rgb agent)
+    env_options: dict[str, Any]  # its env_kwargs (image size, reward shaping)
+
+
+def trained_with(run_dir: str | Path, algo: str | None = None) -> TrainedWith:
+    """The observer and env options the agent in ``run_dir`` was trained with, from its
+    config.json (:func:`read_config`, whose ValueErrors it raises)."""
+    config = read_config(run_dir, algo)
+    return TrainedWith(str(config["observer"]), dict(config.get("env_kwargs") or {}))
 
 
 def read_state(run_dir: str | Path) -> dict[str, Any] | None:

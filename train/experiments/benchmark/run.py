@@ -51,6 +51,7 @@ from observer_gym.train.reports.outputs import (
     output_folder,
     write_json_atomic,
 )
+from observer_gym.train.rl.run_dir import TrainedWith, parse_agent_spec, trained_with
 
 
 class BenchmarkResult(NamedTuple):
@@ -119,22 +120,13 @@ def check_benchmark(
     )
 
 
-class AgentEntry(NamedTuple):
-    """What a trained agent's folder says it needs to act as trained."""
-
-    observer: str  # the observer it was trained on ("pixels" for an rgb agent)
-    env_options: dict[str, Any]  # its env_kwargs (image size, reward shaping)
-
-
-def agent_entry(policy: str) -> AgentEntry:
+def agent_entry(policy: str) -> TrainedWith:
     """The observer and env options an agent ``ALGO:DIR`` (or a shipped ``ALGO:NAME``)
     was trained with, from its config.json (checked against its recorded hash).
 
     Raises:
         ValueError: ``policy`` is not ``ALGO:DIR`` or names no training run.
     """
-    from observer_gym.train.rl.run_dir import parse_agent_spec, read_config
-
     spec = parse_agent_spec(policy)
     if spec is None:
         raise ValueError(
@@ -142,8 +134,7 @@ def agent_entry(policy: str) -> AgentEntry:
             "or ALGO:NAME of a shipped agent (observer-gym list)"
         )
     algo, run_dir = spec
-    config = read_config(run_dir, algo)
-    return AgentEntry(str(config["observer"]), dict(config.get("env_kwargs") or {}))
+    return trained_with(run_dir, algo)
 
 
 def check_out_dir(out_dir: Path, request: BenchmarkRequest) -> None:
