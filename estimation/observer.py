@@ -80,6 +80,8 @@ OBSERVER_ROLES = {
     "oracle-visible": "the true state while the camera sees it, predicted otherwise",
     "learned": "a network trained on the simulator's truth: the newest frames' detections "
     "to the estimate and its covariance (no filter)",
+    "learned-kf": "the learned network as the Kalman filter's measurement model (it "
+    "replaces the detector, the filter stays)",
 }
 
 

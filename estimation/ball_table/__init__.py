@@ -8,6 +8,7 @@ process and control models, and the observer pipelines (docs/spec/table_ball.md)
 from functools import partial
 
 from observer_gym.estimation.ball_table.learned import LearnedObserver
+from observer_gym.estimation.ball_table.learned_kf import LearnedKFObserver
 from observer_gym.estimation.ball_table.observer import BallTableObserver, BallTableObserverParams
 from observer_gym.estimation.ball_table.oracle_visible import OracleVisibleObserver
 from observer_gym.estimation.ball_table.pixel_ekf import PixelEKFObserver, PixelEKFParams
@@ -20,12 +21,14 @@ OBSERVERS = {
     "raw": RawObserver,
     "oracle-visible": OracleVisibleObserver,
     "learned": LearnedObserver,
+    "learned-kf": LearnedKFObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "BallTableObserver",
     "BallTableObserverParams",
+    "LearnedKFObserver",
     "LearnedObserver",
     "OracleVisibleObserver",
     "PixelEKFObserver",

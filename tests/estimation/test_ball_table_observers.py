@@ -73,10 +73,10 @@ def rmse(estimates, truth, part) -> float:
 
 
 # --- every observer -------------------------------------------------------------------
-# (the learned observer, measurements only and centimetres off at a 30 % drop rate, has
-# its own tests: tests/estimation/test_learned_ball_table.py)
+# (the learned observers, measurements only and the network centimetres off at a 30 %
+# drop rate, have their own tests: tests/estimation/test_learned_ball_table.py)
 @pytest.mark.parametrize("obs_mode", ["measurements", "rgb"])
-@pytest.mark.parametrize("name", [name for name in OBSERVERS if name != "learned"])
+@pytest.mark.parametrize("name", [name for name in OBSERVERS if not name.startswith("learned")])
 def test_every_observer_gives_the_state_layout(name, obs_mode):
     env = VisionObserver(gym.make(ENV_ID, obs_mode=obs_mode, frame_drop_prob=0.3), observer=name)
     try:

@@ -1,6 +1,6 @@
-"""BallTable's learned observer (estimation/ball_table/learned.py): its features, the
-shipped weights (layout, covariance, refusal of a changed file), its error and NEES on a
-new seed against the bounds its report measured, and reproducible training."""
+"""BallTable's learned observers (estimation/ball_table/learned.py, learned_kf.py): the
+features, the shipped weights (layout, covariance, refusal of a changed file), the error
+and NEES on a new seed against the bounds measured, and reproducible training."""
 
 from __future__ import annotations
 
@@ -68,9 +68,28 @@ def test_the_shipped_estimate_has_the_state_layout_and_a_diagonal_covariance():
         env.close()
 
 
-def test_from_rendered_frames_it_refuses_in_one_line():
+def test_learned_kf_gives_the_state_layout_and_a_positive_definite_covariance():
+    """Through drops (30 %), every step: the filter's full covariance, symmetric and
+    positive definite."""
+    env = VisionObserver(
+        gym.make(ENV, obs_mode="measurements", frame_drop_prob=0.3), observer="learned-kf"
+    )
+    try:
+        estimate, info = env.reset(seed=0)
+        assert estimate.shape == (8,)
+        for _ in range(20):
+            estimate, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
+            P = info["estimate"]["covariance"]
+            assert P.shape == (8, 8) and np.allclose(P, P.T)
+            assert np.all(np.linalg.eigvalsh(P) > 0.0)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("observer", ["learned", "learned-kf"])
+def test_from_rendered_frames_it_refuses_in_one_line(observer):
     with pytest.raises(ValueError, match="measurements only"):
-        VisionObserver(gym.make(ENV, obs_mode="rgb"), observer="learned")
+        VisionObserver(gym.make(ENV, obs_mode="rgb"), observer=observer)
 
 
 def test_a_changed_weight_file_is_refused(tmp_path):
@@ -85,17 +104,14 @@ def test_a_changed_weight_file_is_refused(tmp_path):
         load_network(weights)
 
 
-def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
-    """The LQR on the learned estimate (closed loop), 3 episodes of 300 steps on seeds the
-    training never drew (10**6...), at 1 px of pixel noise (inside the training ranges):
-    position RMSE within the report's held-out RMSE (measured 3.5 and 2.9 mm against its
-    6.1 and 6.0 mm), median NEES/dof within [1/3, 3] (measured 2.2)."""
-    report = json.loads(WEIGHTS.with_suffix(".json").read_text())
-    held_rmse = np.array(report["held_out"]["rmse"])
+def _closed_loop(observer: str) -> tuple[np.ndarray, float]:
+    """The LQR on ``observer``'s estimate, 3 episodes of 300 steps on seeds the training
+    never drew (10**6...), at 1 px of pixel noise (inside the training ranges): the RMSE
+    per state entry and the median step NEES/dof (full covariance)."""
     errors, nees = [], []
     for seed in range(10**6, 10**6 + 3):
         env = VisionObserver(
-            gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0), observer="learned"
+            gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0), observer=observer
         )
         try:
             controller = make_controller("lqr", env)
@@ -105,13 +121,45 @@ def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
                 estimate, _, terminated, _, info = env.step(action)
                 e = info["estimate"]["mean"] - info["state"]
                 errors.append(e)
-                nees.append(np.sum(e**2 / np.diag(info["estimate"]["covariance"])) / 8)
+                nees.append(e.dot(np.linalg.solve(info["estimate"]["covariance"], e)) / 8)
                 assert not terminated, f"seed {seed}: the ball left the table"
         finally:
             env.close()
-    rmse = np.sqrt(np.mean(np.square(errors), axis=0))
+    return np.sqrt(np.mean(np.square(errors), axis=0)), float(np.median(nees))
+
+
+def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
+    """``learned``: position RMSE within the report's held-out RMSE (measured 3.5 and 2.9
+    mm against its 6.1 and 6.0 mm), median NEES/dof within [1/3, 3] (measured 2.2)."""
+    report = json.loads(WEIGHTS.with_suffix(".json").read_text())
+    held_rmse = np.array(report["held_out"]["rmse"])
+    rmse, nees = _closed_loop("learned")
     assert np.all(rmse[:2] < held_rmse[:2]), (rmse, held_rmse)
-    assert 1 / 3 <= np.median(nees) <= 3, np.median(nees)
+    assert 1 / 3 <= nees <= 3, nees
+
+
+def test_learned_kf_is_more_precise_than_the_network_and_than_kf():
+    """``learned-kf`` (the network as kf's measurement model), the same episodes: position
+    RMSE below the network's alone and below ``kf``'s on the same measurements (measured
+    2.67 and 1.43 mm against 3.53 and 2.85 (learned) and 3.19 and 1.63 (kf)); velocity
+    below the network's tenfold (4.7 and 5.9 mm/s against 47 and 36)."""
+    rmse, _ = _closed_loop("learned-kf")
+    learned, _ = _closed_loop("learned")
+    kf, _ = _closed_loop("kf")
+    assert np.all(rmse[:2] < learned[:2]) and np.all(rmse[:2] < kf[:2]), (rmse, learned, kf)
+    assert np.all(rmse[2:4] < 0.2 * learned[2:4]), (rmse, learned)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="measured 5.8: R takes each frame's network error as independent, but the "
+    "network reads the last four frames, and its own covariance claims about half its "
+    "error (learned_kf.py)",
+)
+def test_learned_kf_nees_in_the_band():
+    _, nees = _closed_loop("learned-kf")
+    assert 1 / 3 <= nees <= 3, nees
 
 
 def test_training_is_reproducible_from_its_seed():

@@ -161,7 +161,7 @@ CASES = {
         "unknown observer 'stkf' for observer_gym/BallTable-v0; allowed: oracle, kf, "
         "kf-measurements, kf-latency, kf-latency-measurements, ekf, ekf-measurements, raw, "
         "raw-measurements, oracle-visible, oracle-visible-measurements, learned-measurements, "
-        "pixels",
+        "learned-kf-measurements, pixels",
     ),
     "compare-stkf-on-balltable": (
         [*COMPARE, "--observers", "oracle,stkf", "--controllers", "lqr"],

@@ -21,8 +21,10 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
         for name in _FAMILY
         for suffix, obs_mode in (("", "rgb"), ("-measurements", "measurements"))
     },
-    # the network trained on the perfect detector's measurements (not on rendered frames)
+    # the network trained on the perfect detector's measurements (not on rendered frames),
+    # alone and as kf's measurement model
     "learned-measurements": ("measurements", {"observer": "learned"}),
+    "learned-kf-measurements": ("measurements", {"observer": "learned-kf"}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
 # what an agent trained with --obs estimate reads, by --estimate-from

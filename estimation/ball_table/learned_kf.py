@@ -1,0 +1,81 @@
+"""BallTable's ``learned-kf`` observer: the ``learned`` network as ``kf``'s measurement
+model. The network (estimation/ball_table/learned.py) replaces the detector; the filters
+(estimation/ball_table/observer.py, :class:`TiltBallFilters`) stay.
+
+Per new frame, the network reads the newest frames' detections as ``learned`` does, with
+the frame's own capture time as "now" (the newest frame's age 0), so what it estimates is
+the state at the capture, as a detector's measurement is. Its tilt (4:6) and ball
+position (0:2) are ``kf``'s tilt and ball measurements, and the diagonal covariance it
+predicts for them is their R (plus ``kf``'s frame-age term when fused at delivery). Its
+velocity and rate outputs are not used: the filters make their own from the models.
+
+What this takes for granted: R treats each frame's network error as independent of the
+last frame's, but the network reads the last four frames, so consecutive errors share
+three of them; and the network's own covariance claims about half its error (its
+NEES/dof on new seeds is 2.2, tests/estimation/test_learned_ball_table.py). Both make
+the filter trust it more than it should; the NEES/dof this observer reports is measured
+in tests/estimation/test_learned_ball_table.py. Like ``learned`` it is trained on the
+perfect detector's measurements only (``learned-kf-measurements``) and knows no
+calibration error: nothing of the calibration's offset is reported.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.ball_table import BallTableEnv
+from observer_gym.estimation.ball_table.fusion import Fused
+from observer_gym.estimation.ball_table.learned import LearnedObserver
+from observer_gym.estimation.ball_table.observer import BallTableObserver, TiltBallDetection
+from observer_gym.estimation.observer import Estimate
+
+__all__ = ["LearnedKFObserver"]
+
+
+class LearnedKFObserver(BallTableObserver):
+    """``learned-kf`` (and, with ``latency_aware=True``, fused at the capture time) for
+    BallTable-v0: see the module docstring.
+
+    Args:
+        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        weights: the network's weight file (default: ``learned``'s shipped one; refused
+            if changed).
+        latency_aware: fuse each frame at its capture time, as ``kf-latency``.
+    """
+
+    def __init__(
+        self,
+        env: BallTableEnv,
+        weights: str | Path | None = None,
+        latency_aware: bool = False,
+    ) -> None:
+        if env.config.obs_mode != "measurements":
+            raise ValueError(
+                "learned-kf of BallTable-v0 reads the perfect detector's measurements only "
+                "(learned-kf-measurements): its network is not trained on rendered frames "
+                f"(obs_mode {env.config.obs_mode!r})"
+            )
+        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        self._action: np.ndarray | None = None
+        super().__init__(env, latency_aware=latency_aware)
+
+    def reset(self) -> None:
+        super().reset()
+        self.learned.reset()
+        self._action = None
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
+        self._action = action  # the network reads the last action with the frames
+        return super().observe(obs, info, action)
+
+    def _read(self, obs: Any, frame: dict):
+        self.reader.features(obs, frame)  # the frame counts as seen
+        capture_s = float(frame["capture_time_s"])
+        features = self.learned.features
+        features.new_frame(obs, capture_s)
+        mean, cov = self.learned.net.predict(features.vector(capture_s, self._action))
+        detection = TiltBallDetection(mean[4:6], mean[0:2], cov[4:6, 4:6], cov[0:2, 0:2])
+        return obs, Fused(detection)
