@@ -1,0 +1,78 @@
+"""Which of a benchmark level's options costs an entry its score: the level's headline
+metric with each option alone (on the ideal level's options) and with each option left
+out (the rest of the level kept), on the level's first official seeds.
+
+    .venv/bin/python benchmarks/level_ablation.py --env BallCatcher-v0 --level lab \
+        --observer kf-measurements --controller intercept --episodes 100 --workers 2
+
+It prints one table: the level itself, the ideal level, then per option "alone" and
+"left out", each with the mean of the metric and its 95 % interval (a normal
+approximation, or Wilson's for a 0/1 metric such as BallCatcher's ``caught``). The
+episodes run exactly as a benchmark entry's
+(:func:`observer_gym.train.experiments.benchmark.references.episode_values`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from scipy.stats import binomtest
+
+from observer_gym.train.experiments.benchmark.references import episode_values
+from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
+
+
+def interval(values: np.ndarray) -> tuple[float, float]:
+    """95 % interval of the mean: Wilson's for 0/1 values, else mean +- 1.96 s / sqrt(n)."""
+    n = len(values)
+    if np.all((values == 0.0) | (values == 1.0)):
+        ci = binomtest(int(values.sum()), n).proportion_ci(confidence_level=0.95, method="wilson")
+        return float(ci.low), float(ci.high)
+    half = 1.96 * float(np.std(values, ddof=1)) / np.sqrt(n) if n > 1 else float("nan")
+    return float(values.mean()) - half, float(values.mean()) + half
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", required=True)
+    parser.add_argument("--level", required=True)
+    parser.add_argument("--observer", required=True)
+    parser.add_argument("--controller", default=None, help="default: the suite's reference")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--suite", default=DEFAULT_VERSION)
+    args = parser.parse_args()
+    suite = load_suite(args.env, args.suite)
+    levels = {level.name: level for level in suite.levels}
+    if args.level not in levels:
+        parser.error(f"level {args.level!r} is not in suite {suite.version}: {', '.join(levels)}")
+    level = levels[args.level]
+    ideal = suite.levels[0].env_options
+    controller = args.controller or suite.controller
+    seeds = level.seeds(args.episodes)
+    rows = [(f"level {level.name}", dict(level.env_options)), (f"{suite.levels[0].name}", ideal)]
+    for key, value in level.env_options.items():
+        rows.append((f"{key}={value} alone", {**ideal, key: value}))
+        rows.append((f"{key} left out", {k: v for k, v in level.env_options.items() if k != key}))
+    print(
+        f"{suite.env_id} suite {suite.version}, level {level.name}'s first {len(seeds)} seeds: "
+        f"{args.observer} + {controller}, metric {suite.metric.name} ({suite.metric.better} "
+        "is better)"
+    )
+    print("| options | mean | 95 % interval |")
+    print("|---|---|---|")
+    tic = time.perf_counter()
+    for name, options in rows:
+        values = episode_values(
+            suite, level._replace(env_options=options), args.observer, controller, seeds,
+            args.workers,
+        )  # fmt: skip
+        low, high = interval(values)
+        print(f"| {name} | {values.mean():.3f} | [{low:.3f}, {high:.3f}] |", flush=True)
+    print(f"({time.perf_counter() - tic:.0f} s of wall time)")
+
+
+if __name__ == "__main__":
+    main()
