@@ -50,7 +50,13 @@ class SystemStudy(NamedTuple):
 SYSTEMS: dict[str, SystemStudy] = {
     "BallTable-v0": SystemStudy(
         "lqr",
-        ("kf-measurements", "kf-latency-measurements", "ekf-measurements"),
+        (
+            "kf-measurements",
+            "kf-latency-measurements",
+            "ekf-measurements",
+            "learned-measurements",
+            "learned-kf-measurements",
+        ),
         {"push_rate_hz": 0.5},
         300,
     ),
