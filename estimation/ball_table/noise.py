@@ -235,6 +235,11 @@ class BallTableNoiseRule:
         self._linearised = None
         self._calibrated = None
 
+    @property
+    def declares_calibration(self) -> bool:
+        """The sensor declares a calibration error (some calibration variance > 0)."""
+        return bool(self._calibration_variances)
+
     # --- the calibration's offset (reported, not in R) ---------------------------------
     def calibration_cov(
         self, features: BallTableFeatures, K: np.ndarray, T_world_cam: np.ndarray

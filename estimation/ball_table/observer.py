@@ -39,7 +39,8 @@ Under a declared calibration error the tilt the filters estimate is offset by d_
 it by the constant b = (5/7) g J d_tilt, which the real ball does not feel: the ball
 filter then carries b as two more states, a random constant with the prior J Sigma J^T
 (Sigma the declared calibration's covariance of d_tilt, :meth:`BallTableNoiseRule.
-calibration_cov`), entering as the input does. The ball's motion against the model makes
+calibration_cov`, at the first frame, or at the nominal scene when the filters start
+before any frame arrives, as under latency), entering as the input does. The ball's motion against the model makes
 b observable; without it a calm ball's velocity kept a 4-5 mm/s bias at 1 degree of
 rotation error (NEES/dof 10.6). The tilt's own offset is reported, not estimated
 (noise.py, "Calibration").
@@ -65,7 +66,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
+from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.geometry import up_in_table
+from observer_gym.envs.ball_table.measurements import perfect_measurement
+from observer_gym.estimation.ball_table.features import features_from_measurement
 from observer_gym.estimation.ball_table.frames import FrameReader, detected_parts
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
@@ -614,6 +618,7 @@ class BallTableObserver(FusedObserver):
         self.tilt_model = TiltLagModel.from_arm(
             cfg.arm_position_gain, cfg.physics_dt_s, self.params.tilt_rate_noise_std_radps
         )
+        self._env = env
         reader = FrameReader(env, detector, type(self).__name__)
         noise = BallTableNoiseRule(
             env.sensor_spec,
@@ -659,6 +664,29 @@ class BallTableObserver(FusedObserver):
             ball,
             noise=self.noise if self.noise.age_sq_s2 > 0.0 else None,
             start_R=(detection.tilt_R, detection.ball_R),
-            tilt_offset_cov=None if self._calibration is None else self._calibration[0:2, 0:2],
+            tilt_offset_cov=self._start_calibration(),
         )
         return core, tilt is not None or ball is not None
+
+    def _start_calibration(self) -> np.ndarray | None:
+        """The declared calibration's covariance (2, 2) of the tilt's offset for the
+        filters' start: at the first frame's features, or, when the start comes before any
+        frame (under latency), at the nominal scene: the level table at home with the ball
+        at its centre, through the nominal camera now. None without calibration error."""
+        if not self.noise.declares_calibration:
+            return None
+        calibration = self._calibration
+        if calibration is None:
+            env = self._env
+            K = env.rig.nominal[0].K
+            T_world_cam = env.camera_pose(0)
+            T_world_table = np.eye(4)
+            T_world_table[:3, 3] = geo.TABLE_CENTRE_HOME_WORLD
+            ball_pos_world = geo.TABLE_CENTRE_HOME_WORLD + np.array([0.0, 0.0, geo.BALL_RADIUS_M])
+            home = perfect_measurement(
+                K, T_world_cam, env.rig.image_size_px, T_world_table, ball_pos_world
+            )
+            calibration = self.noise.calibration_cov(
+                features_from_measurement(home), K, T_world_cam
+            )
+        return None if calibration is None else calibration[0:2, 0:2]

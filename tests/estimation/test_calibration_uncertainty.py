@@ -86,6 +86,27 @@ def test_no_calibration_error_gives_none():
         # 150 calm steps. Measured 0.65 (0.53-0.73); 10.6 without the offset states (the
         # calm ball's velocity biased 4-5 mm/s), 1e7 without the reported offset.
         ("BallTable-v0", "kf", "lqr", 150, {"calib_rotation_error_deg": 1.0}, 1 / 3, 3.0),
+        # the same with 0.04 s of latency: the filters start before the first frame, their
+        # offset prior from the nominal scene (observer.py, _start_calibration). Measured
+        # 0.80 (kf) and 2.45 (kf-latency); 1.85 and 7.96 with no offset states then.
+        (
+            "BallTable-v0",
+            "kf",
+            "lqr",
+            150,
+            {"calib_rotation_error_deg": 1.0, "latency_s": 0.04},
+            1 / 3,
+            3.0,
+        ),
+        (
+            "BallTable-v0",
+            "kf-latency",
+            "lqr",
+            150,
+            {"calib_rotation_error_deg": 1.0, "latency_s": 0.04},
+            1 / 3,
+            3.0,
+        ),
         # BallCatcher kf: the calibration as pixel variance in R (measured 0.34 at 2 %
         # focal error, 12.9 without it); a constant offset taken as white noise leaves the
         # filter on the cautious side, hence the lower bound 0.2
