@@ -40,8 +40,8 @@ it by the constant b = (5/7) g J d_tilt, which the real ball does not feel: the 
 filter then carries b as two more states, a random constant with the prior J Sigma J^T
 (Sigma the declared calibration's covariance of d_tilt, :meth:`BallTableNoiseRule.
 calibration_cov`, at the first frame, or at the nominal scene when the filters start
-before any frame arrives, as under latency), entering as the input does. The ball's motion against the model makes
-b observable; without it a calm ball's velocity kept a 4-5 mm/s bias at 1 degree of
+before any frame arrives, as under latency), entering as the input does. The ball's
+motion against the model makes b observable; without it a calm ball's velocity kept a 4-5 mm/s bias at 1 degree of
 rotation error (NEES/dof 10.6). The tilt's own offset is reported, not estimated
 (noise.py, "Calibration").
 When a frame is dropped or the ball is not seen, the estimate is the prediction. A
