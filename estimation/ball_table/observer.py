@@ -41,9 +41,9 @@ filter then carries b as two more states, a random constant with the prior J Sig
 (Sigma the declared calibration's covariance of d_tilt, :meth:`BallTableNoiseRule.
 calibration_cov`, at the first frame, or at the nominal scene when the filters start
 before any frame arrives, as under latency), entering as the input does. The ball's
-motion against the model makes b observable; without it a calm ball's velocity kept a 4-5 mm/s bias at 1 degree of
-rotation error (NEES/dof 10.6). The tilt's own offset is reported, not estimated
-(noise.py, "Calibration").
+motion against the model makes b observable; without it a calm ball's velocity kept a
+4-5 mm/s bias at 1 degree of rotation error (NEES/dof 10.6). The tilt's own offset is
+reported, not estimated (noise.py, "Calibration").
 When a frame is dropped or the ball is not seen, the estimate is the prediction. A
 detection with a non-finite tilt or ball position (NaN, inf: e.g. from NaN pixels in a
 measurement) is no detection of that part: it neither updates a filter nor counts as a
