@@ -71,6 +71,11 @@ class LearnedKFObserver(BallTableObserver):
         self._action = action  # the network reads the last action with the frames
         return super().observe(obs, info, action)
 
+    def _start_calibration(self) -> None:
+        """None: the network's tilt is not PnP's, so the gravity-offset states that kf
+        sizes from the geometry stage's calibration sensitivity do not apply to it."""
+        return None
+
     def _read(self, obs: Any, frame: dict):
         self.reader.features(obs, frame)  # the frame counts as seen
         capture_s = float(frame["capture_time_s"])
