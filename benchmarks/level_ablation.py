@@ -6,8 +6,8 @@ out (the rest of the level kept), on the level's first official seeds.
         --observer kf-measurements --controller intercept --episodes 100 --workers 2
 
 It prints one table: the level itself, the ideal level, then per option "alone" and
-"left out", each with the mean of the metric and its 95 % interval (a normal
-approximation, or Wilson's for a 0/1 metric such as BallCatcher's ``caught``). The
+"left out", each with the mean of the metric and its 95 % interval
+(Student t's, or Wilson's for a 0/1 metric such as BallCatcher's ``caught``). The
 episodes run exactly as a benchmark entry's
 (:func:`observer_gym.train.experiments.benchmark.references.episode_values`).
 """
@@ -18,20 +18,20 @@ import argparse
 import time
 
 import numpy as np
-from scipy.stats import binomtest
 
 from observer_gym.train.experiments.benchmark.references import episode_values
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
+from observer_gym.train.reports.compare_stats import mean_interval, rate_interval
 
 
 def interval(values: np.ndarray) -> tuple[float, float]:
-    """95 % interval of the mean: Wilson's for 0/1 values, else mean +- 1.96 s / sqrt(n)."""
-    n = len(values)
+    """95 % interval of the mean: Wilson's for 0/1 values, else Student t's
+    (train/reports/compare_stats.py, as ``compare`` reports them)."""
     if np.all((values == 0.0) | (values == 1.0)):
-        ci = binomtest(int(values.sum()), n).proportion_ci(confidence_level=0.95, method="wilson")
-        return float(ci.low), float(ci.high)
-    half = 1.96 * float(np.std(values, ddof=1)) / np.sqrt(n) if n > 1 else float("nan")
-    return float(values.mean()) - half, float(values.mean()) + half
+        stat = rate_interval([bool(v) for v in values])
+    else:
+        stat = mean_interval(values.tolist())
+    return stat["low"], stat["high"]
 
 
 def main() -> None:

@@ -69,6 +69,7 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table import geometry as geo
 from observer_gym.envs.ball_table.geometry import up_in_table
 from observer_gym.envs.ball_table.measurements import perfect_measurement
+from observer_gym.envs.transforms import pose_matrix
 from observer_gym.estimation.ball_table.features import features_from_measurement
 from observer_gym.estimation.ball_table.frames import FrameReader, detected_parts
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
@@ -680,8 +681,7 @@ class BallTableObserver(FusedObserver):
             env = self._env
             K = env.rig.nominal[0].K
             T_world_cam = env.camera_pose(0)
-            T_world_table = np.eye(4)
-            T_world_table[:3, 3] = geo.TABLE_CENTRE_HOME_WORLD
+            T_world_table = pose_matrix(np.eye(3), geo.TABLE_CENTRE_HOME_WORLD)
             ball_pos_world = geo.TABLE_CENTRE_HOME_WORLD + np.array([0.0, 0.0, geo.BALL_RADIUS_M])
             home = perfect_measurement(
                 K, T_world_cam, env.rig.image_size_px, T_world_table, ball_pos_world
