@@ -1,4 +1,4 @@
-"""BallCatcher-v0 throughput and observer cost on one core.
+"""BallCatcher-v1 throughput and observer cost on one core.
 
 - Env steps per second (10 ms steps, two cameras at 50 Hz, the box held still, episodes
   reset as they end) in each obs_mode, and the simulated time each wall second buys.
@@ -27,7 +27,7 @@ PAPER_DETECTION_MS = 4.0
 
 def env_rate(obs_mode: str, episodes: int) -> tuple[float, float]:
     """(env steps per second, simulated seconds per wall second)."""
-    env = gym.make("observer_gym/BallCatcher-v0", obs_mode=obs_mode)
+    env = gym.make("observer_gym/BallCatcher-v1", obs_mode=obs_mode)
     steps = 0
     zero = np.zeros(3, np.float32)
     start = time.perf_counter()
@@ -46,7 +46,7 @@ def env_rate(obs_mode: str, episodes: int) -> tuple[float, float]:
 def observer_cost_us(obs_mode: str, episodes: int) -> tuple[float, float, int]:
     """(median and 90th percentile per frame, us; frames timed): each step's observe()
     time divided by the frames it processed, over the steps that delivered frames."""
-    env = VisionObserver(gym.make("observer_gym/BallCatcher-v0", obs_mode=obs_mode))
+    env = VisionObserver(gym.make("observer_gym/BallCatcher-v1", obs_mode=obs_mode))
     pipeline = env.pipeline
     per_frame_us, frames = [], 0
     original = pipeline.observe
@@ -81,7 +81,7 @@ def main() -> None:
 
     rates = {mode: env_rate(mode, args.episodes) for mode in ("state", "measurements", "rgb")}
     base = rates["state"][0]
-    print(f"BallCatcher-v0 env steps, {args.episodes} episodes per mode, one core\n")
+    print(f"BallCatcher-v1 env steps, {args.episodes} episodes per mode, one core\n")
     print(
         format_table(
             ["obs_mode", "steps/s", "simulated s per wall s", "vs state"],

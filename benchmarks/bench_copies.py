@@ -5,7 +5,7 @@ before and after the bounded action history, and why a copy replays (PyBullet's 
 
 A copy (``pickle``, ``copy.deepcopy``) rebuilds the world and replays the episode's
 actions (envs/core.py), so its size grows with the actions kept and its unpickle time
-with the steps replayed. Per env (BallTable-v0, BallCatcher-v0, TargetFollower-v0;
+with the steps replayed. Per env (BallTable-v0, BallCatcher-v1, TargetFollower-v0;
 ``obs_mode="state"``, the unwrapped env so no time limit ends the episode; zero actions
 from ``reset(seed=0)``), one episode is stepped to each step count and
 ``pickle.dumps(env)`` is measured there: its size, and the time of one ``pickle.loads``
@@ -45,7 +45,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 ENV_CLASSES = {
     "BallTable-v0": "observer_gym.envs.ball_table:BallTableEnv",
-    "BallCatcher-v0": "observer_gym.envs.ball_catcher:BallCatcherEnv",
+    "BallCatcher-v1": "observer_gym.envs.ball_catcher:BallCatcherEnv",
     "TargetFollower-v0": "observer_gym.envs.target_follower:TargetFollowerEnv",
 }
 STEP_COUNTS = (1_000, 10_000, 50_000)

@@ -3,7 +3,7 @@ state mode against the pre-change code, each as a ratio measured in the same run
 
     .venv/bin/python benchmarks/bench_envs.py --baseline-python /work/base/.venv/bin/python
 
-What is measured, per env (BallTable-v0, BallCatcher-v0, TargetFollower-v0), with the
+What is measured, per env (BallTable-v0, BallCatcher-v1, TargetFollower-v0), with the
 envs' default options:
 
 - **steps/s** in each obs_mode: the time spent inside ``env.step`` only (resets, which
@@ -17,7 +17,7 @@ envs' default options:
   x ticks_per_step, the bodies' placements, motor targets and forces, and one bare
   ``getCameraImage`` per frame captured in that step, with the recorded view and
   projection matrices) on a second instance of the same world, reset with the same
-  seeds, through pre-bound ``pybullet`` functions. So BallCatcher-v0's floor renders
+  seeds, through pre-bound ``pybullet`` functions. So BallCatcher-v1's floor renders
   the camera that captures in that step (two cameras at 50 Hz, 100 Hz steps: one frame
   per step on average), and TargetFollower-v0's (a kinematic world that never calls
   ``stepSimulation``) is its placements, the render, and its physics engine's work: the
@@ -65,7 +65,7 @@ import observer_gym.envs  # registers the envs
 
 ENV_IDS = (
     "observer_gym/BallTable-v0",
-    "observer_gym/BallCatcher-v0",
+    "observer_gym/BallCatcher-v1",
     "observer_gym/TargetFollower-v0",
 )
 # The engine calls that make up the floor: advancing, setting and imaging the world.

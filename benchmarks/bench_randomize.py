@@ -3,7 +3,7 @@ reset with drawn options, against the same training env with fixed options.
 
     .venv/bin/python benchmarks/bench_randomize.py --episodes 40
 
-For each system (BallCatcher-v0, TargetFollower-v0, BallTable-v0) the training env of
+For each system (BallCatcher-v1, TargetFollower-v0, BallTable-v0) the training env of
 ``train --algo ppo --obs estimate`` (its YAML's env options and feature set, the default
 estimating observer on measurements) is built twice: with the fixed options, and as a
 :class:`~observer_gym.train.rl.randomize.RandomizedEnv` drawing the benchmark suite v1's
@@ -35,7 +35,7 @@ from observer_gym.train.rl.randomize import check_randomize
 
 SUITES = Path(__file__).parent.parent / "train" / "experiments" / "benchmark" / "suites" / "v1"
 SYSTEMS = {
-    "BallCatcher-v0": "ball_catcher",
+    "BallCatcher-v1": "ball_catcher",
     "TargetFollower-v0": "target_follower",
     "BallTable-v0": "ball_table",
 }

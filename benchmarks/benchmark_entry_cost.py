@@ -24,7 +24,7 @@ from observer_gym.train.experiments.benchmark.run import check_benchmark
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.sweep import sweep_episode
 
-SYSTEMS = ("BallTable-v0", "BallCatcher-v0", "TargetFollower-v0")
+SYSTEMS = ("BallTable-v0", "BallCatcher-v1", "TargetFollower-v0")
 OBSERVERS = ("kf-measurements", "kf")
 
 

@@ -2,7 +2,7 @@
 metric with each option alone (on the ideal level's options) and with each option left
 out (the rest of the level kept), on the level's first official seeds.
 
-    .venv/bin/python benchmarks/level_ablation.py --env BallCatcher-v0 --level lab \
+    .venv/bin/python benchmarks/level_ablation.py --env BallCatcher-v1 --level lab \
         --observer kf-measurements --controller intercept --episodes 100 --workers 2
 
 It prints one table: the level itself, the ideal level, then per option "alone" and

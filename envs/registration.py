@@ -68,7 +68,7 @@ SYSTEMS: list[System] = [
     ),
     System(
         "ball_catcher",
-        f"{NAMESPACE}/BallCatcher-v0",
+        f"{NAMESPACE}/BallCatcher-v1",
         "observer_gym.envs.ball_catcher:BallCatcherEnv",
         200,
     ),
@@ -83,6 +83,16 @@ SYSTEMS: list[System] = [
 
 # the package's own systems (SYSTEMS without those register_system added)
 PACKAGE_SYSTEMS: tuple[System, ...] = tuple(SYSTEMS)
+
+# ids no longer registered (without the namespace) -> what replaced them and why; gym.make
+# of one raises Gymnasium's DeprecatedEnv, the commands say this (docs/envs.md)
+RETIRED_IDS: dict[str, str] = {
+    "BallCatcher-v0": (
+        "BallCatcher-v1 replaced it after 0.2.0 (the reward shaping and the catch rule "
+        "changed after 0.1.0; 0.2.0 ran v1's code under the old id); install the git tag "
+        "v0.1.0 to reproduce 0.1.0's v0 results"
+    ),
+}
 
 
 def register_envs() -> None:
@@ -134,10 +144,14 @@ def system_named(name: str) -> System:
 
 def system_for_id(env_id: str) -> System:
     """The system registered as ``env_id``, with or without the ``observer_gym/``
-    namespace; ValueError listing the known ids otherwise."""
+    namespace; ValueError naming the replacement of a retired id (:data:`RETIRED_IDS`),
+    listing the known ids otherwise."""
     for system in SYSTEMS:
         if env_id in (system.env_id, system.short_id):
             return system
+    retired = RETIRED_IDS.get(env_id.removeprefix(f"{NAMESPACE}/"))
+    if retired is not None:
+        raise ValueError(f"env {env_id!r} is no longer registered: {retired}")
     allowed = ", ".join(f"{s.short_id} (or {s.env_id})" for s in SYSTEMS)
     raise ValueError(f"unknown env {env_id!r}; allowed: {allowed}")
 

@@ -1,4 +1,4 @@
-"""The intercept controller of BallCatcher-v0: move the hole to where the ball will cross
+"""The intercept controller of BallCatcher-v1: move the hole to where the ball will cross
 the box's front plane, re-planned every step (docs/spec/catcher.md, "The ball-catching robot").
 
 Prediction: the drag-free flight of the estimated state (the model of the observer,

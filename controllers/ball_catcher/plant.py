@@ -18,7 +18,7 @@ __all__ = ["BallCatcherPlant"]
 
 @dataclass(frozen=True)
 class BallCatcherPlant:
-    """BallCatcher-v0 as the intercept controller sees it: the control period, the robot
+    """BallCatcher-v1 as the intercept controller sees it: the control period, the robot
     profile's limits, the box's workspace and home, and gravity. Observations have the
     env's 12-entry state layout (ball position and velocity, box position and velocity)."""
 
@@ -33,7 +33,7 @@ class BallCatcherPlant:
 
     @classmethod
     def from_env(cls, env: gym.Env) -> BallCatcherPlant:
-        base = unwrapped_env(env, BallCatcherEnv, "BallCatcher-v0", "the intercept controller")
+        base = unwrapped_env(env, BallCatcherEnv, "BallCatcher-v1", "the intercept controller")
         cfg = base.config
         return cls(
             cfg.control_dt_s,

@@ -1,4 +1,4 @@
-"""``observer_gym/BallCatcher-v0``: an arm carries a box with a hole; a ball is thrown at
+"""``observer_gym/BallCatcher-v1``: an arm carries a box with a hole; a ball is thrown at
 it; unsynchronised cameras watch (docs/spec/catcher.md)."""
 
 from observer_gym.envs.ball_catcher.config import (

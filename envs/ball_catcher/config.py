@@ -1,4 +1,4 @@
-"""Configuration of BallCatcher-v0: every ``gym.make`` keyword, validated on construction."""
+"""Configuration of BallCatcher-v1: every ``gym.make`` keyword, validated on construction."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ CAMERA_PRESETS = ("synchronised", "alternating", "random_offsets", "single")
 
 @dataclass(frozen=True)
 class BallCatcherConfig(SensorConfig):
-    """BallCatcher-v0's options: every camera's sensor model (:class:`SensorConfig`) and
+    """BallCatcher-v1's options: every camera's sensor model (:class:`SensorConfig`) and
     these."""
 
     # Cameras.

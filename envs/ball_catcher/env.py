@@ -1,4 +1,4 @@
-"""``observer_gym/BallCatcher-v0``."""
+"""``observer_gym/BallCatcher-v1``."""
 
 from __future__ import annotations
 
@@ -135,7 +135,7 @@ class BallCatcherEnv(CameraEnv):
     time limit of 200 steps (2 s).
 
     ## Arguments
-    ``gym.make("observer_gym/BallCatcher-v0", **options)``; the options are the fields of
+    ``gym.make("observer_gym/BallCatcher-v1", **options)``; the options are the fields of
     :class:`BallCatcherConfig` (``BallCatcherConfig.describe()`` lists them). A bad value
     or an unknown option raises ``ValueError``.
 
@@ -151,7 +151,7 @@ class BallCatcherEnv(CameraEnv):
     >>> import gymnasium as gym
     >>> import numpy as np
     >>> import observer_gym.envs
-    >>> env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state")
+    >>> env = gym.make("observer_gym/BallCatcher-v1", obs_mode="state")
     >>> obs, info = env.reset(seed=0)
     >>> obs.shape, bool(info["ball_in_flight"])
     ((12,), True)
@@ -163,16 +163,19 @@ class BallCatcherEnv(CameraEnv):
     >>> env.close()
 
     ## Version History
-    - v0: initial version; the shaping stops at the ball's first touch of the box since
-      2026-11-23 (Rewards); since 2026-11-24 the sensor draws its timing
-      (jitters, drops) from a stream of its own, so a seed's world no longer depends on
-      them (episodes at the default options are unchanged; with jitter or drops they
-      differ from before), and ``reset``'s info gives the declared sensor
+    - v1 (after 0.2.0; 0.2.0 ran this code as v0): the shaping stops at the ball's first
+      touch of the box (2026-11-23, Rewards); a geometric catch rule (rim grazes that
+      rattle in are misses), the episode ends at the crossing, and substeps near the box
+      stop fast throws tunnelling through it (2026-11-23). Since 2026-11-24 the sensor
+      draws its timing (jitters, drops) from a stream of its own, so a seed's world no
+      longer depends on them, and ``reset``'s info gives the declared sensor
       (``info["sensor"]``). Since 2026-11-26 a copy keeps at most
       ``copy_history_max_steps`` actions, a copy right after ``reset`` no longer delivers
       the reset's frames again at its first step, and a closed env raises
       ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
-      data.
+      data. (docs/envs.md, "Env versions".)
+    - v0: initial version (0.1.0); no longer registered: ``gym.make`` raises Gymnasium's
+      ``DeprecatedEnv`` naming v1. The git tag ``v0.1.0`` reproduces its results.
     """
 
     config_class = BallCatcherConfig

@@ -277,7 +277,7 @@ def initial_estimate(config: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 class BallCatcherObserver:
-    """Detector + viewline Kalman filter for BallCatcher-v0.
+    """Detector + viewline Kalman filter for BallCatcher-v1.
 
     Args:
         env: the (unwrapped) BallCatcher env, made with obs_mode "rgb" or "measurements".

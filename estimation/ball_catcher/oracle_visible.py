@@ -38,7 +38,7 @@ __all__ = ["OracleVisibleObserver"]
 
 
 class OracleVisibleObserver:
-    """The ``oracle-visible`` observer of BallCatcher-v0: ground truth while the ball is
+    """The ``oracle-visible`` observer of BallCatcher-v1: ground truth while the ball is
     detected, predicted otherwise (see the module docstring; for analysis only).
 
     Args:

@@ -298,7 +298,7 @@ class PixelEKFCore:
 
 
 class PixelEKFObserver:
-    """Detector + pixel EKF for BallCatcher-v0 (observer ``ekf``; see the module docstring).
+    """Detector + pixel EKF for BallCatcher-v1 (observer ``ekf``; see the module docstring).
 
     Args:
         env: the (unwrapped) BallCatcher env, made with obs_mode "rgb" or "measurements".

@@ -101,7 +101,7 @@ def triangulate(
 
 
 class RawObserver:
-    """The ``raw`` observer of BallCatcher-v0 (see the module docstring).
+    """The ``raw`` observer of BallCatcher-v1 (see the module docstring).
 
     Args:
         env: the (unwrapped) BallCatcher env, made with obs_mode "rgb" or "measurements".

@@ -2,7 +2,7 @@
 and of ``observer-gym reproduce linderoth2010`` (docs/spec/catcher.md, "Results to reproduce").
 
 Frame: the paper's coordinates (x_p, y_p, z_p) have y up and the ball coming in along
--z_p; ours are z up with the thrower on +x, as in BallCatcher-v0, so (x, y, z) =
+-z_p; ours are z up with the thrower on +x, as in BallCatcher-v1, so (x, y, z) =
 (z_p, x_p, y_p) (a cyclic permutation: right-handed both). The paper's two-camera init,
 position (0, 0, 3) and velocity (0, 0, -8), is therefore (3, 0, 0) and (-8, 0, 0) here
 (:data:`PAPER_X0`), with the origin at the catch point, where the paper's throws end.

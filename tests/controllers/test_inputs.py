@@ -15,7 +15,7 @@ from observer_gym.controllers.target_follower.vtc import VisualTrackingControlle
 from observer_gym.envs.target_follower import IMAGE, STATE_DIM, StateIndex
 
 BALL_TABLE = "observer_gym/BallTable-v0"
-BALL_CATCHER = "observer_gym/BallCatcher-v0"
+BALL_CATCHER = "observer_gym/BallCatcher-v1"
 TARGET_FOLLOWER = "observer_gym/TargetFollower-v0"
 ENV_OF = {
     "lqr": BALL_TABLE,

@@ -12,7 +12,7 @@ from observer_gym.controllers import make_controller
 from observer_gym.controllers.ball_catcher.intercept import crossing_and_jacobian
 from observer_gym.envs.ball_catcher.throws import plane_crossing
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 G = 9.81
 
 
@@ -86,7 +86,7 @@ def test_oracle_intercept_catches_every_throw_of_twelve(profile):
 def test_intercept_needs_a_ball_catcher_env():
     env = gym.make("observer_gym/BallTable-v0", obs_mode="state")
     try:
-        with pytest.raises(ValueError, match="BallCatcher-v0"):
+        with pytest.raises(ValueError, match="BallCatcher-v1"):
             make_controller("intercept", env)
     finally:
         env.close()

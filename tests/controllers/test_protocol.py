@@ -19,7 +19,7 @@ CONTROLLER_ENVS = {
     "lqr": (ENV_ID, 20.0),
     "mpc": (ENV_ID, 20.0),
     "pid": (ENV_ID, 20.0),
-    "intercept": ("observer_gym/BallCatcher-v0", 0.5),
+    "intercept": ("observer_gym/BallCatcher-v1", 0.5),
     "vtc": ("observer_gym/TargetFollower-v0", 0.0),
 }
 

@@ -1,4 +1,4 @@
-"""BallCatcher-v0: ballistic flight, no tunnelling, catches and misses, the camera rig's
+"""BallCatcher-v1: ballistic flight, no tunnelling, catches and misses, the camera rig's
 timing, perfect measurements, the box's motion limits and configuration errors."""
 
 from __future__ import annotations

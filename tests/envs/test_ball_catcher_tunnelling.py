@@ -1,4 +1,4 @@
-"""BallCatcher-v0 at every throw speed the configuration allows: a ball aimed at the hole's
+"""BallCatcher-v1 at every throw speed the configuration allows: a ball aimed at the hole's
 rim or plate never gets through it and is never caught, one through the hole's centre is.
 
 Each throw starts 15 cm in front of the box's front plane and flies nearly flat, so the

@@ -72,7 +72,7 @@ RESET_CASES = {
         ({"ball_vel_table_mps": [0.1, 1j]}, "ball_vel_table_mps must be 2 finite numbers"),
         ({"ball_vel_table_mps": [10**400, 0]}, "ball_vel_table_mps must be 2 finite numbers"),
     ],
-    "observer_gym/BallCatcher-v0": [
+    "observer_gym/BallCatcher-v1": [
         (5, "reset options must be a dict"),
         ({"thrown": None}, r"unknown reset options \['thrown'\]"),
     ],

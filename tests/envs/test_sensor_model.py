@@ -19,18 +19,18 @@ SMALL_IMAGE = {"image_width_px": 80, "image_height_px": 60}
 # TargetFollower's focal length is in pixels: a quarter-size image needs a quarter of it.
 SMALL = {
     "observer_gym/BallTable-v0": SMALL_IMAGE,
-    "observer_gym/BallCatcher-v0": SMALL_IMAGE,
+    "observer_gym/BallCatcher-v1": SMALL_IMAGE,
     "observer_gym/TargetFollower-v0": {**SMALL_IMAGE, "fx_px": 98.35, "fy_px": 97.95},
 }
 # A latency that is not a whole number of env steps or frame periods, per env.
 LATENCY_S = {
     "observer_gym/BallTable-v0": 0.05,  # 2.5 steps of 20 ms
-    "observer_gym/BallCatcher-v0": 0.033,  # 3.3 steps of 10 ms, 1.65 frame periods
+    "observer_gym/BallCatcher-v1": 0.033,  # 3.3 steps of 10 ms, 1.65 frame periods
     "observer_gym/TargetFollower-v0": 0.25,  # 2.5 steps of 100 ms
 }
 STEPS = {
     "observer_gym/BallTable-v0": 12,
-    "observer_gym/BallCatcher-v0": 14,
+    "observer_gym/BallCatcher-v1": 14,
     "observer_gym/TargetFollower-v0": 8,
 }
 
@@ -38,7 +38,7 @@ STEPS = {
 def _payload(env_id: str, obs, frame: dict):
     """What a delivered frame holds, read from public outputs: the observation of a
     one-camera env, the frame's own entry for BallCatcher's several cameras."""
-    if env_id == "observer_gym/BallCatcher-v0":
+    if env_id == "observer_gym/BallCatcher-v1":
         return frame.get("image", frame.get("uv_px"))
     return obs
 
@@ -89,7 +89,7 @@ def test_latency_delivers_the_frame_captured_latency_earlier(make_env, env_id, o
                 checked += 1
             else:
                 assert camera not in newest
-        if obs_mode != "state" and env_id != "observer_gym/BallCatcher-v0" and newest:
+        if obs_mode != "state" and env_id != "observer_gym/BallCatcher-v1" and newest:
             # The one-camera envs observe the newest delivered frame.
             assert data_equivalence(obs, captured[(0, round(newest[0], 9))])
     assert checked >= STEPS[env_id] // 2
@@ -111,7 +111,7 @@ def _projected_truth(env_id: str, info: dict, K: np.ndarray, T_world_cam: np.nda
         T = info["T_world_table"]
         corners = TABLE_CORNERS_TABLE @ T[:3, :3].T + T[:3, 3]
         return project_points(K, T_world_cam, corners)[0].reshape(-1)
-    if env_id == "observer_gym/BallCatcher-v0":
+    if env_id == "observer_gym/BallCatcher-v1":
         return project_points(K, T_world_cam, info["state"][None, :3])[0][0]
     return image_state(K, T_world_cam, info["target_pos_world"], 0.12)
 
@@ -119,7 +119,7 @@ def _projected_truth(env_id: str, info: dict, K: np.ndarray, T_world_cam: np.nda
 def _measured(env_id: str, obs, frame: dict):
     if env_id == "observer_gym/BallTable-v0":
         return obs["table_corners_px"]
-    if env_id == "observer_gym/BallCatcher-v0":
+    if env_id == "observer_gym/BallCatcher-v1":
         return frame["uv_px"]
     return obs["target_px"]
 
@@ -139,7 +139,7 @@ def test_calibration_error_measures_through_the_true_camera(make_env, env_id, dr
         obs, info = env.reset(seed=seed)
         for _ in range(6):
             for frame, truth in zip(info["frames"], info["truth"]["frames"], strict=True):
-                if env_id == "observer_gym/BallCatcher-v0" and frame["uv_px"] is None:
+                if env_id == "observer_gym/BallCatcher-v1" and frame["uv_px"] is None:
                     continue  # the ball is not in this camera's image yet
                 # info reports the nominal calibration; the truth differs by the errors.
                 np.testing.assert_array_equal(frame["K"], nominal.K)

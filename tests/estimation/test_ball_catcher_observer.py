@@ -16,7 +16,7 @@ from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.pixel_ekf import PixelEKFObserver
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 
 
 def parabola(throw: dict, t_s: float) -> np.ndarray:

@@ -30,7 +30,7 @@ from observer_gym.estimation.ball_catcher.raw import RawObserver
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.ekf import numerical_jacobian
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 NEW = ("raw", "kf-latency", "ekf", "oracle-visible")
 LATENCY = {"latency_s": 0.06}
 LATE_AND_SHUFFLED = {"latency_s": 0.06, "camera_preset": "random_offsets", "latency_jitter_s": 0.01}

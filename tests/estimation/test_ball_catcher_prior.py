@@ -13,7 +13,7 @@ from observer_gym.envs.ball_catcher.throws import sample_throw
 from observer_gym.estimation.ball_catcher import BallCatcherObserver, PixelEKFObserver
 from observer_gym.estimation.ball_catcher.observer import throw_prior, wide_prior
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 SAMPLES = 50_000
 
 

@@ -20,7 +20,7 @@ from observer_gym.estimation.ball_catcher.pixel_ekf import (
     PixelMeasurement,
 )
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 OFFSET_PX = np.array([80.0, 0.0])  # a false detection far outside the gate
 FROM_S = 0.2  # the corrupted frames are camera 0's first ones captured from here on
 NEES_3_SIGMA = 14.16  # chi-square(3)'s 99.73 % quantile: an error within ~3 claimed std

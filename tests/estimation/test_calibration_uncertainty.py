@@ -110,7 +110,7 @@ def test_no_calibration_error_gives_none():
         # BallCatcher kf: the calibration as pixel variance in R (measured 0.34 at 2 %
         # focal error, 12.9 without it); a constant offset taken as white noise leaves the
         # filter on the cautious side, hence the lower bound 0.2
-        ("BallCatcher-v0", "kf", "intercept", None, {"calib_focal_error": 0.02}, 0.2, 3.0),
+        ("BallCatcher-v1", "kf", "intercept", None, {"calib_focal_error": 0.02}, 0.2, 3.0),
     ],
 )
 def test_the_observers_cover_a_declared_calibration_error(

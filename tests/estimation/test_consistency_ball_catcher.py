@@ -31,7 +31,7 @@ from consistency_cells import (
 
 from observer_gym.estimation import VisionObserver
 
-ENV_ID = "observer_gym/BallCatcher-v0"
+ENV_ID = "observer_gym/BallCatcher-v1"
 OBSERVERS = ("kf", "ekf")  # kf-latency is kf under a second name
 EPISODES = 3
 OUTSIDE: dict[tuple[str, str], str] = {}

@@ -3,7 +3,7 @@ junk values, config values (derived from each config dataclass's ``config_field`
 metadata) and actions.
 
 The tally: every example a property tries is recorded with :func:`record` under a
-category ("config: BallTableConfig", "action: BallCatcher-v0", ...) as accepted or
+category ("config: BallTableConfig", "action: BallCatcher-v1", ...) as accepted or
 rejected (ValueError); tests/fuzz/conftest.py prints the table at the end of the run
 (gathered from every xdist worker).
 """

@@ -27,7 +27,7 @@ def test_a_numpy_string_choice_is_stored_as_the_choice():
 
 def test_unknown_reset_options_of_mixed_key_types_are_named(make_env):
     """Before: TypeError from sorting the unknown keys (int < str)."""
-    env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
+    env = make_env("observer_gym/BallCatcher-v1", obs_mode="state")
     with pytest.raises(ValueError, match=r"unknown reset options \['x', 0\]; allowed: throw"):
         env.reset(seed=0, options={"x": None, 0: None})
 
@@ -43,7 +43,7 @@ def test_unknown_reset_options_of_mixed_key_types_are_named(make_env):
 )
 def test_a_throw_of_anything_but_real_numbers_is_refused(make_env, throw):
     """Before: each was taken (``np.asarray(v, dtype=float)``)."""
-    env = make_env("observer_gym/BallCatcher-v0", obs_mode="state")
+    env = make_env("observer_gym/BallCatcher-v1", obs_mode="state")
     with pytest.raises(ValueError, match=r"reset option throw must be .* two 3-vectors"):
         env.reset(seed=0, options={"throw": throw})
 
@@ -52,7 +52,7 @@ def test_a_throw_of_anything_but_real_numbers_is_refused(make_env, throw):
     ("env_id", "options"),
     [
         ("observer_gym/BallTable-v0", {"ball_vel_table_mps": [np.nan, 0.0]}),
-        ("observer_gym/BallCatcher-v0", {"throw": (np.zeros(3), [0.0, 0.0, 123.0])}),
+        ("observer_gym/BallCatcher-v1", {"throw": (np.zeros(3), [0.0, 0.0, 123.0])}),
         ("observer_gym/TargetFollower-v0", {"occlusions_s": [-1.0]}),
         ("observer_gym/TargetFollower-v0", {"tilt_rad": "up"}),
     ],
@@ -120,7 +120,7 @@ def test_a_bad_measurement_is_a_value_error(env_id, change):
     ],
 )
 def test_a_bad_ball_catcher_frame_is_a_value_error(mode, key, value):
-    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v0", mode)
+    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v1", mode)
     try:
         frames = [dict(f) for f in info["frames"]]
         if value is None:
@@ -136,7 +136,7 @@ def test_a_bad_ball_catcher_frame_is_a_value_error(mode, key, value):
 def test_a_ball_catcher_pixel_no_camera_reports_is_no_detection():
     """Before: uv = (u, 1e308) overflowed the viewline filter's update (LinAlgError: S is
     not positive definite)."""
-    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v0")
+    env, _, info, zero = _first_observation("observer_gym/BallCatcher-v1")
     try:
         pipeline = default_pipeline(env)
         frames = [dict(f) for f in info["frames"]]

@@ -42,7 +42,7 @@ def test_an_estimating_observer_can_be_named():
 
 def test_agent_actions_map_back_as_rescale_action_does():
     """to_env_action inverts the [-1, 1] rescaling the agent trained through."""
-    env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state")
+    env = gym.make("observer_gym/BallCatcher-v1", obs_mode="state")
     try:
         rescaled = RescaleAction(env, np.float32(-1.0), np.float32(1.0))
         low, high = env.action_space.low, env.action_space.high
@@ -87,7 +87,7 @@ def test_ball_table_frames_resized_grayscale_and_stacked():
 
 
 def test_ball_catcher_frames_in_a_dict():
-    env = make_agent_env("observer_gym/BallCatcher-v0", "rgb", image={"frame_stack": 2})
+    env = make_agent_env("observer_gym/BallCatcher-v1", "rgb", image={"frame_stack": 2})
     try:
         space = env.observation_space
         assert set(space.spaces) == {"camera_0", "camera_1", "frame_age_s"}

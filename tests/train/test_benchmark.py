@@ -20,7 +20,7 @@ from observer_gym.train.experiments.benchmark.score import normalised, score_lev
 from observer_gym.train.experiments.benchmark.suite import References, load_suite
 
 # BallCatcher's episodes are the shortest (a throw: ~0.1 s each)
-ENV, OBSERVER, CONTROLLER, EPISODES = "BallCatcher-v0", "kf-measurements", "intercept", 2
+ENV, OBSERVER, CONTROLLER, EPISODES = "BallCatcher-v1", "kf-measurements", "intercept", 2
 ARGV = ["benchmark", "--env", ENV, "--observer", OBSERVER, "--controller", CONTROLLER,
         "--episodes", str(EPISODES), "--no-progress"]  # fmt: skip
 OUTPUTS = ("benchmark.json", "episodes.csv", "scores.json", "table.md", "scores.png")
@@ -72,7 +72,7 @@ def test_a_quick_run_writes_every_output_marked_unofficial(folder, capsys):
 def test_check_accepts_the_untouched_folder(folder, capsys):
     assert main(["benchmark", "--check", str(folder)]) == 0
     out = capsys.readouterr().out
-    assert "OK, suite v1 BallCatcher-v0" in out and "(unofficial)" in out
+    assert "OK, suite v1 BallCatcher-v1" in out and "(unofficial)" in out
 
 
 def test_check_refuses_a_changed_episode_value(folder, tmp_path, capsys):
@@ -215,7 +215,7 @@ def test_the_oracle_entry_measures_what_the_references_measured(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env_id", ["BallTable-v0", "BallCatcher-v0", "TargetFollower-v0"])
+@pytest.mark.parametrize("env_id", ["BallTable-v0", "BallCatcher-v1", "TargetFollower-v0"])
 def test_the_oracle_entry_scores_one_on_every_level(env_id, tmp_path):
     """The official suite for the oracle with the reference controller: each level's
     score is 1 (its references were measured on the same seeds), within its interval."""

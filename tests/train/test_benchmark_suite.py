@@ -17,7 +17,7 @@ from observer_gym.train.experiments.benchmark.suite import (
     suite_versions,
 )
 
-PACKAGE_ENVS = ("BallTable-v0", "BallCatcher-v0", "TargetFollower-v0")
+PACKAGE_ENVS = ("BallTable-v0", "BallCatcher-v1", "TargetFollower-v0")
 LEVELS = ("ideal", "lab", "field")
 
 
@@ -84,8 +84,8 @@ def test_a_wrong_version_or_env_is_refused():
     system, data = _data()
     _refused(data, system, r"suite: is 'v1'; this file is suite 'v2'", version="v2")
     other = copy.deepcopy(data)
-    other["env"] = "BallCatcher-v0"
-    _refused(other, system, r"env: is 'BallCatcher-v0'; this file is 'BallTable-v0'")
+    other["env"] = "BallCatcher-v1"
+    _refused(other, system, r"env: is 'BallCatcher-v1'; this file is 'BallTable-v0'")
 
 
 def test_overlapping_or_doc_seeds_are_refused():

@@ -55,12 +55,12 @@ TRAIN = ["train", "--no-progress", "--algo", "ppo", "--obs", "state"]
 CASES = {
     # --- a controller that does not fit the env
     "run-foreign-controller": (
-        [*RUN, "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "lqr"],
-        "BallCatcher-v0 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
+        [*RUN, "--env", "BallCatcher-v1", "--observer", "oracle", "--controller", "lqr"],
+        "BallCatcher-v1 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
     ),
     "run-foreign-controller-workers": (
-        [*RUN, "--env", "BallCatcher-v0", "--observer", "kf", "--controller", "lqr", "--workers=2"],
-        "BallCatcher-v0 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
+        [*RUN, "--env", "BallCatcher-v1", "--observer", "kf", "--controller", "lqr", "--workers=2"],
+        "BallCatcher-v1 takes: intercept, ppo:DIR, sac:DIR, td3:DIR",
     ),
     "compare-foreign-controller": (
         [*COMPARE, "--env=TargetFollower-v0", "--observers=oracle", "--controllers=vtc,intercept"],
@@ -86,7 +86,7 @@ CASES = {
     "compare-bad-env-option": (
         [
             *COMPARE,
-            "--env=BallCatcher-v0",
+            "--env=BallCatcher-v1",
             "--observers=oracle,kf",
             "--controllers=intercept",
             "--env-option=latency_s=-1",
@@ -103,24 +103,24 @@ CASES = {
     ),
     # --- train --randomize: the form, the key, the range the env takes at both ends
     "train-randomize-unknown-key": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency=0:0.01"],
-        "randomize latency: BallCatcher-v0 has no option 'latency'; allowed: ",
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "latency=0:0.01"],
+        "randomize latency: BallCatcher-v1 has no option 'latency'; allowed: ",
     ),
     "train-randomize-low-above-high": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0.02:0.01"],
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "latency_s=0.02:0.01"],
         "randomize latency_s: LOW=0.02 is above HIGH=0.01; need LOW <= HIGH",
     ),
     "train-randomize-not-numbers": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=none:0.01"],
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "latency_s=none:0.01"],
         "latency_s: LOW and HIGH must be numbers, got 'none:0.01'",
     ),
     "train-randomize-no-range": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0.01"],
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "latency_s=0.01"],
         "latency_s: expected LOW:HIGH or A|B|...",
     ),
     "train-randomize-high-out-of-range": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "latency_s=0:0.9"],
-        "randomize latency_s=0.9: BallCatcher-v0 refuses it: latency_s=0.9 is out of range; "
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "latency_s=0:0.9"],
+        "randomize latency_s=0.9: BallCatcher-v1 refuses it: latency_s=0.9 is out of range; "
         "allowed: [0.0, 0.5]",
     ),
     "train-randomize-low-out-of-range": (
@@ -129,14 +129,14 @@ CASES = {
         "calib_focal_error=-0.1 is out of range; allowed: [0.0, 0.5]",
     ),
     "train-randomize-bad-choice": (
-        [*TRAIN, "--env=BallCatcher-v0", "--randomize", "camera_preset=alternating|offsets"],
-        "randomize camera_preset='offsets': BallCatcher-v0 refuses it: "
+        [*TRAIN, "--env=BallCatcher-v1", "--randomize", "camera_preset=alternating|offsets"],
+        "randomize camera_preset='offsets': BallCatcher-v1 refuses it: "
         "camera_preset='offsets' is not allowed; choose one of",
     ),
     "train-randomize-and-env-option": (
         [
             *TRAIN,
-            "--env=BallCatcher-v0",
+            "--env=BallCatcher-v1",
             "--randomize=latency_s=0:0.01",
             "--env-option=latency_s=0",
         ],
@@ -145,7 +145,7 @@ CASES = {
     "train-randomize-twice": (
         [
             *TRAIN,
-            "--env=BallCatcher-v0",
+            "--env=BallCatcher-v1",
             "--randomize=latency_s=0:0.01",
             "--randomize=latency_s=0:0.02",
         ],
@@ -263,6 +263,10 @@ CASES = {
     "run-unknown-env": (
         [*RUN, "--env", "BallJuggler-v0", "--observer", "oracle", "--controller", "lqr"],
         "unknown env 'BallJuggler-v0'",
+    ),
+    "run-retired-env-id": (
+        [*RUN, "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "intercept"],
+        "env 'BallCatcher-v0' is no longer registered: BallCatcher-v1 replaced it",
     ),
     "demo-negative-seconds": (["demo", "--seconds", "-1"], "must be a positive number"),
     "reproduce-no-runs": (

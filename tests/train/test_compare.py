@@ -330,7 +330,7 @@ def test_seed_lists_parse_and_print_as_ranges():
 
 def test_the_command_line_reads_back_its_env_options():
     env_kwargs = {"camera_preset": "single", "latency_s": 0.02, "label": "1", "on": True}
-    line = command_line("observer_gym/BallCatcher-v0", ["oracle"], ["intercept"], [0], None, 1,
+    line = command_line("observer_gym/BallCatcher-v1", ["oracle"], ["intercept"], [0], None, 1,
                         "local", None, env_kwargs)  # fmt: skip
     words = shlex.split(line)
     options = [

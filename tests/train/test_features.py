@@ -18,7 +18,7 @@ from observer_gym.train.rl.training import check_features
 
 @pytest.fixture
 def crossing_env():
-    env = CrossingFeatures(gym.make("observer_gym/BallCatcher-v0", obs_mode="state"))
+    env = CrossingFeatures(gym.make("observer_gym/BallCatcher-v1", obs_mode="state"))
     yield env
     env.close()
 
@@ -77,7 +77,7 @@ def test_no_crossing_when_the_ball_moves_away(crossing_env):
 
 
 def test_the_agent_env_reads_the_features_of_the_estimate():
-    env = make_agent_env("observer_gym/BallCatcher-v0", "estimate", features="crossing")
+    env = make_agent_env("observer_gym/BallCatcher-v1", "estimate", features="crossing")
     try:
         features, _ = env.reset(seed=3)
         assert env.observation_space.shape == (11,)
@@ -98,8 +98,8 @@ def test_feature_names_are_checked():
     finally:
         env.close()
     with pytest.raises(ValueError, match="allowed: crossing"):
-        check_features("observer_gym/BallCatcher-v0", "estimate", "nope")
+        check_features("observer_gym/BallCatcher-v1", "estimate", "nope")
     with pytest.raises(ValueError, match="not rgb"):
-        check_features("observer_gym/BallCatcher-v0", "rgb", "crossing")
+        check_features("observer_gym/BallCatcher-v1", "rgb", "crossing")
     with pytest.raises(ValueError, match="need the state's layout"):
-        make_agent_env("observer_gym/BallCatcher-v0", "rgb", features="crossing")
+        make_agent_env("observer_gym/BallCatcher-v1", "rgb", features="crossing")

@@ -50,7 +50,7 @@ def test_a_bad_hyperparameter_value_is_one_line_before_training(
 
 def test_the_shipped_yaml_values_keep_the_rules():
     for algo in ALGOS:
-        for env in ("BallTable-v0", "BallCatcher-v0", "TargetFollower-v0"):
+        for env in ("BallTable-v0", "BallCatcher-v1", "TargetFollower-v0"):
             for obs in ("state", "estimate", "rgb"):
                 resolve_hyperparams(f"observer_gym/{env}", algo, obs)
 

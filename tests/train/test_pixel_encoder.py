@@ -111,7 +111,7 @@ def test_an_encoder_refuses_another_camera():
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--env", "BallCatcher-v0", "--out", "x.pt"], "no pixel encoder for BallCatcher-v0"),
+        (["--env", "BallCatcher-v1", "--out", "x.pt"], "no pixel encoder for BallCatcher-v1"),
         (["--env", "BallTable-v0", "--out", "x.npz"], "--out must name a .pt file"),
         (["--env", "BallTable-v0", "--out", "x.pt", "--frames", "0"], "--frames"),
     ],

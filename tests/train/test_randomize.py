@@ -27,7 +27,7 @@ from observer_gym.train.rl.randomize import (
 from observer_gym.train.rl.seeds import train_seeds
 from observer_gym.train.rl.training import resume_training, train_agent
 
-ENV = "observer_gym/BallCatcher-v0"
+ENV = "observer_gym/BallCatcher-v1"
 # BallCatcher's sensor from the suite's ideal level to its field level (part of it)
 RANGES = {
     "latency_s": {"low": 0.0, "high": 0.01},
@@ -320,7 +320,7 @@ def test_the_module_imports_no_pytorch():
 
     probe = (
         "import sys, observer_gym.train.rl.randomize as r; "
-        "r.check_randomize('BallCatcher-v0', 'measurements', {}, "
+        "r.check_randomize('BallCatcher-v1', 'measurements', {}, "
         "{'latency_s': {'low': 0, 'high': 0.01}}); print('torch' in sys.modules)"
     )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)

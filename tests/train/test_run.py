@@ -230,12 +230,12 @@ def test_cli_rejects_an_unknown_env(capsys):
         main(["run", "--env", "BallJuggler-v0", "--observer", "oracle", "--controller", "lqr"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "unknown env 'BallJuggler-v0'" in err and "BallCatcher-v0" in err
+    assert "unknown env 'BallJuggler-v0'" in err and "BallCatcher-v1" in err
 
 
 def test_a_controller_made_for_another_env_raises(tmp_path):
     with pytest.raises(ValueError, match="BallTable-v0 env"):
-        run_experiment("BallCatcher-v0", "oracle", "lqr", 1, 0, tmp_path, progress=False)
+        run_experiment("BallCatcher-v1", "oracle", "lqr", 1, 0, tmp_path, progress=False)
 
 
 def test_cli_names_what_an_observer_can_be(capsys):

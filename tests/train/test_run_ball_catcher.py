@@ -1,4 +1,4 @@
-"""``observer-gym run`` on BallCatcher-v0: catch rate with its interval, plots, options."""
+"""``observer-gym run`` on BallCatcher-v1: catch rate with its interval, plots, options."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def test_kf_measurements_run_catches_and_writes_results(tmp_path):
         [
             "run",
             "--env",
-            "BallCatcher-v0",
+            "BallCatcher-v1",
             "--observer",
             "kf-measurements",
             "--controller",
@@ -82,7 +82,7 @@ def test_bad_env_option_is_rejected(capsys):
             [
                 "run",
                 "--env",
-                "BallCatcher-v0",
+                "BallCatcher-v1",
                 "--observer",
                 "oracle",
                 "--controller",

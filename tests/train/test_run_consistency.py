@@ -90,10 +90,10 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
 
     options = {"measurement_noise_px": 2.0}
     spec = EpisodeSpec(
-        "observer_gym/BallCatcher-v0", "kf-measurements", "intercept", 0, 150, options
+        "observer_gym/BallCatcher-v1", "kf-measurements", "intercept", 0, 150, options
     )
     record = run_episode(spec)
-    env = gym.make("observer_gym/BallCatcher-v0", obs_mode="state", **options)
+    env = gym.make("observer_gym/BallCatcher-v1", obs_mode="state", **options)
     env.reset(seed=0)
     in_flight = [True]
     for action in record["actions"]:

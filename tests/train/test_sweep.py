@@ -176,7 +176,7 @@ def _drawn(info: dict) -> np.ndarray:
 # pushes and occluder walks (BallCatcher's throw is its only draw).
 WORLDS = {
     "observer_gym/BallTable-v0": {"push_rate_hz": 5.0, "occluder_rate_hz": 1.0},
-    "observer_gym/BallCatcher-v0": {"camera_preset": "random_offsets"},
+    "observer_gym/BallCatcher-v1": {"camera_preset": "random_offsets"},
     "observer_gym/TargetFollower-v0": {"push_rate_hz": 1.0, "occluder_rate_hz": 0.5},
 }
 # A value other than the default for every sensor option (envs/sensor.py).

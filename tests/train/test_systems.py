@@ -73,6 +73,17 @@ def test_the_look_ups_find_each_system():
     cartpole.close()
 
 
+def test_a_retired_id_names_its_replacement():
+    """BallCatcher moved to v1 (docs/envs.md): v0 is not registered; Gymnasium's make
+    names v1 and our look-up says why and which release reproduces v0."""
+    for env_id in ("BallCatcher-v0", "observer_gym/BallCatcher-v0"):
+        with pytest.raises(ValueError, match=r"no longer registered: BallCatcher-v1 .*v0\.1\.0"):
+            system_for_id(env_id)
+    assert "observer_gym/BallCatcher-v0" not in gym.registry
+    with pytest.raises(gym.error.DeprecatedEnv, match="Please use `observer_gym/BallCatcher-v1`"):
+        gym.make("observer_gym/BallCatcher-v0")
+
+
 @pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
 def test_a_subclass_of_an_env_finds_its_system_observers_and_controllers(system):
     cls = system.env_class()
@@ -127,6 +138,6 @@ def test_the_command_line_offers_what_the_layers_hold(monkeypatch):
 
 
 def test_run_says_which_controllers_fit_the_env(capsys):
-    argv = ["run", "--env", "BallCatcher-v0", "--observer", "oracle", "--controller", "lqr"]
+    argv = ["run", "--env", "BallCatcher-v1", "--observer", "oracle", "--controller", "lqr"]
     assert cli.main(argv) == 2
-    assert "BallCatcher-v0 takes: intercept" in capsys.readouterr().err
+    assert "BallCatcher-v1 takes: intercept" in capsys.readouterr().err

@@ -60,7 +60,7 @@ SYSTEMS: dict[str, SystemStudy] = {
         {"push_rate_hz": 0.5},
         300,
     ),
-    "BallCatcher-v0": SystemStudy(
+    "BallCatcher-v1": SystemStudy(
         "intercept",
         ("kf-measurements", "ekf-measurements"),  # kf-latency is kf under a second name
         {},
@@ -142,7 +142,7 @@ def measure_consistency(
 
 
 def _short(env_id: str) -> str:
-    return {"BallTable-v0": "ball_table", "BallCatcher-v0": "ball_catcher"}.get(
+    return {"BallTable-v0": "ball_table", "BallCatcher-v1": "ball_catcher"}.get(
         env_id, "target_follower"
     )
 

@@ -95,7 +95,7 @@ def controller_choices() -> tuple[str, ...]:
 
 def per_env(field: str) -> str:
     """``field`` ("observers" or "controllers") of every system, as help text:
-    "BallTable-v0: lqr, mpc, pid; BallCatcher-v0: intercept; ..."."""
+    "BallTable-v0: lqr, mpc, pid; BallCatcher-v1: intercept; ..."."""
     return "; ".join(
         f"{entry.system.short_id}: {', '.join(getattr(entry, field))}" for entry in system_entries()
     )

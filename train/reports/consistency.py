@@ -149,7 +149,7 @@ def consistency_text(cell: Mapping[str, Any] | None) -> str:
 NEES_KEY_TEXT = (
     f"{NEES_COLUMN}: the episodes' summed mean NEES over their summed degrees of freedom "
     "(1 for a filter whose covariance tells the truth), taken over the steps where the "
-    "observer's model holds (BallCatcher-v0: the ball's free flight, up to its first touch "
+    "observer's model holds (BallCatcher-v1: the ball's free flight, up to its first touch "
     "of the box), and the band a chi-square with that "
     "many dof gives with 95 % probability; ⚠ marks a ratio outside it: the observer claims "
     "much less (above) or much more (below) error than it has (docs/observers.md)."

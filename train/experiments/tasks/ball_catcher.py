@@ -1,4 +1,4 @@
-"""BallCatcher-v0 in ``observer-gym run``: catch rate with its 95 % interval, the miss at
+"""BallCatcher-v1 in ``observer-gym run``: catch rate with its 95 % interval, the miss at
 the box's plane, and the observer's error (see the :class:`Task` interface).
 
 A record's arrays follow the env's state layout: ball position and velocity, box (hole

@@ -1,4 +1,4 @@
-"""BallCatcher-v0's observation features for agents.
+"""BallCatcher-v1's observation features for agents.
 
 ``crossing``: what intercepting the ball depends on, computed from the state or the
 observer's estimate: where the ball, flying on without drag, will cross the box's front
