@@ -10,6 +10,8 @@ measurement z, and the variance it predicts for X_i is R's diagonal (px^2), plus
 timing term for a frame fused at delivery, E[a^2] (v v^T + P_rate) (noise.py); a frame
 without a detection is a miss, as for ``kf`` (the network does not invent a detection).
 Its rate outputs are not used: the filter makes its own from the model (30). The
+frame it reads is the step's newest by capture time (the observation's), where ``kf``
+reads ``info["frames"][0]``; they differ only when one step delivers several frames. The
 reported covariance is the filter's, with the rounding floor of the noise rule.
 
 What this takes for granted: R treats each frame's network error as independent of the
@@ -102,6 +104,7 @@ class LearnedKFObserver(TargetFollowerObserver):
         if new is None or new.z_px is None:
             return None
         features = self.learned.estimator.features
+        # z = X_i, R_detection = diag(sigma^2 of X_i) = network(features at now = t_capture)
         mean, cov = self.learned.net.predict(features.vector(new.capture_time_s))
         self.noise.network_var_px2 = np.diag(cov)[:3].copy()
         return mean[:3]
