@@ -10,9 +10,10 @@ measurement z, and the variance it predicts for X_i is R's diagonal (px^2), plus
 timing term for a frame fused at delivery, E[a^2] (v v^T + P_rate) (noise.py); a frame
 without a detection is a miss, as for ``kf`` (the network does not invent a detection).
 Its rate outputs are not used: the filter makes its own from the model (30). The
-frame it reads is the step's newest by capture time (the observation's), where ``kf``
-reads ``info["frames"][0]``; they differ only when one step delivers several frames. The
-reported covariance is the filter's, with the rounding floor of the noise rule.
+frame it reads is the step's newest by capture time (the observation's), as ``kf``'s
+detection is (``kf`` takes only the camera matrix from ``info["frames"][0]``, the same
+for every frame of the one camera). The reported covariance is the filter's, with the
+rounding floor of the noise rule.
 
 What this takes for granted: R treats each frame's network error as independent of the
 last frame's, but the network reads the last four frames, so consecutive errors share
