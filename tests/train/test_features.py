@@ -1,5 +1,6 @@
 """Observation features for agents (``features: NAME``): BallCatcher's ``crossing``
-against closed forms, and the checks of the name."""
+against closed forms, TargetFollower's ``tracking`` against the env's reward, and the
+checks of the name."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.train.rl.agent_env import make_agent_env
 from observer_gym.train.rl.features import feature_names, wrap_features
 from observer_gym.train.rl.features.ball_catcher import FEATURE_NAMES, CrossingFeatures
+from observer_gym.train.rl.features.target_follower import FEATURE_NAMES as TRACKING_NAMES
+from observer_gym.train.rl.features.target_follower import TrackingFeatures
 from observer_gym.train.rl.training import check_features
 
 
@@ -103,3 +106,44 @@ def test_feature_names_are_checked():
         check_features("observer_gym/BallCatcher-v1", "rgb", "crossing")
     with pytest.raises(ValueError, match="need the state's layout"):
         make_agent_env("observer_gym/BallCatcher-v1", "rgb", features="crossing")
+
+
+def test_tracking_errors_are_the_rewards_terms():
+    """TargetFollower's ``tracking`` on the true state: its first three entries are the
+    reward's terms, so at every step reward = 1 - mean_j min(|f_j|, 1) while the target
+    is on the image (envs/target_follower/env.py, Rewards)."""
+    env = wrap_features(gym.make("observer_gym/TargetFollower-v0", obs_mode="state"), "tracking")
+    try:
+        features, info = env.reset(seed=5)
+        rng = np.random.default_rng(0)
+        for _ in range(40):
+            action = rng.uniform(env.action_space.low, env.action_space.high).astype(np.float32)
+            features, reward, terminated, truncated, info = env.step(action)
+            assert env.observation_space.contains(features)
+            assert features.shape == (len(TRACKING_NAMES),)
+            if info["target_in_image"]:
+                expected = 1.0 - np.mean(np.minimum(np.abs(features[:3].astype(float)), 1.0))
+                assert reward == pytest.approx(expected, abs=1e-6)
+            state = info["state"]
+            assert features[TRACKING_NAMES.index("tilt_rad")] == pytest.approx(state[9], abs=1e-6)
+            np.testing.assert_allclose(features[-2:], state[13:15])
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+
+
+def test_tracking_reads_no_robot_pose():
+    """Two states that differ only in the robot's pose on the floor (x, y, yaw) give the
+    same features; the image rates are scaled as the errors are."""
+    env = TrackingFeatures(gym.make("observer_gym/TargetFollower-v0", obs_mode="state"))
+    try:
+        _, info = env.reset(seed=1)
+        state = np.asarray(info["state"], dtype=float)
+        moved = state.copy()
+        moved[6:9] = [3.0, -2.0, 1.2]
+        np.testing.assert_array_equal(env.features(state), env.features(moved))
+        rate = env.features(state)[3:6]
+        np.testing.assert_allclose(rate, np.clip(state[3:6] / env.scale_px, -30, 30), rtol=1e-6)
+    finally:
+        env.close()

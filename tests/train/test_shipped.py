@@ -25,11 +25,18 @@ def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
     assert fingerprint_difference(folder) <= 1e-6
     agent = Agent.load(folder)
     assert agent.timesteps == model_files(folder)[2] > 0
-    # <system>-<obs>, and -randomized for an agent trained with --randomize
+    # <system>-<obs>, -<features> for a feature set given with --hyperparam (not the
+    # YAML's), and -randomized for an agent trained with --randomize
+    overrides = dict(map(tuple, config.get("cli_args", {}).get("hyperparam") or []))
+    features = f"-{overrides['features']}" if "features" in overrides else ""
     randomized = "-randomized" if config.get("randomize") else ""
-    assert name == f"{system_for_id(config['env_id']).name}-{config['obs']}{randomized}"
+    system = system_for_id(config["env_id"]).name
+    assert name == f"{system}-{config['obs']}{features}{randomized}"
     readme = (folder / shipped.README_FILE).read_text()
     assert "observer-gym train" in readme and f"--seed {config['seed']}" in readme
+    # the README's command gives every hyperparameter the run overrode
+    for key, value in overrides.items():
+        assert f"--hyperparam {key}={value}" in readme, key
     # the README's command draws what the run drew: every key, with its range or choices
     for key, spec in (config.get("randomize") or {}).items():
         drawn = (

@@ -19,6 +19,7 @@ from observer_gym.envs import system_of
 # system name -> feature set name -> the wrapper class in that system's module
 FEATURES: dict[str, dict[str, str]] = {
     "ball_catcher": {"crossing": "CrossingFeatures"},
+    "target_follower": {"tracking": "TrackingFeatures"},
 }
 
 
