@@ -23,7 +23,10 @@ from pathlib import Path
 
 PROG = "python -m observer_gym.estimation.learned.train"
 # The systems with a learned observer: env id -> its module (features, collect, WEIGHTS)
-SYSTEMS = {"BallTable-v0": "observer_gym.estimation.ball_table.learned"}
+SYSTEMS = {
+    "BallTable-v0": "observer_gym.estimation.ball_table.learned",
+    "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned",
+}
 
 
 def main(argv: list[str] | None = None) -> int:
