@@ -264,6 +264,7 @@ def collect(
     import gymnasium as gym
 
     from observer_gym.controllers import make_controller
+    from observer_gym.controllers.ball_catcher import InterceptController
 
     rng = np.random.default_rng(seed)
     xs, ys, eps = [], [], []
@@ -274,6 +275,7 @@ def collect(
             unwrapped = env.unwrapped
             assert isinstance(unwrapped, BallCatcherEnv)
             controller = make_controller("intercept", env)
+            assert isinstance(controller, InterceptController)
             pixels = FrameReader(unwrapped.config, owner="collect")
             features = LearnedFeatures(unwrapped.num_cameras, image_centre_px(unwrapped))
             _, info = env.reset(seed=int(rng.integers(2**31)))
