@@ -9,7 +9,9 @@ It prints one table: the level itself, the ideal level, then per option "alone" 
 "left out", each with the mean of the metric and its 95 % interval
 (Student t's, or Wilson's for a 0/1 metric such as BallCatcher's ``caught``). The
 episodes run exactly as a benchmark entry's
-(:func:`observer_gym.train.experiments.benchmark.references.episode_values`).
+(:func:`observer_gym.train.experiments.benchmark.references.episode_values`); a trained
+agent (``--controller ALGO:DIR`` or ``ALGO:NAME``) gets the env options it was trained
+with under each row's, as in ``observer-gym benchmark`` (a row's option wins).
 """
 
 from __future__ import annotations
@@ -20,8 +22,10 @@ import time
 import numpy as np
 
 from observer_gym.train.experiments.benchmark.references import episode_values
+from observer_gym.train.experiments.benchmark.run import agent_entry
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
 from observer_gym.train.reports.compare_stats import mean_interval, rate_interval
+from observer_gym.train.rl.run_dir import parse_agent_spec
 
 
 def interval(values: np.ndarray) -> tuple[float, float]:
@@ -52,6 +56,8 @@ def main() -> None:
     ideal = suite.levels[0].env_options
     controller = args.controller or suite.controller
     seeds = level.seeds(args.episodes)
+    # an agent's own env options (an rgb agent's image size) under each row's
+    agent_options = agent_entry(controller).env_options if parse_agent_spec(controller) else {}
     rows = [(f"level {level.name}", dict(level.env_options)), (f"{suite.levels[0].name}", ideal)]
     for key, value in level.env_options.items():
         rows.append((f"{key}={value} alone", {**ideal, key: value}))
@@ -59,15 +65,15 @@ def main() -> None:
     print(
         f"{suite.env_id} suite {suite.version}, level {level.name}'s first {len(seeds)} seeds: "
         f"{args.observer} + {controller}, metric {suite.metric.name} ({suite.metric.better} "
-        "is better)"
+        f"is better); the agent's own env options under each row's: {agent_options or 'none'}"
     )
     print("| options | mean | 95 % interval |")
     print("|---|---|---|")
     tic = time.perf_counter()
     for name, options in rows:
         values = episode_values(
-            suite, level._replace(env_options=options), args.observer, controller, seeds,
-            args.workers,
+            suite, level._replace(env_options={**agent_options, **options}), args.observer,
+            controller, seeds, args.workers,
         )  # fmt: skip
         low, high = interval(values)
         print(f"| {name} | {values.mean():.3f} | [{low:.3f}, {high:.3f}] |", flush=True)

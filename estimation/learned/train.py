@@ -1,6 +1,6 @@
 """Train a system's learned observer and write its weights and report.
 
-    python -m observer_gym.estimation.learned.train --env BallTable-v0 [--episodes 60]
+    python -m observer_gym.estimation.learned.train --env BallTable-v0 [--episodes N]
         [--rounds 4] [--seed 0] [--epochs 60] [--out FILE.pt]
 
 Collects the system's training episodes (its ``learned.collect``) in ``--rounds`` rounds
@@ -10,7 +10,10 @@ rounds before), fits the Gaussian network on all of them
 held out: last-round ones) and writes the weights
 (default: the shipped file beside the system's observer) and the report beside them:
 this command, the data's size, the held-out per-entry RMSE and NEES/dof (after each
-round), the wall time. The same command gives the same weights.
+round), the wall time. The same command gives the same weights (the same tensors; a file
+written under another name differs in its bytes, as ``torch.save`` names its archive after
+the file). ``--episodes`` defaults to the system's ``EPISODES`` (else 60) and the
+network's width is its ``HIDDEN`` (else 128).
 A mistake is one line on stderr and exit code 2.
 """
 
@@ -23,16 +26,25 @@ from pathlib import Path
 
 PROG = "python -m observer_gym.estimation.learned.train"
 # The systems with a learned observer: env id -> its module (features, collect, WEIGHTS)
+# (and optionally EPISODES, the default of --episodes, else 60; HIDDEN, the network's width,
+# else 128)
 SYSTEMS = {
     "BallTable-v0": "observer_gym.estimation.ball_table.learned",
+    "TargetFollower-v0": "observer_gym.estimation.target_follower.learned",
     "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned",
 }
+DEFAULT_EPISODES = 60
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", required=True, help=f"one of {', '.join(SYSTEMS)}")
-    parser.add_argument("--episodes", type=int, default=60, help="training episodes (60)")
+    parser.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episodes per round (default: BallTable 60, TargetFollower 100)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="data and training seed (0)")
     parser.add_argument("--epochs", type=int, default=60, help="passes over the data (60)")
     parser.add_argument(
@@ -48,20 +60,24 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    import importlib
+
+    system = importlib.import_module(SYSTEMS[env_id])
+    default_episodes = getattr(system, "EPISODES", DEFAULT_EPISODES)
+    if args.episodes is None:
+        args.episodes = default_episodes
     if args.episodes < 5 or args.epochs < 1 or args.rounds < 1:
         print(
             f"{PROG}: error: --episodes must be >= 5, --epochs and --rounds >= 1",
             file=sys.stderr,
         )
         return 2
-    import importlib
-
     import numpy as np
 
     from observer_gym.estimation.learned.network import save_network
     from observer_gym.estimation.learned.training import Dataset, fit
 
-    system = importlib.import_module(SYSTEMS[env_id])
+    hidden = getattr(system, "HIDDEN", 128)
     out = args.out or system.WEIGHTS
     if out.suffix != ".pt":
         print(f"{PROG}: error: --out must end in .pt, got {out}", file=sys.stderr)
@@ -70,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     # round 1: the controller on the truth; each later round (DAgger): on the network
     # fitted to every round before, the data of all rounds kept
     data = Dataset(*system.collect(args.episodes, args.seed))
-    net, report = fit(data, args.seed, epochs=args.epochs)
+    net, report = fit(data, args.seed, epochs=args.epochs, hidden=hidden)
     rounds = [report["held_out"]]
     for k in range(1, args.rounds):
         x, y, episode = system.collect(args.episodes, args.seed + k, act_with=net)
@@ -79,12 +95,12 @@ def main(argv: list[str] | None = None) -> int:
             np.concatenate([data.truth, y]),
             np.concatenate([data.episode, episode + k * args.episodes]),
         )
-        net, report = fit(data, args.seed, epochs=args.epochs)
+        net, report = fit(data, args.seed, epochs=args.epochs, hidden=hidden)
         rounds.append(report["held_out"])
     collected_s = time.perf_counter() - tic
     report["rounds_held_out"] = rounds
     words = [PROG, "--env", env_id]
-    if args.episodes != 60:
+    if args.episodes != default_episodes:
         words += ["--episodes", str(args.episodes)]
     if args.seed != 0:
         words += ["--seed", str(args.seed)]

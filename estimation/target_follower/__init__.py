@@ -13,12 +13,19 @@ the default.
 - ``ekf``: an extended Kalman filter on the target's world position and velocity with
   the pinhole camera as its measurement model (pixel_ekf.py);
 - ``oracle-visible``: the true image state while the target is detected, predicted
-  otherwise; reads ground truth, for analysis only (oracle_visible.py).
+  otherwise; reads ground truth, for analysis only (oracle_visible.py);
+- ``learned``: a network trained on the simulator's truth, from the newest frames'
+  detections to the estimate and its covariance, no filter (learned.py, weights
+  learned.pt);
+- ``learned-kf``: that network as ``kf``'s measurement model, its variance as R
+  (learned_kf.py). Both read the perfect detector's measurements only.
 """
 
 from functools import partial
 
 from observer_gym.estimation.target_follower.latency import LatencyAwareObserver
+from observer_gym.estimation.target_follower.learned import LearnedObserver
+from observer_gym.estimation.target_follower.learned_kf import LearnedKFObserver
 from observer_gym.estimation.target_follower.observer import TargetFollowerObserver
 from observer_gym.estimation.target_follower.oracle_visible import OracleVisibleObserver
 from observer_gym.estimation.target_follower.pixel_ekf import PixelEKFObserver
@@ -32,11 +39,15 @@ OBSERVERS = {
     "raw": RawObserver,
     "ekf": PixelEKFObserver,
     "oracle-visible": OracleVisibleObserver,
+    "learned": LearnedObserver,
+    "learned-kf": LearnedKFObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "LatencyAwareObserver",
+    "LearnedKFObserver",
+    "LearnedObserver",
     "OracleVisibleObserver",
     "PixelEKFObserver",
     "RawObserver",

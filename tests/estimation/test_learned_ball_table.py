@@ -173,9 +173,9 @@ def test_training_is_reproducible_from_its_seed():
 
 
 def test_the_training_command_refuses_an_unknown_env_in_one_line(capsys):
-    assert train_main(["--env", "TargetFollower-v0"]) == 2
+    assert train_main(["--env", "BallJuggler-v0"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "no learned observer for 'TargetFollower-v0' yet" in err and "\n" not in err
+    assert "no learned observer for 'BallJuggler-v0' yet" in err and "\n" not in err
 
 
 def test_predict_is_the_networks_forward_pass():

@@ -79,6 +79,8 @@ SYSTEMS: dict[str, SystemStudy] = {
             "kf-latency-measurements",
             "stkf-latency-measurements",
             "ekf-measurements",
+            "learned-measurements",
+            "learned-kf-measurements",
         ),
         {},
         300,

@@ -1,0 +1,111 @@
+"""TargetFollower's ``learned-kf`` observer: the ``learned`` network as ``kf``'s
+measurement model. The network (estimation/target_follower/learned.py) replaces the
+detector; the visual state estimator (estimation/target_follower/filters.py, the
+conventional KF with the noise rule's Q, gate, confirmation and restarts) stays.
+
+Per new frame with a detection, the network reads the newest frames as ``learned`` does,
+with the frame's own capture time as "now" (its age 0), so what it estimates is the image
+state at the capture, as a detection is. Its X_i = (x_i, y_i, d_x) (px) is the filter's
+measurement z, and the variance it predicts for X_i is R's diagonal (px^2), plus ``kf``'s
+timing term for a frame fused at delivery, E[a^2] (v v^T + P_rate) (noise.py); a frame
+without a detection is a miss, as for ``kf`` (the network does not invent a detection).
+Its rate outputs are not used: the filter makes its own from the model (30). The
+frame it reads is the step's newest by capture time (the observation's), as ``kf``'s
+detection is (``kf`` takes only the camera matrix from ``info["frames"][0]``, the same
+for every frame of the one camera). The reported covariance is the filter's, with the
+rounding floor of the noise rule.
+
+What this takes for granted: R treats each frame's network error as independent of the
+last frame's, but the network reads the last four frames, so consecutive errors share
+three of them; the NEES/dof this observer reports is measured in
+tests/estimation/test_learned_target_follower.py. Like ``learned`` it is trained on the
+perfect detector's measurements only (``learned-kf-measurements``), inside the training
+ranges of learned.py, and knows no calibration error.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.target_follower import TargetFollowerEnv
+from observer_gym.estimation.observer import Estimate
+from observer_gym.estimation.target_follower.filters import VisualStateEstimator
+from observer_gym.estimation.target_follower.frames import FrameDetection
+from observer_gym.estimation.target_follower.learned import LearnedObserver
+from observer_gym.estimation.target_follower.noise import NoiseRule
+from observer_gym.estimation.target_follower.observer import TargetFollowerObserver
+from observer_gym.estimation.target_follower.state_layout import RobotStep
+
+__all__ = ["LearnedKFObserver", "LearnedNoise"]
+
+
+class LearnedNoise(NoiseRule):
+    """The noise rule with the detection's variance replaced by the network's for the
+    frame being fused (:attr:`network_var_px2`, set per frame; before the first frame the
+    declared pixel noise's, which only sizes the estimator's initial R)."""
+
+    network_var_px2: np.ndarray | None = None
+
+    def detection_var_px2(self, width_px: float) -> np.ndarray:
+        if self.network_var_px2 is None:
+            return super().detection_var_px2(width_px)
+        return self.network_var_px2
+
+
+class LearnedKFObserver(TargetFollowerObserver):
+    """``learned-kf`` for TargetFollower-v0: see the module docstring.
+
+    Args:
+        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        weights: the network's weight file (default: ``learned``'s shipped one; refused
+            if changed).
+        r_scale: R times this (> 0), as for ``kf``.
+    """
+
+    def __init__(
+        self,
+        env: TargetFollowerEnv,
+        weights: str | Path | None = None,
+        r_scale: float = 1.0,
+    ) -> None:
+        if env.config.obs_mode != "measurements":
+            raise ValueError(
+                "learned-kf of TargetFollower-v0 reads the perfect detector's measurements "
+                "only (learned-kf-measurements): its network is not trained on rendered "
+                f"frames (obs_mode {env.config.obs_mode!r})"
+            )
+        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        self.noise = LearnedNoise(env.sensor_spec, env.config, env.calibration, r_scale, True)
+        self._frame: FrameDetection | None = None
+        super().__init__(env, filter="kf", r_scale=r_scale)
+        self.vse = VisualStateEstimator(self.params, self.noise)  # kf's, with the network's R
+
+    def reset(self) -> None:
+        super().reset()
+        self.learned.reset()
+        self.noise.network_var_px2 = None
+        self._frame = None
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
+        if action is None:  # after a reset
+            self.learned.reset()
+        robot = RobotStep.from_info(info, action, self.delta_y_m)
+        # the step's new frame (the newest by capture time) into the network's history
+        self._frame = self.learned.frames.newest(obs, info)
+        self.learned.estimator.features.add(self._frame, robot)
+        return super().observe(obs, info, action)
+
+    def detect(self, obs: Any, frame: dict) -> np.ndarray | None:
+        """The network's X_i at the new frame's capture, its variance set as R's; None
+        when the step brought no new frame or its frame had no detection."""
+        new = self._frame
+        if new is None or new.z_px is None:
+            return None
+        features = self.learned.estimator.features
+        # z = X_i, R_detection = diag(sigma^2 of X_i) = network(features at now = t_capture)
+        mean, cov = self.learned.net.predict(features.vector(new.capture_time_s))
+        self.noise.network_var_px2 = np.diag(cov)[:3].copy()
+        return mean[:3]
