@@ -15,8 +15,16 @@ filter and the observer pipelines (docs/spec/catcher.md).
   capture time (:class:`PixelEKFObserver`).
 - ``oracle-visible``: ground truth while the ball is detected, predicted otherwise; reads
   the truth, for analysis only (:class:`OracleVisibleObserver`).
+- ``learned``: a network trained on the simulator's truth maps the newest frames'
+  detections of both cameras to the ball's state and a diagonal covariance, no filter
+  (:class:`LearnedObserver`, estimation/ball_catcher/learned.py; measurements only).
+- ``learned-kf``: that network as the viewline filter's measurement model, a 3-D position
+  measurement in place of the viewline rows (:class:`LearnedKFObserver`,
+  estimation/ball_catcher/learned_kf.py; measurements only).
 """
 
+from observer_gym.estimation.ball_catcher.learned import LearnedObserver
+from observer_gym.estimation.ball_catcher.learned_kf import LearnedKFObserver
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.oracle_visible import OracleVisibleObserver
 from observer_gym.estimation.ball_catcher.pixel_ekf import PixelEKFObserver
@@ -28,11 +36,15 @@ OBSERVERS = {
     "raw": RawObserver,
     "ekf": PixelEKFObserver,
     "oracle-visible": OracleVisibleObserver,
+    "learned": LearnedObserver,
+    "learned-kf": LearnedKFObserver,
 }
 
 __all__ = [
     "OBSERVERS",
     "BallCatcherObserver",
+    "LearnedKFObserver",
+    "LearnedObserver",
     "OracleVisibleObserver",
     "PixelEKFObserver",
     "RawObserver",

@@ -9,7 +9,10 @@ paper's has y up).
 
 Beyond the paper: the filter predicts exactly (Phi, Gamma, R1 of the actual interval) to
 each frame's capture time, so aperiodic frames need no offset rows (:meth:`add_frame`);
-the paper's stacked form is :meth:`ViewlineKalmanFilter.add_frames_at_tick`. Frames
+the paper's stacked form is :meth:`ViewlineKalmanFilter.add_frames_at_tick`. Beside the
+viewline rows, one measurement model of another kind: a 3-D position of the ball
+(:meth:`ViewlineKalmanFilter.add_position`, H = [I 0], for the ``learned-kf`` observer
+whose network reports a position and its covariance instead of a pixel). Frames
 that arrive late (latency) are re-filtered exactly from a short history of estimates, and
 :meth:`ViewlineKalmanFilter.predicted` reads the estimate at any later time without
 changing the filter (the class docstring says how). The declared calibration uncertainty
@@ -59,16 +62,26 @@ class _Checkpoint:
 
 
 @dataclass(slots=True)
+class _Position:
+    """A measured ball position y (3,) (m) and its covariance R (3, 3) (m^2)."""
+
+    y_m: np.ndarray
+    R_m2: np.ndarray
+
+
+@dataclass(slots=True)
 class _Entry:
-    """One processed measurement: a single frame at its capture time (:meth:`add_frame`)
-    or a stack of frames at a control tick (:meth:`add_frames_at_tick`), with the
-    estimate right after it (``after``) and the single frame's camera."""
+    """One processed measurement: a single frame at its capture time (:meth:`add_frame`),
+    a stack of frames at a control tick (:meth:`add_frames_at_tick`) or a position
+    (:meth:`add_position`, ``frames`` empty), with the estimate right after it
+    (``after``) and the single frame's camera."""
 
     time_s: float
     frames: tuple[CameraFrame, ...]
     stacked: bool
     after: _Checkpoint
     camera: int = 0
+    position: _Position | None = None
 
 
 def _detected(frame: CameraFrame) -> np.ndarray:
@@ -279,7 +292,7 @@ class ViewlineKalmanFilter:
         self._entries = []
         self.restart_count += 1
         for entry in again:
-            self._add(entry.time_s, entry.frames, entry.stacked, entry.camera)
+            self._add(entry.time_s, entry.frames, entry.stacked, entry.camera, entry.position)
         self.predict_to(max(resume_s, self.time_s))
         return len(again)
 
@@ -312,6 +325,30 @@ class ViewlineKalmanFilter:
         frame = CameraFrame(t_s, K, T_world_cam, np.asarray(uv_px, dtype=float))
         return self._add(t_s, (frame,), stacked=False, camera=camera)
 
+    def add_position(self, time_s: float, position_m: np.ndarray, R_m2: np.ndarray) -> UpdateResult:
+        """Predict exactly to ``time_s``, then update with a measured ball position:
+
+            y = H x + e,   H = [I_3 0_3] (the position part of the state),   E[e e^T] = R
+
+        ``position_m`` (3,) in m, ``R_m2`` (3, 3) in m^2, symmetric positive definite;
+        gated (27)-(30) like a frame. Not the paper's: its filter measures viewlines only;
+        this is the smallest model for a measurement that is already a 3-D point (the
+        ``learned-kf`` observer's network). A time before ``time_s`` is late and handled
+        like a late frame. With ``calibration`` the consider parameters get no gain from
+        it (H has zeros there: a position says nothing of the cameras' offsets)."""
+        y = np.array(position_m, dtype=float).reshape(-1)
+        R = np.array(R_m2, dtype=float)
+        if (
+            y.shape != (3,)
+            or R.shape != (3, 3)
+            or not (np.all(np.isfinite(y)) and np.all(np.isfinite(R)))
+        ):
+            raise ValueError(
+                f"ViewlineKalmanFilter.add_position: position {y.shape} and R {R.shape} must "
+                "be finite, (3,) and (3, 3)"
+            )
+        return self._add(float(time_s), (), stacked=False, position=_Position(y, 0.5 * (R + R.T)))
+
     def add_frames_at_tick(self, tick_time_s: float, frames: Sequence[CameraFrame]) -> UpdateResult:
         """The paper's timing: predict to ``tick_time_s``, stack the rows of all frames of
         the interval with time offsets dt = capture time - tick (23)-(26), update once.
@@ -341,15 +378,21 @@ class ViewlineKalmanFilter:
         return self._add(t_s, detected, stacked=True)
 
     def _add(
-        self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool, camera: int = 0
+        self,
+        t_s: float,
+        frames: tuple[CameraFrame, ...],
+        stacked: bool,
+        camera: int = 0,
+        position: _Position | None = None,
     ) -> UpdateResult:
         if t_s >= self.time_s:  # in order: the usual step
-            result = self._apply(t_s, frames, stacked, camera)
-            self._entries.append(_Entry(t_s, frames, stacked, self._checkpoint(), camera))
+            result = self._apply(t_s, frames, stacked, camera, position)
+            after = self._checkpoint()
+            self._entries.append(_Entry(t_s, frames, stacked, after, camera, position))
             self._forget_old()
             return result
         self._check_within_history(t_s, "tick" if stacked else "frame captured")
-        return self._refilter(_Entry(t_s, frames, stacked, self._anchor, camera))
+        return self._refilter(_Entry(t_s, frames, stacked, self._anchor, camera, position))
 
     def _check_within_history(self, t_s: float, what: str) -> None:
         if t_s < self._anchor.time_s:
@@ -371,7 +414,7 @@ class ViewlineKalmanFilter:
         self._entries.insert(i, late)
         result = None
         for entry in self._entries[i:]:
-            r = self._apply(entry.time_s, entry.frames, entry.stacked, entry.camera)
+            r = self._apply(entry.time_s, entry.frames, entry.stacked, entry.camera, entry.position)
             entry.after = self._checkpoint()
             if entry is late:
                 result = r
@@ -400,10 +443,23 @@ class ViewlineKalmanFilter:
         return float(axis @ self.kf.P[:3, :3] @ axis)
 
     def _apply(
-        self, t_s: float, frames: tuple[CameraFrame, ...], stacked: bool, camera: int = 0
+        self,
+        t_s: float,
+        frames: tuple[CameraFrame, ...],
+        stacked: bool,
+        camera: int = 0,
+        position: _Position | None = None,
     ) -> UpdateResult:
-        """Predict to ``t_s`` and update with ``frames`` (all with a detection)."""
+        """Predict to ``t_s`` and update with ``frames`` (all with a detection) or the
+        measured ``position``."""
         self.predict_to(t_s)
+        if position is not None:
+            H = np.zeros((3, len(self.kf.x)))
+            H[:, :3] = np.eye(3)  # y = [I 0] x + e
+            result = self.kf.update(position.y_m, H, position.R_m2)
+            if self.calibration is not None:
+                self.kf.x, self.kf.P = self.calibration.reset_consider(self.kf.x, self.kf.P)
+            return result
         if not stacked:
             (frame,) = frames
             uv_px = _detected(frame)

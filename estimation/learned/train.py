@@ -31,6 +31,7 @@ PROG = "python -m observer_gym.estimation.learned.train"
 SYSTEMS = {
     "BallTable-v0": "observer_gym.estimation.ball_table.learned",
     "TargetFollower-v0": "observer_gym.estimation.target_follower.learned",
+    "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned",
 }
 DEFAULT_EPISODES = 60
 

@@ -62,7 +62,12 @@ SYSTEMS: dict[str, SystemStudy] = {
     ),
     "BallCatcher-v1": SystemStudy(
         "intercept",
-        ("kf-measurements", "ekf-measurements"),  # kf-latency is kf under a second name
+        (
+            "kf-measurements",  # kf-latency is kf under a second name
+            "ekf-measurements",
+            "learned-measurements",
+            "learned-kf-measurements",
+        ),
         {},
         None,
     ),

@@ -34,6 +34,10 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     # ground truth while the ball is seen: analysis only
     "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
     "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
+    # the network trained on the perfect detector's measurements (not on rendered frames),
+    # alone and as kf's measurement model
+    "learned-measurements": ("measurements", {"observer": "learned"}),
+    "learned-kf-measurements": ("measurements", {"observer": "learned-kf"}),
 }
 # what an agent trained with --obs estimate reads, by --estimate-from
 ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}

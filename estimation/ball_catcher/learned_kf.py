@@ -1,0 +1,110 @@
+"""BallCatcher's ``learned-kf`` observer: the ``learned`` network as the measurement model of
+``kf``'s filter. The network (estimation/ball_catcher/learned.py) replaces the detector's
+viewlines; the filter (:class:`~observer_gym.estimation.ball_catcher.filters.ViewlineKalmanFilter`:
+the ballistic model, its prior from the declared throw distribution, the p-sigma gate, the
+re-acquisition after rejections in a row, prediction to the step's time) stays.
+
+The viewline filter measures pixels through each camera's viewline rows and cannot take a
+3-D point, so it got the smallest model that can
+(:meth:`~observer_gym.estimation.ball_catcher.filters.ViewlineKalmanFilter.add_position`):
+
+    y = H x + e,   H = [I_3 0_3],   E[e e^T] = R
+
+At each step that delivers a frame showing the ball, the network reads the newest frames
+of both cameras as ``learned`` does, at the step's time (the time it was trained at), and
+its ball position y (m) with the position block of the covariance it predicts (diagonal,
+m^2) as R is one measurement at that time. Its velocity outputs are not used: the filter
+makes its own from the ballistic model. NIS: d^T S^-1 d of the accepted position (3 dof).
+
+What this takes for granted: R treats each step's network error as independent of the
+last step's, but the network reads each camera's last eight frames, so consecutive
+outputs share seven of them per camera; and nothing of the network's own bias is in R.
+Both make the filter trust it more than it should (the NEES/dof it reports is measured in
+tests/estimation/test_learned_ball_catcher.py). The filter runs without ``kf``'s
+calibration consider parameters (the network's position goes through no camera model);
+like ``learned`` it is trained on the perfect detector's measurements only
+(``learned-kf-measurements``), with the two cameras of the default presets, and outside
+``learned``'s training ranges nothing is claimed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from observer_gym.envs.ball_catcher import BallCatcherEnv
+from observer_gym.envs.ball_catcher.layout import BALL_POS
+from observer_gym.estimation.ball_catcher.learned import (
+    LearnedObserver,
+    checked_env,
+    with_box,
+)
+from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
+from observer_gym.estimation.observer import Estimate
+
+__all__ = ["LearnedKFObserver"]
+
+NETWORK = "network"  # the rejection runs' key for the network's measurements
+
+
+class LearnedKFObserver(BallCatcherObserver):
+    """``learned-kf`` for BallCatcher-v1 (see the module docstring).
+
+    Args:
+        env: the (unwrapped) env, made with ``obs_mode="measurements"`` and two cameras.
+        weights: the network's weight file (default: ``learned``'s shipped one; refused
+            if changed).
+        **options: the filter's options as for ``kf`` (``gate_p``, ``accel_noise_std``,
+            ``reacquire_after``); its pixel noise is not used.
+    """
+
+    def __init__(
+        self, env: BallCatcherEnv, weights: str | Path | None = None, **options: Any
+    ) -> None:
+        checked_env(env, "LearnedKFObserver", 2)  # the cheap checks before torch
+        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        super().__init__(env, consider_calibration=False, **options)
+
+    def reset(self) -> None:
+        super().reset()
+        self.learned.reset()
+
+    def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
+        self._nis, self._nis_dof = 0.0, 0
+        detected, measurements = self.learned.read_frames(info)
+        now_s = float(info["time_s"])
+        used = False
+        if detected:
+            ball, covariance = self.learned.net.predict(self.learned.features.vector(now_s))
+            used = self._add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
+        x_ball, P_ball = self.filter.predicted(now_s)
+        mean, covariance = with_box(x_ball, P_ball, info)
+        return Estimate(
+            mean=mean,
+            covariance=covariance,
+            measurement_used=used,
+            measurement=measurements or None,
+            time_s=now_s,
+            nis=self._nis if self._nis_dof else None,
+            nis_dof=self._nis_dof,
+        )
+
+    def _add_position(self, t_s: float, position_m: np.ndarray, R_m2: np.ndarray) -> bool:
+        """Filter one network position; restart after ``reacquire_after`` rejections in a
+        row (as ``kf`` does for a camera's frames). Whether it was used."""
+        kf = self.filter
+        result = kf.add_position(t_s, position_m, R_m2)
+        if result.accepted:
+            self._rejected.used(NETWORK)
+            self._nis += result.nis
+            self._nis_dof += 3
+            return True
+        since_s = self._rejected.not_used(NETWORK, t_s)
+        if since_s is None:
+            return False
+        self.reacquisitions += 1
+        accepted_before = kf.accepted_count
+        kf.restart(self.x_lost, self.P_lost, 0.0, since_s)
+        return kf.accepted_count > accepted_before
