@@ -69,6 +69,7 @@ import numpy as np
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.estimation.ball_catcher.frames import FrameReader
+from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import Estimate
 
 __all__ = [
@@ -176,12 +177,7 @@ def checked_env(env: Any, owner: str, cameras: int) -> BallCatcherEnv:
     with the rig's ``cameras`` cameras; else ValueError in one line."""
     if not isinstance(env, BallCatcherEnv):
         raise ValueError(f"{owner} needs a BallCatcherEnv, got {type(env).__name__}")
-    if env.config.obs_mode != "measurements":
-        raise ValueError(
-            f"{owner} of BallCatcher-v1 reads the perfect detector's measurements only "
-            f"(its -measurements name): its network is not trained on rendered frames "
-            f"(obs_mode {env.config.obs_mode!r})"
-        )
+    require_measurements(env, f"{owner} of BallCatcher-v1")
     if env.num_cameras != cameras:
         raise ValueError(
             f"{owner} of BallCatcher-v1 is trained with {cameras} cameras, the env has "

@@ -49,6 +49,7 @@ from gymnasium import spaces
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
+from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import MAX_PIXEL_PX, Estimate, checked_measurement
 
 __all__ = [
@@ -141,12 +142,7 @@ class LearnedObserver:
     """
 
     def __init__(self, env: BallTableEnv, weights: str | Path | None = None) -> None:
-        if env.config.obs_mode != "measurements":
-            raise ValueError(
-                "the learned observer of BallTable-v0 reads the perfect detector's "
-                "measurements only (learned-measurements); from rendered frames it is not "
-                f"trained yet (obs_mode {env.config.obs_mode!r})"
-            )
+        require_measurements(env, "the learned observer of BallTable-v0")
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)

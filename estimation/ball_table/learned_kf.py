@@ -30,6 +30,7 @@ from observer_gym.envs.ball_table import BallTableEnv
 from observer_gym.estimation.ball_table.fusion import Fused
 from observer_gym.estimation.ball_table.learned import LearnedObserver
 from observer_gym.estimation.ball_table.observer import BallTableObserver, TiltBallDetection
+from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import Estimate
 
 __all__ = ["LearnedKFObserver"]
@@ -52,12 +53,7 @@ class LearnedKFObserver(BallTableObserver):
         weights: str | Path | None = None,
         latency_aware: bool = False,
     ) -> None:
-        if env.config.obs_mode != "measurements":
-            raise ValueError(
-                "learned-kf of BallTable-v0 reads the perfect detector's measurements only "
-                "(learned-kf-measurements): its network is not trained on rendered frames "
-                f"(obs_mode {env.config.obs_mode!r})"
-            )
+        require_measurements(env, "learned-kf of BallTable-v0")
         self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
         self._action: np.ndarray | None = None
         super().__init__(env, latency_aware=latency_aware)

@@ -75,6 +75,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from observer_gym.envs.target_follower import STATE_DIM, StateIndex, TargetFollowerEnv
+from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VSEParams
 from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
@@ -219,12 +220,7 @@ class LearnedObserver:
     """
 
     def __init__(self, env: TargetFollowerEnv, weights: str | Path | None = None) -> None:
-        if env.config.obs_mode != "measurements":
-            raise ValueError(
-                "the learned observer of TargetFollower-v0 reads the perfect detector's "
-                "measurements only (learned-measurements); from rendered frames it is not "
-                f"trained yet (obs_mode {env.config.obs_mode!r})"
-            )
+        require_measurements(env, "the learned observer of TargetFollower-v0")
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         net, self.report = load_network(Path(weights) if weights else WEIGHTS)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.target_follower import TargetFollowerEnv
+from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator
 from observer_gym.estimation.target_follower.frames import FrameDetection
@@ -71,12 +72,7 @@ class LearnedKFObserver(TargetFollowerObserver):
         weights: str | Path | None = None,
         r_scale: float = 1.0,
     ) -> None:
-        if env.config.obs_mode != "measurements":
-            raise ValueError(
-                "learned-kf of TargetFollower-v0 reads the perfect detector's measurements "
-                "only (learned-kf-measurements): its network is not trained on rendered "
-                f"frames (obs_mode {env.config.obs_mode!r})"
-            )
+        require_measurements(env, "learned-kf of TargetFollower-v0")
         self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
         self.noise = LearnedNoise(env.sensor_spec, env.config, env.calibration, r_scale, True)
         self._frame: FrameDetection | None = None
