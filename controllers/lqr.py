@@ -38,7 +38,23 @@ class LQRController(StateFeedbackController):
         import control  # imported on use: python-control loads matplotlib (~0.7 s)
 
         # K = (R + B^T P B)^-1 B^T P A, P the stabilising solution of the DARE
-        K, P, poles = control.dlqr(self.Phi, self.Gamma, self.Q, self.R)
+        try:
+            K, P, poles = control.dlqr(self.Phi, self.Gamma, self.Q, self.R)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise ValueError(
+                f"LQR design failed for Q = {self.Q.tolist()} and R = {self.R.tolist()} "
+                f"({exc}): the DARE has a stabilising solution only if Q weighs every mode "
+                "of the plant that does not decay by itself ((A, Q^1/2) detectable)"
+            ) from None
+        # the DARE's solution stabilises only if every closed-loop pole is inside the unit
+        # circle; with a Q blind to an undamped mode python-control returns P = 0, K = 0
+        largest = float(np.abs(np.asarray(poles)).max())
+        if not largest < 1.0 - 1e-9:
+            raise ValueError(
+                f"LQR design with Q = {self.Q.tolist()} does not stabilise the plant (a "
+                f"closed-loop pole of magnitude {largest:.6g}): Q must weigh every mode that "
+                "does not decay by itself ((A, Q^1/2) detectable)"
+            )
         self.K = np.asarray(K)
         self.P = np.asarray(P)
         self.closed_loop_poles = np.asarray(poles)

@@ -10,9 +10,9 @@ __all__ = ["check_weights"]
 def _as_matrix(name: str, value, size: int) -> np.ndarray:
     try:
         M = np.array(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond a float
         raise ValueError(
-            f"{name} = {value!r}, must be a ({size}, {size}) matrix of numbers or its diagonal"
+            f"{name} = {value!r:.200}, must be a ({size}, {size}) matrix of numbers or its diagonal"
         ) from None
     if M.ndim == 1:  # a diagonal
         M = np.diag(M)

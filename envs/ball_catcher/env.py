@@ -81,7 +81,8 @@ class BallCatcherEnv(CameraEnv):
     ``outcome`` ("flying", "caught", "missed"), ``caught``, ``ball_in_flight`` (the ball
     has not touched the box yet: free flight, where a ballistic model holds; NEES and NIS
     are taken over these steps), ``throw`` (launch position and velocity, drag-free
-    crossing time and point), ``sensor`` (after a reset: the declared sensor,
+    crossing time and point of the box's home plane, None for a throw that never reaches
+    it), ``sensor`` (after a reset: the declared sensor,
     :class:`~observer_gym.envs.sensor.SensorSpec`) and ``frames``: every frame
     delivered this step, in capture-time order, each with ``camera_id``,
     ``capture_time_s``, ``delivery_time_s``, ``K``, ``T_world_cam``, ``image_size_px``
@@ -373,7 +374,9 @@ class BallCatcherEnv(CameraEnv):
                 "launch_pos_world": throw.launch_pos_world.copy(),
                 "launch_vel_world": throw.launch_vel_world.copy(),
                 "crossing_time_s": throw.crossing_time_s,
-                "crossing_pos_world": throw.crossing_pos_world.copy(),
+                "crossing_pos_world": (
+                    None if throw.crossing_pos_world is None else throw.crossing_pos_world.copy()
+                ),
             },
         }
 
@@ -441,8 +444,9 @@ class BallCatcherEnv(CameraEnv):
                 f" m/s, got position {pos.tolist()} and speed {speed:.6g} m/s"
             )
         crossing = plane_crossing(pos, vel, geo.HOLE_HOME_WORLD[0])
-        t, point = crossing if crossing is not None else (float("nan"), np.full(3, np.nan))
-        return Throw(pos, vel, t, point)
+        if crossing is None:  # never reaches the plane: no crossing (None, not NaN, so
+            return Throw(pos, vel, None, None)  # two equal episodes' infos compare equal)
+        return Throw(pos, vel, *crossing)
 
     def _command_box(self, velocity_cmd: np.ndarray) -> None:
         """Limit the command by the robot profile, integrate it into the hole's target

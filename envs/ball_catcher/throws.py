@@ -29,12 +29,13 @@ MAX_THROW_SPEED_MPS = 100.0
 @dataclass(frozen=True)
 class Throw:
     """A throw: launch position and velocity (world), and the drag-free crossing of the
-    box's home plane (time after launch, point)."""
+    box's home plane (time after launch, point; both None for a throw that never reaches
+    the plane)."""
 
     launch_pos_world: np.ndarray
     launch_vel_world: np.ndarray
-    crossing_time_s: float
-    crossing_pos_world: np.ndarray
+    crossing_time_s: float | None
+    crossing_pos_world: np.ndarray | None
 
 
 def throw_through(launch_pos_world, crossing_pos_world, flight_time_s: float) -> Throw:

@@ -73,6 +73,12 @@ def test_lqr_pushes_the_ball_back_along_each_axis(plant):
         (None, np.zeros((2, 2)), "R must be positive definite"),
         (None, [1.0, -1.0], "R must be positive definite"),
         (None, [[1.0, np.nan], [np.nan, 1.0]], "R has non-finite"),
+        # an int beyond any float (found by the fuzz suite's long profile)
+        ([10**400] * 6, None, r"Q = \[1000.*must be a"),
+        # blind to the ball: the DARE has no stabilising solution (scipy fails)
+        ([0, 0, 0, 0, 1, 1.0], None, "LQR design failed for Q"),
+        # blind to everything: python-control returns K = 0, the open-loop double integrator
+        (np.zeros(6), None, "does not stabilise the plant .*magnitude 1"),
     ],
 )
 def test_bad_weights_raise(plant, Q, R, message):

@@ -254,6 +254,25 @@ def test_bad_reset_throw_raises(state_env):
         state_env.reset(seed=0, options={"throw": (np.zeros(2), np.zeros(3))})
 
 
+def test_a_throw_that_never_reaches_the_box_has_no_crossing(state_env):
+    """A ball dropped (or thrown away from the box) never crosses the box's plane: its
+    info says None, not NaN, so two equal resets compare equal (Gymnasium's
+    data_equivalence, as the fuzz suite checks determinism; NaN != NaN failed it)."""
+    from gymnasium.utils.env_checker import data_equivalence
+
+    other = BallCatcherEnv(obs_mode="state")
+    try:
+        for velocity in ([0.0, 0.0, 0.0], [2.0, 0.0, 1.0]):
+            throw = ([0.0, 0.0, 0.5], velocity)
+            first = state_env.reset(seed=3, options={"throw": throw})
+            second = other.reset(seed=3, options={"throw": throw})
+            assert first[1]["throw"]["crossing_time_s"] is None
+            assert first[1]["throw"]["crossing_pos_world"] is None
+            assert data_equivalence(first, second)
+    finally:
+        other.close()
+
+
 @pytest.mark.parametrize(
     ("offset_m", "outcome"), [(0.0, "caught"), (0.02, "missed"), (0.03, "missed"), (0.05, "missed")]
 )
