@@ -67,8 +67,9 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
-from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
+from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher.frames import FrameReader
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.learned.inputs import require_measurements
 from observer_gym.estimation.observer import Estimate
 
@@ -225,7 +226,7 @@ class LearnedObserver:
         used, measurements = self.read_frames(info)
         now_s = float(info["time_s"])
         ball, ball_covariance = self.net.predict(self.features.vector(now_s))
-        mean, covariance = with_box(ball, ball_covariance, info)
+        mean, covariance = state_estimate(ball, ball_covariance, info)
         return Estimate(mean, covariance, used, measurements or None, now_s)
 
 
@@ -233,20 +234,6 @@ def image_centre_px(env: BallCatcherEnv) -> tuple[float, float]:
     """((width - 1) / 2, (height - 1) / 2) of the env's images (px)."""
     width, height = env.rig.image_size_px
     return 0.5 * (width - 1), 0.5 * (height - 1)
-
-
-def with_box(
-    ball: np.ndarray, ball_covariance: np.ndarray, info: dict
-) -> tuple[np.ndarray, np.ndarray]:
-    """The state layout's mean (12,) and covariance (12, 12): the ball's (6,) and (6, 6),
-    the box's the robot's kinematics from ``info`` with zero variance."""
-    mean = np.zeros(STATE_DIM)
-    mean[BALL] = ball
-    mean[BOX_POS] = info["box_pos_world_m"]
-    mean[BOX_VEL] = info["box_vel_world_mps"]
-    covariance = np.zeros((STATE_DIM, STATE_DIM))
-    covariance[BALL, BALL] = ball_covariance
-    return mean, covariance
 
 
 def collect(
@@ -288,7 +275,7 @@ def collect(
                     acted_on = np.asarray(info["state"], dtype=float)
                 else:
                     ball, ball_covariance = act_with.predict(x)
-                    acted_on, covariance = with_box(ball, ball_covariance, info)
+                    acted_on, covariance = state_estimate(ball, ball_covariance, info)
                     controller.observe_info({"estimate": {"covariance": covariance}})
                 action, _ = controller.predict(acted_on, deterministic=True)
                 _, _, terminated, truncated, info = env.step(action)

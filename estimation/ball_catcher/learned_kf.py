@@ -36,12 +36,9 @@ import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL_POS
-from observer_gym.estimation.ball_catcher.learned import (
-    LearnedObserver,
-    checked_env,
-    with_box,
-)
+from observer_gym.estimation.ball_catcher.learned import LearnedObserver, checked_env
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.observer import Estimate
 
 __all__ = ["LearnedKFObserver"]
@@ -78,9 +75,10 @@ class LearnedKFObserver(BallCatcherObserver):
         used = False
         if detected:
             ball, covariance = self.learned.net.predict(self.learned.features.vector(now_s))
-            used = self._add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
-        x_ball, P_ball = self.filter.predicted(now_s)
-        mean, covariance = with_box(x_ball, P_ball, info)
+            # one 3-D position (3 rows); rejections in a row restart the filter as kf's do
+            result = self.filter.add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
+            used = self._counted(result, NETWORK, now_s, dof=3)
+        mean, covariance = state_estimate(*self.filter.predicted(now_s), info)
         return Estimate(
             mean=mean,
             covariance=covariance,
@@ -90,21 +88,3 @@ class LearnedKFObserver(BallCatcherObserver):
             nis=self._nis if self._nis_dof else None,
             nis_dof=self._nis_dof,
         )
-
-    def _add_position(self, t_s: float, position_m: np.ndarray, R_m2: np.ndarray) -> bool:
-        """Filter one network position; restart after ``reacquire_after`` rejections in a
-        row (as ``kf`` does for a camera's frames). Whether it was used."""
-        kf = self.filter
-        result = kf.add_position(t_s, position_m, R_m2)
-        if result.accepted:
-            self._rejected.used(NETWORK)
-            self._nis += result.nis
-            self._nis_dof += 3
-            return True
-        since_s = self._rejected.not_used(NETWORK, t_s)
-        if since_s is None:
-            return False
-        self.reacquisitions += 1
-        accepted_before = kf.accepted_count
-        kf.restart(self.x_lost, self.P_lost, 0.0, since_s)
-        return kf.accepted_count > accepted_before

@@ -86,12 +86,13 @@ import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher import geometry as geo
-from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.envs.sim import GRAVITY_MPS2
 from observer_gym.estimation.ball_catcher.calibration_consider import CalibrationConsider
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P, ViewlineKalmanFilter
 from observer_gym.estimation.ball_catcher.frames import FrameReader
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
+from observer_gym.estimation.filters import UpdateResult
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.r_scale import checked_r_scale
 
@@ -352,13 +353,7 @@ class BallCatcherObserver:
             used |= self._add_frame(frame, uv)
         kf = self.filter
         now_s = float(info["time_s"])
-        x_ball, P_ball = kf.predicted(now_s)
-        mean = np.zeros(STATE_DIM)
-        mean[BALL] = x_ball
-        mean[BOX_POS] = info["box_pos_world_m"]
-        mean[BOX_VEL] = info["box_vel_world_mps"]
-        covariance = np.zeros((STATE_DIM, STATE_DIM))
-        covariance[BALL, BALL] = P_ball
+        mean, covariance = state_estimate(*kf.predicted(now_s), info)
         return Estimate(
             mean=mean,
             covariance=covariance,
@@ -378,13 +373,21 @@ class BallCatcherObserver:
         result = kf.add_frame(t_s, frame["K"], frame["T_world_cam"], uv, camera)
         if uv is None:
             return False
+        # d^T S^-1 d of the frame's two viewline rows (a late frame's: at its capture time)
+        return self._counted(result, camera, t_s, dof=2)
+
+    def _counted(self, result: UpdateResult, source: Any, t_s: float, dof: int) -> bool:
+        """Book one measurement of ``source`` (a camera, or another measurement stream)
+        taken at ``t_s``: its NIS (``dof`` rows) if accepted, else a rejection, and after
+        ``reacquire_after`` in a row of that source a restart from the wide prior and the
+        measurements since. Whether it was used (at a restart: anything filtered again)."""
+        kf = self.filter
         if result.accepted:
-            self._rejected.used(camera)
-            # d^T S^-1 d of the frame's two viewline rows (a late frame's: at its capture time)
+            self._rejected.used(source)
             self._nis += result.nis
-            self._nis_dof += 2
+            self._nis_dof += dof
             return True
-        since_s = self._rejected.not_used(camera, t_s)
+        since_s = self._rejected.not_used(source, t_s)
         if since_s is None:
             return False
         self.reacquisitions += 1

@@ -27,11 +27,12 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
-from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
+from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.models import BallFlight, env_drag_per_m
 from observer_gym.estimation.ball_catcher.observer import initial_estimate
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.observer import Estimate
 
 __all__ = ["OracleVisibleObserver"]
@@ -74,13 +75,10 @@ class OracleVisibleObserver:
             ball = self._seen_ball.copy()
         else:
             ball = self.flight.state_at(self._seen_ball, now_s - self._seen_s)
-        mean = np.zeros(STATE_DIM)
-        mean[BALL] = ball
-        mean[BOX_POS] = info["box_pos_world_m"]
-        mean[BOX_VEL] = info["box_vel_world_mps"]
+        mean, covariance = state_estimate(ball, np.zeros((6, 6)), info)  # the truth: 0
         return Estimate(
             mean=mean,
-            covariance=np.zeros((STATE_DIM, STATE_DIM)),
+            covariance=covariance,
             measurement_used=detected,
             measurement=reports or None,
             time_s=now_s,

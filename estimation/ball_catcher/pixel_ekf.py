@@ -80,7 +80,6 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
-from observer_gym.envs.ball_catcher.layout import BALL, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.estimation.ball_catcher.calibration_consider import CalibrationConsider
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.filters import DEFAULT_GATE_P
@@ -95,6 +94,7 @@ from observer_gym.estimation.ball_catcher.observer import (
     default_pixel_std_px,
     initial_estimate,
 )
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.ekf import ExtendedKalmanFilter
 from observer_gym.estimation.filters import UpdateResult
 from observer_gym.estimation.gating import PSigmaGate
@@ -397,12 +397,7 @@ class PixelEKFObserver:
         results = [self.core.results.get(id(m.measurement)) for m in timed]
         accepted = [r for r in results if r is not None and r.accepted]
         self._forget(now_s)
-        mean = np.zeros(STATE_DIM)
-        mean[BALL] = self.core.x
-        mean[BOX_POS] = info["box_pos_world_m"]
-        mean[BOX_VEL] = info["box_vel_world_mps"]
-        covariance = np.zeros((STATE_DIM, STATE_DIM))
-        covariance[BALL, BALL] = self.core.P
+        mean, covariance = state_estimate(self.core.x, self.core.P, info)
         return Estimate(
             mean=mean,
             covariance=covariance,

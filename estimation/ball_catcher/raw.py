@@ -38,12 +38,8 @@ import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import (
-    BALL,
     BALL_POS,
     BALL_VEL,
-    BOX_POS,
-    BOX_VEL,
-    STATE_DIM,
 )
 from observer_gym.estimation.ball_catcher.detector import BallCatcherDetector
 from observer_gym.estimation.ball_catcher.frames import FrameReader
@@ -52,6 +48,7 @@ from observer_gym.estimation.ball_catcher.observer import (
     default_pixel_std_px,
     initial_estimate,
 )
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.camera_geometry import projection_matrix
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import CameraFrame, viewline_noise_std, viewline_rows
@@ -158,12 +155,7 @@ class RawObserver:
                 self._newest[camera] = CameraFrame(t_s, frame["K"], frame["T_world_cam"], uv)
                 newer = True
         used = newer and self._triangulate_newest()
-        mean = np.zeros(STATE_DIM)
-        mean[BALL] = self.x
-        mean[BOX_POS] = info["box_pos_world_m"]
-        mean[BOX_VEL] = info["box_vel_world_mps"]
-        covariance = np.zeros((STATE_DIM, STATE_DIM))
-        covariance[BALL, BALL] = self.P
+        mean, covariance = state_estimate(self.x, self.P, info)
         return Estimate(
             mean=mean,
             covariance=covariance,

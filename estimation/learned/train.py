@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         "--episodes",
         type=int,
         default=None,
-        help="episodes per round (default: BallTable 60, TargetFollower 100)",
+        help=f"episodes per round (default: the system's EPISODES, else {DEFAULT_EPISODES})",
     )
     parser.add_argument("--seed", type=int, default=0, help="data and training seed (0)")
     parser.add_argument("--epochs", type=int, default=60, help="passes over the data (60)")
