@@ -79,7 +79,7 @@ OBSERVER_ROLES = {
     "raw": "the detector alone: the newest detection held, rates by finite differences",
     "oracle-visible": "the true state while the camera sees it, predicted otherwise",
     "learned": "a network trained on the simulator's truth: the newest frames' detections "
-    "to the estimate and its covariance (no filter)",
+    "(from frames: a learned detector's) to the estimate and its covariance (no filter)",
     "learned-kf": "the learned network as the Kalman filter's measurement model (it "
     "replaces the detector, the filter stays)",
 }

@@ -94,6 +94,11 @@ class FrameReader:
         self._newest_capture_s = float(frame["capture_time_s"])
         return features
 
+    def mark_seen(self, frame: dict) -> None:
+        """The new ``frame`` counts as seen, its picture read by another image stage (the
+        learned detector's)."""
+        self._newest_capture_s = float(frame["capture_time_s"])
+
     def detect(self, obs: Any, frame: dict) -> BallTableDetection:
         """The detection of the new ``frame`` (its :meth:`features` through the geometry
         stage)."""

@@ -30,8 +30,13 @@ Outside those ranges (more noise, longer latency, calibration error, head motion
 occluders) the network has seen nothing: its estimate and its covariance are not to be
 trusted there.
 
-From rendered frames it is not trained yet: the ``learned`` (rgb) observer refuses at
-construction. Trained by::
+**From rendered frames** (``obs_mode="rgb"``, the observer names without
+``-measurements``) the learned detector
+(:mod:`~observer_gym.estimation.ball_table.learned_detector`, a CNN trained on the
+perfect detector's pixels of rendered frames) reads each new frame
+in the perfect detector's place; the network above is the same, not retrained on the
+detector's errors, so what those cost is measured, not hidden
+(tests/estimation/test_learned_frames.py). Trained by::
 
     python -m observer_gym.estimation.learned.train --env BallTable-v0
 
@@ -49,8 +54,14 @@ from gymnasium import spaces
 
 from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
-from observer_gym.estimation.learned.inputs import require_measurements
-from observer_gym.estimation.observer import MAX_PIXEL_PX, Estimate, checked_measurement
+from observer_gym.estimation.ball_table import learned_detector
+from observer_gym.estimation.learned.inputs import require_frames_or_measurements
+from observer_gym.estimation.observer import (
+    MAX_PIXEL_PX,
+    Estimate,
+    checked_measurement,
+    checked_rgb_frame,
+)
 
 __all__ = [
     "HISTORY_FRAMES",
@@ -136,21 +147,45 @@ class LearnedObserver:
     """``learned`` for BallTable-v0 (see the module docstring).
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``.
         weights: the weight file (default: the shipped :data:`WEIGHTS`); refused if its
             sha256 is not its report's.
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped :data:`~observer_gym.estimation.ball_table.learned_detector.WEIGHTS`).
     """
 
-    def __init__(self, env: BallTableEnv, weights: str | Path | None = None) -> None:
-        require_measurements(env, "the learned observer of BallTable-v0")
+    def __init__(
+        self,
+        env: BallTableEnv,
+        weights: str | Path | None = None,
+        detector_weights: str | Path | None = None,
+    ) -> None:
+        owner = "the learned observer of BallTable-v0"
+        from_frames = require_frames_or_measurements(env, owner) == "rgb"
+        from observer_gym.estimation.learned.frame_detector import LearnedDetector
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
-        space = env.observation_space
-        if not isinstance(space, spaces.Dict):
-            raise ValueError(f"LearnedObserver: a measurements env has a Dict space, not {space}")
-        self.measurement_space = space
+        self.detector: LearnedDetector | None = None
+        self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
+        if from_frames:
+            self.detector = LearnedDetector(Path(detector_weights or learned_detector.WEIGHTS))
+            self.detector.check_camera(self.image_size_px, owner)
+        else:
+            space = env.observation_space
+            if not isinstance(space, spaces.Dict):
+                raise ValueError(f"{owner}: a measurements env has a Dict space, not {space}")
+            self.measurement_space = space
         self.features = LearnedFeatures()
+
+    def measurement(self, obs: Any) -> dict[str, np.ndarray]:
+        """The measurement of the step's new frame: the learned detector's reading of the
+        picture (rgb), or the perfect detector's measurement, checked."""
+        if self.detector is None:
+            return checked_measurement("LearnedObserver", obs, self.measurement_space)
+        frame = checked_rgb_frame(obs, self.image_size_px, "LearnedObserver")
+        return learned_detector.measurement_of(self.detector.detect(frame))
 
     def reset(self) -> None:
         self.features.reset()
@@ -160,7 +195,7 @@ class LearnedObserver:
         measurement = None
         capture_s = self.features.newest_capture_s(info)
         if capture_s is not None:
-            measurement = checked_measurement("LearnedObserver", obs, self.measurement_space)
+            measurement = self.measurement(obs)
             self.features.new_frame(measurement, capture_s)
             used = True
         now_s = float(info["time_s"])

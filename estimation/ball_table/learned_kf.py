@@ -14,9 +14,11 @@ last frame's, but the network reads the last four frames, so consecutive errors 
 three of them; and the network's own covariance claims about half its error (its
 NEES/dof on new seeds is 2.2, tests/estimation/test_learned_ball_table.py). Both make
 the filter trust it more than it should; the NEES/dof this observer reports is measured
-in tests/estimation/test_learned_ball_table.py. Like ``learned`` it is trained on the
-perfect detector's measurements only (``learned-kf-measurements``) and knows no
-calibration error: nothing of the calibration's offset is reported.
+in tests/estimation/test_learned_ball_table.py. Like ``learned`` its network is trained
+on the perfect detector's measurements and knows no calibration error: nothing of the
+calibration's offset is reported. From rendered frames (``learned-kf``, obs_mode "rgb")
+the learned detector (estimation/ball_table/learned_detector.py) reads each frame in the
+perfect detector's place, as for ``learned``.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from observer_gym.envs.ball_table import BallTableEnv
 from observer_gym.estimation.ball_table.fusion import Fused
 from observer_gym.estimation.ball_table.learned import LearnedObserver
 from observer_gym.estimation.ball_table.observer import BallTableObserver, TiltBallDetection
-from observer_gym.estimation.learned.inputs import require_measurements
+from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
 
 __all__ = ["LearnedKFObserver"]
@@ -41,10 +43,13 @@ class LearnedKFObserver(BallTableObserver):
     BallTable-v0: see the module docstring.
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``.
         weights: the network's weight file (default: ``learned``'s shipped one; refused
             if changed).
         latency_aware: fuse each frame at its capture time, as ``kf-latency``.
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped one; refused if changed).
     """
 
     def __init__(
@@ -52,9 +57,11 @@ class LearnedKFObserver(BallTableObserver):
         env: BallTableEnv,
         weights: str | Path | None = None,
         latency_aware: bool = False,
+        detector_weights: str | Path | None = None,
     ) -> None:
-        require_measurements(env, "learned-kf of BallTable-v0")
-        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        require_frames_or_measurements(env, "learned-kf of BallTable-v0")
+        # refuses a changed weight file; from frames, loads the learned detector
+        self.learned = LearnedObserver(env, weights, detector_weights)
         self._action: np.ndarray | None = None
         super().__init__(env, latency_aware=latency_aware)
 
@@ -73,10 +80,11 @@ class LearnedKFObserver(BallTableObserver):
         return None
 
     def _read(self, obs: Any, frame: dict):
-        self.reader.features(obs, frame)  # the frame counts as seen
+        self.reader.mark_seen(frame)  # the image stage is the network's, not kf's
         capture_s = float(frame["capture_time_s"])
+        measurement = self.learned.measurement(obs)
         features = self.learned.features
-        features.new_frame(obs, capture_s)
+        features.new_frame(measurement, capture_s)
         mean, cov = self.learned.net.predict(features.vector(capture_s, self._action))
         detection = TiltBallDetection(mean[4:6], mean[0:2], cov[4:6, 4:6], cov[0:2, 0:2])
-        return obs, Fused(detection)
+        return measurement, Fused(detection)

@@ -3,10 +3,14 @@ frames' detections to the state estimate and its covariance.
 
 ``network.py`` the Gaussian network and its weight files (checked by their sha256),
 ``training.py`` the Gaussian negative log-likelihood fit and its held-out report,
-``inputs.py`` the measurements-only check every learned observer makes; each
-system's features and observer live in its own package (``estimation/<system>/learned.py``),
+``inputs.py`` which obs modes a learned observer reads. From rendered frames a learned
+detector reads each frame in the perfect detector's place: ``frame_detector.py`` the
+Gaussian CNN and its weight files, ``frame_data.py`` its lockstep training data,
+``frame_training.py`` its fit and held-out report. Each system's features and observer
+live in its own package (``estimation/<system>/learned.py``, ``learned_detector.py``),
 its shipped weights beside them. Train with
-``python -m observer_gym.estimation.learned.train --env ENV``.
+``python -m observer_gym.estimation.learned.train --env ENV`` and
+``python -m observer_gym.estimation.learned.train_detector --env ENV``.
 
 Torch is imported by these modules only, so ``import observer_gym.estimation`` does not
 load it.

@@ -4,16 +4,30 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["require_measurements"]
+__all__ = ["require_frames_or_measurements", "require_measurements"]
 
 
 def require_measurements(env: Any, owner: str) -> None:
     """ValueError in one line unless ``env`` (an unwrapped camera env) is in measurements
-    mode: every shipped network is trained on the perfect detector's measurements, none
-    on rendered frames. ``owner`` names the observer ("learned-kf of BallTable-v0")."""
+    mode: the system's network is trained on the perfect detector's measurements, and no
+    learned detector reads its rendered frames yet. ``owner`` names the observer
+    ("learned-kf of TargetFollower-v0")."""
     obs_mode = env.config.obs_mode
     if obs_mode != "measurements":
         raise ValueError(
             f"{owner} reads the perfect detector's measurements only (its -measurements "
-            f"name): its network is not trained on rendered frames (obs_mode {obs_mode!r})"
+            f"name): no learned detector is trained on its rendered frames (obs_mode "
+            f"{obs_mode!r})"
         )
+
+
+def require_frames_or_measurements(env: Any, owner: str) -> str:
+    """``env``'s obs_mode if it is "rgb" (frames through the system's learned detector) or
+    "measurements" (the perfect detector's); ValueError in one line otherwise."""
+    obs_mode: str = env.config.obs_mode
+    if obs_mode not in ("rgb", "measurements"):
+        raise ValueError(
+            f"{owner} reads camera frames (obs_mode 'rgb') or the perfect detector's "
+            f"measurements (obs_mode 'measurements'), not obs_mode {obs_mode!r}"
+        )
+    return obs_mode

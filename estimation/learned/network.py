@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["GaussianMLP", "file_sha256", "load_network", "save_network"]
+__all__ = ["GaussianMLP", "checked_report", "file_sha256", "load_network", "save_network"]
 
 # log-variance heads are clamped to this range (standardised units): exp(-14) ~ 1e-6 of
 # the target's spread, exp(6) ~ 400 times; keeps the NLL finite early in training
@@ -119,6 +119,30 @@ def save_network(net: GaussianMLP, path: Path, report: dict[str, Any]) -> None:
     path.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
 
 
+def checked_report(path: Path) -> dict[str, Any]:
+    """The report beside the weight file ``path``, once the file's sha256 is the report's.
+
+    Raises:
+        ValueError: no weight file or report there, or the file's sha256 is not the
+            report's (a changed or other file).
+    """
+    report_path = path.with_suffix(".json")
+    if not path.is_file() or not report_path.is_file():
+        raise ValueError(
+            f"learned observer weights {path} (and their report {report_path.name}) not "
+            "found; train them with python -m observer_gym.estimation.learned.train"
+        )
+    report: dict[str, Any] = json.loads(report_path.read_text(encoding="utf-8"))
+    found = file_sha256(path)
+    if found != report.get("sha256"):
+        raise ValueError(
+            f"learned observer weights {path} have sha256 {found[:12]}..., their report "
+            f"{report_path.name} says {str(report.get('sha256'))[:12]}...: a changed file "
+            "is refused; train it again or restore the shipped file"
+        )
+    return report
+
+
 def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
     """The network in ``path`` and its report, in evaluation mode.
 
@@ -127,20 +151,7 @@ def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
             report's (a changed or other file).
     """
     path = Path(path)
-    report_path = path.with_suffix(".json")
-    if not path.is_file() or not report_path.is_file():
-        raise ValueError(
-            f"learned observer weights {path} (and their report {report_path.name}) not "
-            "found; train them with python -m observer_gym.estimation.learned.train"
-        )
-    report = json.loads(report_path.read_text(encoding="utf-8"))
-    found = file_sha256(path)
-    if found != report.get("sha256"):
-        raise ValueError(
-            f"learned observer weights {path} have sha256 {found[:12]}..., their report "
-            f"{report_path.name} says {str(report.get('sha256'))[:12]}...: a changed file "
-            "is refused; train it again or restore the shipped file"
-        )
+    report = checked_report(path)
     data = torch.load(path, weights_only=True)
     net = GaussianMLP(**data["architecture"])
     net.load_state_dict(data["state_dict"])

@@ -12,7 +12,7 @@ thread while training, seeded shuffles and initial weights.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import torch
@@ -50,15 +50,19 @@ def held_out_report(net: GaussianMLP, data: Dataset) -> HeldOut:
     )
 
 
-def split(data: Dataset, held_out: float) -> tuple[Dataset, Dataset]:
-    """(training, held-out): the last ``held_out`` fraction of the episodes held out."""
-    episodes = np.unique(data.episode)
+EpisodeData = TypeVar("EpisodeData", bound=tuple)
+
+
+def split(data: EpisodeData, held_out: float) -> tuple[EpisodeData, EpisodeData]:
+    """(training, held-out): the last ``held_out`` fraction of the episodes held out, of a
+    NamedTuple of per-sample arrays with an ``episode`` field (:class:`Dataset`, the
+    learned detector's ``FrameDataset``)."""
+    episode = data.episode  # type: ignore[attr-defined]
+    episodes = np.unique(episode)
     n_held = max(1, round(held_out * len(episodes)))
-    held = np.isin(data.episode, episodes[-n_held:])
-    return (
-        Dataset(data.features[~held], data.truth[~held], data.episode[~held]),
-        Dataset(data.features[held], data.truth[held], data.episode[held]),
-    )
+    held = np.isin(episode, episodes[-n_held:])
+    rebuild = type(data)
+    return rebuild(*(a[~held] for a in data)), rebuild(*(a[held] for a in data))
 
 
 def fit(

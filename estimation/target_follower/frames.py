@@ -23,7 +23,7 @@ How far back a capture-time-fused observer keeps its past is the declared sensor
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -33,7 +33,14 @@ from observer_gym.envs.target_follower.geometry import robot_pose_from_camera
 from observer_gym.estimation.observer import checked_measurement, checked_rgb_frame
 from observer_gym.estimation.target_follower.detector import TargetFollowerDetector
 
-__all__ = ["FrameDetection", "FrameReader"]
+__all__ = ["FrameDetection", "FrameReader", "ImageDetector"]
+
+
+class ImageDetector(Protocol):
+    """What reads a frame: the blob detector, or the learned one (learned_detector.py)."""
+
+    def detect(self, image: np.ndarray, K: np.ndarray) -> np.ndarray | None: ...
+
 
 # Capture times closer than this are the same instant (tick multiples).
 SAME_TIME_S = 1e-9
@@ -56,14 +63,15 @@ class FrameReader:
     Args:
         env: the TargetFollower env (its obs_mode, image size, observation space and
             calibration are read).
-        detector: the rgb detector (default: :class:`TargetFollowerDetector`).
+        detector: the rgb detector (default: :class:`TargetFollowerDetector`; the learned
+            observers pass the learned one).
         owner: the name in error messages.
     """
 
     def __init__(
         self,
         env: TargetFollowerEnv,
-        detector: TargetFollowerDetector | None = None,
+        detector: ImageDetector | None = None,
         owner: str = "TargetFollowerObserver",
     ) -> None:
         self.detector = detector or TargetFollowerDetector()

@@ -54,8 +54,13 @@ where its own errors took the robot.
 (the field level quantises), another frame rate, focal length, target size or target
 motion than the default random walk, more than 5 px of pixel noise, latency beyond
 50 ms (+10 ms jitter), drops beyond 10 %, pushes beyond 0.5 Hz, occluders more often
-than 0.1 Hz or held longer than the default 3 s, and rendered frames (the ``learned`` rgb
-observer refuses at construction).
+than 0.1 Hz or held longer than the default 3 s.
+
+**From rendered frames** (``obs_mode="rgb"``, the names without ``-measurements``) the
+learned detector (:mod:`~observer_gym.estimation.target_follower.learned_detector`, a CNN
+trained on the perfect detector's pixels of rendered frames) reads each new frame in the
+perfect detector's place; the network above is the same, not retrained on the detector's
+errors (tests/estimation/test_learned_frames.py measures what they cost).
 
 Trained by::
 
@@ -75,7 +80,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from observer_gym.envs.target_follower import STATE_DIM, StateIndex, TargetFollowerEnv
-from observer_gym.estimation.learned.inputs import require_measurements
+from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VSEParams
 from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
@@ -214,18 +219,35 @@ class LearnedObserver:
     """``learned`` for TargetFollower-v0 (see the module docstring).
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``.
         weights: the weight file (default: the shipped :data:`WEIGHTS`); refused if its
             sha256 is not its report's.
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped one; refused if changed).
     """
 
-    def __init__(self, env: TargetFollowerEnv, weights: str | Path | None = None) -> None:
-        require_measurements(env, "the learned observer of TargetFollower-v0")
+    def __init__(
+        self,
+        env: TargetFollowerEnv,
+        weights: str | Path | None = None,
+        detector_weights: str | Path | None = None,
+    ) -> None:
+        owner = "the learned observer of TargetFollower-v0"
+        from_frames = require_frames_or_measurements(env, owner) == "rgb"
         from observer_gym.estimation.learned.network import load_network  # imports torch
+        from observer_gym.estimation.target_follower.learned_detector import (
+            LearnedTargetDetector,
+        )
 
         net, self.report = load_network(Path(weights) if weights else WEIGHTS)
         self.estimator = LearnedEstimator(net)
-        self.frames = FrameReader(env, owner="LearnedObserver")
+        detector = None
+        if from_frames:
+            size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
+            path = Path(detector_weights) if detector_weights else None
+            detector = LearnedTargetDetector(path, size_px, owner)
+        self.frames = FrameReader(env, detector, owner="LearnedObserver")
         self.delta_y_m = env.calibration["delta_y_m"]
 
     @property

@@ -18,9 +18,11 @@ rounding floor of the noise rule.
 What this takes for granted: R treats each frame's network error as independent of the
 last frame's, but the network reads the last four frames, so consecutive errors share
 three of them; the NEES/dof this observer reports is measured in
-tests/estimation/test_learned_target_follower.py. Like ``learned`` it is trained on the
-perfect detector's measurements only (``learned-kf-measurements``), inside the training
-ranges of learned.py, and knows no calibration error.
+tests/estimation/test_learned_target_follower.py. Like ``learned`` its network is
+trained on the perfect detector's measurements, inside the training ranges of learned.py,
+and knows no calibration error. From rendered frames (``learned-kf``, obs_mode "rgb")
+the learned detector (learned_detector.py) reads each frame in the perfect detector's
+place, as for ``learned``.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.target_follower import TargetFollowerEnv
-from observer_gym.estimation.learned.inputs import require_measurements
+from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator
 from observer_gym.estimation.target_follower.frames import FrameDetection
@@ -60,10 +62,13 @@ class LearnedKFObserver(TargetFollowerObserver):
     """``learned-kf`` for TargetFollower-v0: see the module docstring.
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"``.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``.
         weights: the network's weight file (default: ``learned``'s shipped one; refused
             if changed).
         r_scale: R times this (> 0), as for ``kf``.
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped one; refused if changed).
     """
 
     def __init__(
@@ -71,9 +76,11 @@ class LearnedKFObserver(TargetFollowerObserver):
         env: TargetFollowerEnv,
         weights: str | Path | None = None,
         r_scale: float = 1.0,
+        detector_weights: str | Path | None = None,
     ) -> None:
-        require_measurements(env, "learned-kf of TargetFollower-v0")
-        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        require_frames_or_measurements(env, "learned-kf of TargetFollower-v0")
+        # refuses a changed weight file; from frames, loads the learned detector
+        self.learned = LearnedObserver(env, weights, detector_weights)
         self.noise = LearnedNoise(env.sensor_spec, env.config, env.calibration, r_scale, True)
         self._frame: FrameDetection | None = None
         super().__init__(env, filter="kf", r_scale=r_scale)

@@ -87,9 +87,12 @@ def test_learned_kf_gives_the_state_layout_and_a_positive_definite_covariance():
 
 
 @pytest.mark.parametrize("observer", ["learned", "learned-kf"])
-def test_from_rendered_frames_it_refuses_in_one_line(observer):
-    with pytest.raises(ValueError, match="measurements only"):
-        VisionObserver(gym.make(ENV, obs_mode="rgb"), observer=observer)
+def test_frames_of_another_size_than_the_detectors_are_refused_in_one_line(observer):
+    """The learned detector is trained on 320 x 240 frames: 84 x 84 ones are refused,
+    naming both sizes."""
+    env = gym.make(ENV, obs_mode="rgb", image_width_px=84, image_height_px=84)
+    with pytest.raises(ValueError, match=r"trained on 320 x 240 px .* 84 x 84 px"):
+        VisionObserver(env, observer=observer)
 
 
 def test_a_changed_weight_file_is_refused(tmp_path):

@@ -160,8 +160,8 @@ CASES = {
         [*RUN, "--env", "BallTable-v0", "--observer", "stkf", "--controller", "lqr"],
         "unknown observer 'stkf' for observer_gym/BallTable-v0; allowed: oracle, kf, "
         "kf-measurements, kf-latency, kf-latency-measurements, ekf, ekf-measurements, raw, "
-        "raw-measurements, oracle-visible, oracle-visible-measurements, learned-measurements, "
-        "learned-kf-measurements, pixels",
+        "raw-measurements, oracle-visible, oracle-visible-measurements, learned, "
+        "learned-measurements, learned-kf, learned-kf-measurements, pixels",
     ),
     "compare-stkf-on-balltable": (
         [*COMPARE, "--observers", "oracle,stkf", "--controllers", "lqr"],

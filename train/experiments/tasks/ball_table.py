@@ -10,8 +10,9 @@ from observer_gym.envs.ball_table.layout import BALL_POS
 from observer_gym.train.reports import metrics
 
 # observer_gym.estimation.ball_table's observers other than the default (kf), each from
-# the camera's frames and from the measurements
-_FAMILY = ("kf-latency", "ekf", "raw", "oracle-visible")
+# the camera's frames and from the measurements (the learned ones read frames through
+# their learned detector, measurements straight)
+_FAMILY = ("kf-latency", "ekf", "raw", "oracle-visible", "learned", "learned-kf")
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
     "kf": ("rgb", {}),
@@ -21,10 +22,6 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
         for name in _FAMILY
         for suffix, obs_mode in (("", "rgb"), ("-measurements", "measurements"))
     },
-    # the network trained on the perfect detector's measurements (not on rendered frames),
-    # alone and as kf's measurement model
-    "learned-measurements": ("measurements", {"observer": "learned"}),
-    "learned-kf-measurements": ("measurements", {"observer": "learned-kf"}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
 }
 # what an agent trained with --obs estimate reads, by --estimate-from

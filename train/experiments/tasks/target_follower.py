@@ -45,9 +45,11 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     # reads the ground truth while the target is detected: for analysis only
     "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
     "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
-    # the network trained on the perfect detector's measurements (not on rendered frames),
-    # alone and as kf's measurement model
+    # the network trained on the perfect detector's measurements, alone and as kf's
+    # measurement model; from frames through the learned detector
+    "learned": ("rgb", {"observer": "learned"}),
     "learned-measurements": ("measurements", {"observer": "learned"}),
+    "learned-kf": ("rgb", {"observer": "learned-kf"}),
     "learned-kf-measurements": ("measurements", {"observer": "learned-kf"}),
 }
 # what an agent trained with --obs estimate reads, by --estimate-from

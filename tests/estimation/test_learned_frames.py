@@ -1,0 +1,175 @@
+"""The learned observers from rendered frames (BallTable, TargetFollower): the learned
+detector's error, NEES and detected flags on frames of seeds its training never drew, the
+observers' layout and covariance through it, the closed loop on it (error and NEES
+against the bounds measured), refusal of a changed detector file, and the training
+command's errors."""
+
+from __future__ import annotations
+
+import shutil
+from types import ModuleType
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from observer_gym.controllers import make_controller
+from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.ball_table import learned_detector as ball_table
+from observer_gym.estimation.learned.frame_detector import LearnedDetector
+from observer_gym.estimation.learned.frame_training import detector_report
+from observer_gym.estimation.learned.train_detector import main as train_detector
+from observer_gym.estimation.target_follower import learned_detector as target_follower
+
+NEW_SEED = 10**6  # the training draws its episode seeds from seed 0's generator
+
+# system -> (env id, its learned detector module, controller, steps of a closed-loop episode)
+SYSTEMS: dict[str, tuple[str, ModuleType, str, int]] = {
+    "BallTable-v0": ("observer_gym/BallTable-v0", ball_table, "lqr", 250),
+    "TargetFollower-v0": ("observer_gym/TargetFollower-v0", target_follower, "vtc", 150),
+}
+
+# The detector on 3 lockstep episodes of 60 steps of a new seed (frames 0, 2, ...), as
+# measured on 2026-11-26 (value RMSE in px, NEES/dof): the bounds are 1.5x the RMSE
+# measured and half to twice the NEES measured.
+#   BallTable: corners 0.04-0.07 px, ball centre 1.01 and 1.13 px, semi-major axis 0.02
+#   px, NEES/dof 1.23; TargetFollower: x_i, y_i, d_x 0.60, 0.50, 0.51 px, NEES/dof 1.33.
+DETECTOR_BOUNDS = {
+    "BallTable-v0": ([0.11] * 8 + [1.5, 1.7, 0.036], (0.62, 2.46)),
+    "TargetFollower-v0": ([0.9, 0.75, 0.77], (0.67, 2.66)),
+}
+
+
+@pytest.fixture(scope="module", params=list(SYSTEMS))
+def system(request):
+    return request.param
+
+
+@pytest.fixture(scope="module")
+def new_frames(system):
+    _, module, _, _ = SYSTEMS[system]
+    return module.collect_frames(3, NEW_SEED, steps=60)
+
+
+def test_the_detector_reads_frames_of_a_new_seed_within_its_measured_error(system, new_frames):
+    _, module, _, _ = SYSTEMS[system]
+    detector = LearnedDetector(module.WEIGHTS)
+    report = detector_report(detector.net, new_frames)
+    rmse_bounds, (nees_low, nees_high) = DETECTOR_BOUNDS[system]
+    assert np.all(np.array(report["rmse_px"]) <= rmse_bounds), report
+    assert nees_low <= report["nees_per_dof"] <= nees_high, report
+    assert min(report["detected_right"]) >= 0.98, report
+
+
+def test_the_detector_file_ships_with_its_report(system):
+    _, module, _, _ = SYSTEMS[system]
+    detector = LearnedDetector(module.WEIGHTS)
+    report = detector.report
+    assert report["command"].endswith(f"--env {system}")
+    assert tuple(report["camera_px"]) == detector.camera_px == module.CAMERA_PX
+    assert report["frames"] == report["train_frames"] + report["held_out"]["frames"]
+
+
+def test_a_changed_detector_file_is_refused(system, tmp_path):
+    _, module, _, _ = SYSTEMS[system]
+    weights = tmp_path / module.WEIGHTS.name
+    shutil.copy(module.WEIGHTS, weights)
+    shutil.copy(module.WEIGHTS.with_suffix(".json"), weights.with_suffix(".json"))
+    LearnedDetector(weights)  # the untouched copy loads
+    data = bytearray(weights.read_bytes())
+    data[-100] ^= 0xFF
+    weights.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="a changed file is refused"):
+        LearnedDetector(weights)
+
+
+@pytest.mark.parametrize("observer", ["learned", "learned-kf"])
+def test_from_frames_the_estimate_has_the_state_layout_and_a_symmetric_covariance(system, observer):
+    env_id, _, _, _ = SYSTEMS[system]
+    env = VisionObserver(gym.make(env_id, obs_mode="rgb"), observer=observer)
+    try:
+        estimate, info = env.reset(seed=0)
+        n = env.unwrapped.state_space.shape[0]
+        for _ in range(5):
+            action = np.zeros(env.action_space.shape, dtype=np.float32)
+            estimate, _, _, _, info = env.step(action)
+            P = info["estimate"]["covariance"]
+            assert estimate.shape == (n,) and P.shape == (n, n)
+            assert np.allclose(P, P.T) and np.all(np.diag(P) >= 0.0)
+    finally:
+        env.close()
+
+
+# The closed loop on the estimate from frames, 1 episode of a new seed: (the entries
+# compared, the bound on their RMSE: 1.5x the measured, the band of the median NEES/dof
+# over them: half to twice the measured). Measured on 2026-11-26:
+#   BallTable (ball position, m): learned 5.67 mm, NEES/dof 1.89; learned-kf 3.14 mm, 2.96
+#   TargetFollower (X_i, px): learned 1.66 px, NEES/dof 0.38; learned-kf 1.37 px, 0.94
+CLOSED_LOOP_BOUNDS = {
+    ("BallTable-v0", "learned"): (slice(0, 2), 0.0085, (0.95, 3.8)),
+    ("BallTable-v0", "learned-kf"): (slice(0, 2), 0.0047, (1.48, 5.9)),
+    ("TargetFollower-v0", "learned"): (slice(0, 3), 2.5, (0.19, 0.76)),
+    ("TargetFollower-v0", "learned-kf"): (slice(0, 3), 2.06, (0.47, 1.9)),
+}
+
+
+def closed_loop(system: str, observer: str, seed: int = NEW_SEED) -> tuple[float, float]:
+    """(RMSE over the compared entries, median NEES/dof over them) of the system's
+    controller on ``observer``'s estimate from frames, one episode of ``seed``."""
+    env_id, _, controller_name, steps = SYSTEMS[system]
+    entries = CLOSED_LOOP_BOUNDS[system, observer][0]
+    env = VisionObserver(gym.make(env_id, obs_mode="rgb"), observer=observer)
+    errors, nees = [], []
+    try:
+        controller = make_controller(controller_name, env)
+        estimate, info = env.reset(seed=seed)
+        for _ in range(steps):
+            action, _ = controller.predict(estimate, deterministic=True)
+            estimate, _, terminated, truncated, info = env.step(action)
+            e = (info["estimate"]["mean"] - info["state"])[entries]
+            P = info["estimate"]["covariance"][entries, entries]
+            errors.append(e)
+            nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1)))), float(np.median(nees))
+
+
+@pytest.mark.parametrize("observer", ["learned", "learned-kf"])
+def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(system, observer):
+    _, bound, (low, high) = CLOSED_LOOP_BOUNDS[system, observer]
+    error, nees = closed_loop(system, observer)
+    assert error <= bound, (error, nees)
+    assert low <= nees <= high, (error, nees)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--env", "BallCatcher-v1"], "no learned detector for 'BallCatcher-v1'"),
+        (["--env", "BallTable-v0", "--epochs", "0"], "--epochs >= 1"),
+        (["--env", "BallTable-v0", "--out", "x.pth"], "--out must end in .pt"),
+    ],
+)
+def test_the_training_command_says_a_mistake_in_one_line(argv, message, capsys):
+    assert train_detector(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_training_is_reproducible_from_its_seed():
+    """The same data and seed give the same tensors (a tiny run: 5 episodes of 4 steps,
+    one epoch)."""
+    import torch
+
+    from observer_gym.estimation.learned.frame_training import fit_detector
+
+    data = ball_table.collect_frames(5, 3, steps=4)
+    again = ball_table.collect_frames(5, 3, steps=4)
+    assert all(np.array_equal(a, b) for a, b in zip(data, again, strict=True))
+    first, _ = fit_detector(data, ball_table.VALUE_PARTS, seed=1, epochs=1)
+    second, _ = fit_detector(data, ball_table.VALUE_PARTS, seed=1, epochs=1)
+    for (name, a), b in zip(first.state_dict().items(), second.state_dict().values(), strict=True):
+        assert torch.equal(a, b), name
