@@ -1,7 +1,8 @@
 """A trained agent's env options travel with it: the episodes of its pairs in `run`,
-`compare` and `sweep` are made with its config's env_kwargs (the shipped rgb agent's
-84 x 84 image), under the command's own options, and results record them; other
-controllers' episodes keep the command's options."""
+`compare` and `sweep` are made with its config's env_kwargs (the shipped BallTable rgb
+agent's 84 x 84 image, the TargetFollower one's 84 x 63 camera), under the command's own
+options, and results record them; other controllers' episodes keep the command's
+options."""
 
 from __future__ import annotations
 
@@ -49,3 +50,38 @@ def test_run_records_the_options_its_env_was_made_with(tmp_path):
     assert main(argv) == 0
     env_kwargs = json.loads((out / "results.json").read_text())["config"]["env_kwargs"]
     assert {k: env_kwargs[k] for k in AGENT_OPTIONS} == AGENT_OPTIONS
+
+
+def test_the_target_follower_rgb_agent_runs_on_its_small_camera_with_no_env_option(tmp_path):
+    """The shipped TargetFollower rgb agent was trained on an 84 x 63 camera with the focal
+    lengths and the width set point scaled to it (ppo.yml's rgb env_kwargs); loading it by
+    name brings those options to its episodes, whose frames are then that size and whose
+    image state is in that camera's pixels, and the request's own options still win."""
+    from observer_gym.train.experiments.observer_env import make_env
+    from observer_gym.train.rl.hyperparams import resolve_hyperparams
+
+    env_id, agent_name = "observer_gym/TargetFollower-v0", "ppo:target_follower-rgb"
+    options = resolve_hyperparams(env_id, "ppo", "rgb")["env_kwargs"]
+    assert options["image_width_px"] == 84 and options["image_height_px"] == 63
+    request = resolve_request("TargetFollower-v0", ["pixels"], [agent_name], [0])
+    assert request.controller(agent_name).env_options == options
+    assert request.env_kwargs_for(request.controller(agent_name)) == options
+    env = make_env(env_id, "pixels", request.env_kwargs_for(request.controller(agent_name)))
+    try:
+        frame, info = env.reset(seed=0)
+        assert frame.shape == (63, 84, 3)
+        # a target 1.1-1.7 m away is 7-11 px wide at this camera (26-43 px at 320 x 240)
+        assert 6.0 < info["state"][2] < 12.0
+    finally:
+        env.close()
+    given = resolve_request(
+        "TargetFollower-v0", ["pixels"], [agent_name], [0], env_kwargs={"desired_width_px": 9.0}
+    )
+    assert given.env_kwargs_for(given.controller(agent_name))["desired_width_px"] == 9.0
+    out = tmp_path / "run"
+    argv = ["run", "--env", "TargetFollower-v0", "--observer", "pixels", "--controller",
+            agent_name, "--episodes", "1", "--steps", "5", "--no-progress", "--out",
+            str(out)]  # fmt: skip
+    assert main(argv) == 0
+    env_kwargs = json.loads((out / "results.json").read_text())["config"]["env_kwargs"]
+    assert {k: env_kwargs[k] for k in options} == options

@@ -1,5 +1,6 @@
 """A CNN that reads one camera frame and gives what that frame shows of the state (for
-BallTable: the ball's position on the table and the table's tilt), pretrained by
+BallTable: the ball's position on the table and the table's tilt; for TargetFollower:
+the target's image position and width and whether it is seen), pretrained by
 supervised regression on the simulator's ground truth and then frozen.
 
 An agent trained with ``--obs rgb`` and the image option ``encoder`` reads the camera

@@ -1,15 +1,19 @@
 """Pretraining the frame encoder of rgb agents (:mod:`observer_gym.train.rl.pixel_encoder`):
-``python -m observer_gym.train.rl.pretrain_encoder --env BallTable-v0 --out FILE.pt``.
+``python -m observer_gym.train.rl.pretrain_encoder --env BallTable-v0 --out FILE.pt``
+(or ``--env TargetFollower-v0``).
 
 1. frames: episodes of the agent's rgb env driven by the system's baseline controller on
    the true state (``info["state"]``) plus Ornstein-Uhlenbeck noise whose scale is drawn
    per episode (from none to several times the action range, so both the ball near
    the centre and the ball rolling off are seen), each at most ``episode_steps`` long;
    the target of a frame is the entries :data:`FRAME_TARGETS` of ``info["state"]``;
+   where a frame cannot show some of them (TargetFollower: the target off the image or
+   hidden, :data:`SHOWN_ONLY_WHEN`), those are left out of its fit and its errors and
+   the flag that says so is a target of its own;
 2. fit: mean squared error on the standardised targets, Adam with a cosine learning-rate
    decay, minibatches of 128, with a tenth of the episodes held out; the report gives the
-   held-out RMSE per entry, over all frames and over those with the ball within 3 cm of
-   the centre (where a balancing agent keeps it).
+   held-out RMSE per entry, over all frames and over those "near the centre"
+   (:data:`NEAR_CENTRE`: where an agent keeps the ball or the target).
 
 It writes FILE.pt (weights and what they were trained on) and FILE.json (the report).
 """
@@ -19,6 +23,7 @@ from __future__ import annotations
 import importlib
 import sys
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -40,9 +45,23 @@ LEARNING_RATE = 1e-3
 NEAR_CENTRE_M = 0.03
 # What one frame shows of each system's state (state names), and the controller that
 # drives the frames' episodes. BallCatcher's rgb agents read several cameras, which this
-# encoder does not take.
-FRAME_TARGETS = {"ball_table": ("ball_x_m", "ball_y_m", "tilt_x_rad", "tilt_y_rad")}
-COLLECTING_CONTROLLERS = {"ball_table": "lqr"}
+# encoder does not take. TargetFollower: the target's image state X_i = (x_i, y_i, d_x)
+# and whether it is seen at all.
+FRAME_TARGETS = {
+    "ball_table": ("ball_x_m", "ball_y_m", "tilt_x_rad", "tilt_y_rad"),
+    "target_follower": ("x_i_px", "y_i_px", "d_x_px", "target_visible"),
+}
+COLLECTING_CONTROLLERS = {"ball_table": "lqr", "target_follower": "vtc"}
+# A 0/1 state entry: on frames where it is 0 the frame does not show the system's other
+# targets (the target is off the image or fully hidden), so they are left out of the fit
+# and of the errors there; the flag itself is fitted on every frame.
+SHOWN_ONLY_WHEN = {"target_follower": "target_visible"}
+# "near the centre" for the report: both entries within the bound (BallTable: metres;
+# TargetFollower: a fraction of the image width, 1/16: 5.25 px of an 84 px image)
+NEAR_CENTRE: dict[str, tuple[tuple[str, str], float, bool]] = {
+    "ball_table": (("ball_x_m", "ball_y_m"), NEAR_CENTRE_M, False),
+    "target_follower": (("x_i_px", "y_i_px"), 1.0 / 16.0, True),
+}
 
 
 def collect_frames(
@@ -114,16 +133,20 @@ def fit_encoder(
 ) -> tuple[FrameEncoderNet, dict[str, Any]]:
     """The network fitted to (``images`` -> ``targets``), and its record: the held-out
     RMSE per target after each epoch (episodes whose index is a multiple of
-    1 / HELD_OUT_FRACTION are held out), also over the frames where ``near`` is true."""
+    1 / HELD_OUT_FRACTION are held out), also over the frames where ``near`` is true.
+    A NaN target (a frame that does not show it) counts in neither the loss nor the
+    errors."""
     torch.manual_seed(seed)
     held_out = episodes % round(1.0 / HELD_OUT_FRACTION) == 0
-    mean = targets[~held_out].mean(axis=0)
-    std = targets[~held_out].std(axis=0) + 1e-9
+    mean = np.nanmean(targets[~held_out], axis=0)
+    std = np.nanstd(targets[~held_out], axis=0) + 1e-9
     net = FrameEncoderNet(images.shape[1], images.shape[2], targets.shape[1])
-    net.target_mean.copy_(torch.from_numpy(mean))
-    net.target_std.copy_(torch.from_numpy(std))
+    net.target_mean.copy_(torch.from_numpy(mean.astype(np.float32)))
+    net.target_std.copy_(torch.from_numpy(std.astype(np.float32)))
     x_train = torch.from_numpy(images[~held_out])
-    y_train = torch.from_numpy((targets[~held_out] - mean) / std)
+    standardised = ((targets[~held_out] - mean) / std).astype(np.float32)
+    shown_train = torch.from_numpy(np.isfinite(standardised))
+    y_train = torch.from_numpy(np.nan_to_num(standardised))
     x_test, y_test = images[held_out], targets[held_out]
     near_test = np.ones(len(x_test), bool) if near is None else near[held_out]
     optimiser = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
@@ -136,7 +159,9 @@ def fit_encoder(
         order = torch.randperm(len(x_train), generator=generator)
         for start in range(0, len(order), BATCH_SIZE):
             batch = order[start : start + BATCH_SIZE]
-            loss = ((net.standardised(x_train[batch]) - y_train[batch]) ** 2).mean()
+            squared = (net.standardised(x_train[batch]) - y_train[batch]) ** 2
+            shown = shown_train[batch]
+            loss = (squared * shown).sum() / shown.sum().clamp(min=1)
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
@@ -145,11 +170,15 @@ def fit_encoder(
         with torch.no_grad():
             chunks = [torch.from_numpy(x_test[i : i + 512]) for i in range(0, len(x_test), 512)]
             predicted = np.concatenate([net(chunk).numpy() for chunk in chunks])
-        squared = (predicted - y_test) ** 2
-        rmse = np.sqrt(squared.mean(axis=0))
-        rmse_near = (  # NaN when no held-out frame is near
-            np.sqrt(squared[near_test].mean(axis=0)) if near_test.any() else rmse * np.nan
-        )
+        squared = (predicted - y_test) ** 2  # NaN where a frame does not show a target
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # nanmean of no frame: NaN
+            rmse = np.sqrt(np.nanmean(squared, axis=0))
+            rmse_near = (  # NaN when no held-out frame is near
+                np.sqrt(np.nanmean(squared[near_test], axis=0))
+                if near_test.any()
+                else rmse * np.nan
+            )
         history.append(
             {
                 "epoch": epoch + 1,
@@ -212,8 +241,16 @@ def pretrain(
             np.savez(data_path, frames=images, states=states, episodes=episodes)
     collect_s = time.perf_counter() - tic
     tic = time.perf_counter()
-    near = np.abs(states[:, :2]).max(axis=1) < NEAR_CENTRE_M
-    targets = states[:, indices]
+    near_names, near_bound, per_width = NEAR_CENTRE[system.name]
+    near_bound *= camera_px[0] if per_width else 1.0
+    near_indices = [state_names.index(name) for name in near_names]
+    near = np.abs(states[:, near_indices]).max(axis=1) < near_bound
+    targets = states[:, indices].astype(np.float32)
+    flag = SHOWN_ONLY_WHEN.get(system.name)
+    if flag is not None:  # the frame shows the other targets only where the flag is 1
+        hidden = states[:, state_names.index(flag)] < 0.5
+        others = [k for k, name in enumerate(FRAME_TARGETS[system.name]) if name != flag]
+        targets[np.ix_(hidden, others)] = np.nan
     net, record = fit_encoder(images, targets, episodes, epochs, seed, near, progress)
     last = record["history"][-1]
     names = FRAME_TARGETS[system.name]
@@ -225,6 +262,8 @@ def pretrain(
         "channels": int(images.shape[1]),
         "targets": list(names),
         "controller": COLLECTING_CONTROLLERS[system.name],
+        "shown_only_when": flag,
+        "near_centre": {"entries": list(near_names), "bound": float(near_bound)},
         "frames": int(frames),
         "episodes": int(episodes[-1] + 1),
         "epochs": int(epochs),
@@ -256,7 +295,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     prog = "python -m observer_gym.train.rl.pretrain_encoder"
     parser = Parser(prog=prog, description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", type=env_name, required=True, help="BallTable-v0")
+    parser.add_argument(
+        "--env", type=env_name, required=True, help="BallTable-v0 or TargetFollower-v0"
+    )
     parser.add_argument("--out", required=True, help="the encoder file to write (.pt)")
     parser.add_argument("--frames", type=positive_int, default=30_000, help="default: %(default)s")
     parser.add_argument("--epochs", type=positive_int, default=12, help="default: %(default)s")
