@@ -36,7 +36,7 @@ from torch import nn
 
 from observer_gym.estimation.learned.network import LOG_VAR_RANGE, checked_report, file_sha256
 
-__all__ = ["Detection", "GaussianFrameNet", "LearnedDetector", "save_detector"]
+__all__ = ["Detection", "GaussianFrameNet", "ImageCoordinates", "LearnedDetector", "save_detector"]
 
 
 class Detection(NamedTuple):
@@ -47,8 +47,10 @@ class Detection(NamedTuple):
     detected: np.ndarray  # (n_parts,) bool: the part's probability > 1/2
 
 
-class _Coordinates(nn.Module):
-    """Appends each pixel's x and y in [-1, 1] as two channels (PyTorch has no such layer)."""
+class ImageCoordinates(nn.Module):
+    """Appends two channels holding each pixel's x and y in [-1, 1] ("CoordConv", Liu et
+    al. 2018), so the convolutions' outputs carry where they fired; PyTorch has no such
+    layer."""
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         n, _, h, w = images.shape
@@ -82,7 +84,7 @@ class GaussianFrameNet(nn.Module):
         self.value_parts = list(value_parts)
         self.n_parts = max(value_parts) + 1
         self.body = nn.Sequential(
-            _Coordinates(),
+            ImageCoordinates(),
             nn.Conv2d(5, 16, 5, stride=2, padding=2),
             nn.ReLU(),
             nn.Conv2d(16, 32, 3, stride=2, padding=1),

@@ -33,21 +33,9 @@ from gymnasium import spaces
 from torch import nn
 
 from observer_gym.envs.core import CameraEnv
+from observer_gym.estimation.learned.frame_detector import ImageCoordinates
 
 ENCODERS_DIR = Path(__file__).parent / "encoders"
-
-
-class ImageCoordinates(nn.Module):
-    """Appends two channels holding each pixel's x and y in [-1, 1] ("CoordConv", Liu et
-    al. 2018), so the convolutions' outputs carry where they fired; PyTorch has no such
-    layer."""
-
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
-        n, _, h, w = images.shape
-        ys, xs = torch.meshgrid(
-            torch.linspace(-1.0, 1.0, h), torch.linspace(-1.0, 1.0, w), indexing="ij"
-        )
-        return torch.cat([images, xs.expand(n, 1, h, w), ys.expand(n, 1, h, w)], dim=1)
 
 
 class FrameEncoderNet(nn.Module):
