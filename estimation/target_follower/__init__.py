@@ -18,7 +18,8 @@ the default.
   detections to the estimate and its covariance, no filter (learned.py, weights
   learned.pt);
 - ``learned-kf``: that network as ``kf``'s measurement model, its variance as R
-  (learned_kf.py). Both read the perfect detector's measurements only.
+  (learned_kf.py). Both read the perfect detector's measurements, or, from frames, the
+  learned detector's (learned_detector.py, weights learned_detector.pt).
 """
 
 from functools import partial

@@ -73,8 +73,8 @@ def rmse(estimates, truth, part) -> float:
 
 
 # --- every observer -------------------------------------------------------------------
-# (the learned observers, measurements only and the network centimetres off at a 30 %
-# drop rate, have their own tests: tests/estimation/test_learned_ball_table.py)
+# (the learned observers, the network centimetres off at a 30 % drop rate, have their own
+# tests: tests/estimation/test_learned_ball_table.py, test_learned_frames.py)
 @pytest.mark.parametrize("obs_mode", ["measurements", "rgb"])
 @pytest.mark.parametrize("name", [name for name in OBSERVERS if not name.startswith("learned")])
 def test_every_observer_gives_the_state_layout(name, obs_mode):
