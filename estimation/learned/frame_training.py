@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from observer_gym.estimation.learned.frame_detector import GaussianFrameNet
-from observer_gym.estimation.learned.training import split
+from observer_gym.estimation.learned.training import reproducible, split
 
 __all__ = ["FrameDataset", "detector_report", "fit_detector"]
 
@@ -82,11 +82,7 @@ def fit_detector(
     ``value_parts`` the part of each value); (the network, a report: data size, settings,
     per-epoch training loss, held-out errors)."""
     train, test = split(data, held_out)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        torch.manual_seed(seed)
-        rng = np.random.default_rng(seed)
+    with reproducible(seed) as rng:
         _, _, height, width = data.frames.shape
         net = GaussianFrameNet(width, height, data.values.shape[1], value_parts)
         net.set_scaling(train.values, train.detected)
@@ -119,8 +115,6 @@ def fit_detector(
                 schedule.step()
                 total += loss.item() * len(index)
             losses.append(round(total / len(y), 4))
-    finally:
-        torch.set_num_threads(threads)
     net.eval()
     report = {
         "seed": seed,

@@ -12,6 +12,8 @@ thread while training, seeded shuffles and initial weights.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
@@ -20,7 +22,7 @@ from torch import nn
 
 from observer_gym.estimation.learned.network import GaussianMLP
 
-__all__ = ["Dataset", "HeldOut", "fit", "held_out_report"]
+__all__ = ["Dataset", "HeldOut", "fit", "held_out_report", "reproducible", "split"]
 
 
 class Dataset(NamedTuple):
@@ -53,6 +55,19 @@ def held_out_report(net: GaussianMLP, data: Dataset) -> HeldOut:
 EpisodeData = TypeVar("EpisodeData", bound=tuple)
 
 
+@contextmanager
+def reproducible(seed: int) -> Iterator[np.random.Generator]:
+    """A fit reproducible from ``seed``: one torch thread (restored after), torch's
+    generator seeded; yields NumPy's generator of ``seed`` for the shuffles."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        torch.manual_seed(seed)
+        yield np.random.default_rng(seed)
+    finally:
+        torch.set_num_threads(threads)
+
+
 def split(data: EpisodeData, held_out: float) -> tuple[EpisodeData, EpisodeData]:
     """(training, held-out): the last ``held_out`` fraction of the episodes held out, of a
     NamedTuple of per-sample arrays with an ``episode`` field (:class:`Dataset`, the
@@ -77,11 +92,7 @@ def fit(
     """Train a :class:`GaussianMLP` on ``data``; (the network, a report: the data's size,
     the held-out errors, the training settings)."""
     train, test = split(data, held_out)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        torch.manual_seed(seed)
-        rng = np.random.default_rng(seed)
+    with reproducible(seed) as rng:
         net = GaussianMLP(data.features.shape[1], data.truth.shape[1], hidden)
         net.set_scaling(train.features, train.truth)
         x = torch.as_tensor(train.features, dtype=torch.float64)
@@ -101,8 +112,6 @@ def fit(
                 optimiser.step()
                 total += loss.item() * len(index)
             losses.append(total / len(y))
-    finally:
-        torch.set_num_threads(threads)
     net.eval()
     net.freeze()
     report = {
