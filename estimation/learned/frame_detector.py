@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from observer_gym.estimation.learned.network import LOG_VAR_RANGE, checked_report, file_sha256
+from observer_gym.estimation.learned.network import LOG_VAR_RANGE, checked_report, save_weights
 
 __all__ = ["Detection", "GaussianFrameNet", "ImageCoordinates", "LearnedDetector", "save_detector"]
 
@@ -126,6 +126,16 @@ class GaussianFrameNet(nn.Module):
         log_var = self.log_var_head(h).clamp(*LOG_VAR_RANGE)
         return self.mean_head(h), log_var, self.part_head(h)
 
+    def in_pixels(
+        self, mean_z: torch.Tensor, log_var_z: torch.Tensor
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, variance) in the values' units (float64) of :meth:`forward`'s
+        standardised outputs, for one frame or a batch."""
+        y_mean, y_std = self.y_mean.double().numpy(), self.y_std.double().numpy()
+        # y = y_mean + y_std z:  E[y] = y_mean + y_std E[z],  Var[y] = y_std^2 Var[z]
+        mean = y_mean + y_std * mean_z.double().numpy()
+        return mean, y_std**2 * np.exp(log_var_z.double().numpy())
+
 
 def resized(frame: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
     """An (H, W, 3) uint8 frame as the network reads it: (3, height, width) uint8."""
@@ -164,10 +174,7 @@ class LearnedDetector:
         x = torch.from_numpy(resized(frame, net.width_px, net.height_px)[None])
         with torch.no_grad():
             mean_z, log_var_z, logits = net(x)
-        y_std = net.y_std.double().numpy()
-        # y = y_mean + y_std z:  E[y] = y_mean + y_std E[z],  Var[y] = y_std^2 Var[z]
-        values = net.y_mean.double().numpy() + y_std * mean_z[0].double().numpy()
-        variance = y_std**2 * np.exp(log_var_z[0].double().numpy())
+        values, variance = net.in_pixels(mean_z[0], log_var_z[0])
         return Detection(values, variance, logits[0].numpy() > 0.0)
 
 
@@ -175,15 +182,9 @@ def save_detector(
     net: GaussianFrameNet, camera_px: tuple[int, int], path: Path, report: dict[str, Any]
 ) -> None:
     """Write ``path`` (.pt) and its report (.json, with the file's sha256)."""
-    import json
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = {
+    saved = {
         "architecture": net.architecture(),
         "camera_px": list(camera_px),
         "state_dict": net.state_dict(),
     }
-    torch.save(data, path)
-    report = {**report, "architecture": net.architecture(), "sha256": file_sha256(path)}
-    path.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    save_weights(path, saved, report)

@@ -51,12 +51,11 @@ def detector_report(net: GaussianFrameNet, data: FrameDataset) -> dict[str, Any]
     with torch.no_grad():
         for start in range(0, len(data.frames), 256):
             mean_z, log_var_z, logit = net(torch.from_numpy(data.frames[start : start + 256]))
-            means.append(mean_z.double().numpy())
-            variances.append(np.exp(log_var_z.double().numpy()))
+            batch_mean, batch_var = net.in_pixels(mean_z, log_var_z)
+            means.append(batch_mean)
+            variances.append(batch_var)
             logits.append(logit.numpy())
-    y_mean, y_std = net.y_mean.double().numpy(), net.y_std.double().numpy()
-    mean = y_mean + y_std * np.concatenate(means)
-    var = y_std**2 * np.concatenate(variances)
+    mean, var = np.concatenate(means), np.concatenate(variances)
     seen = data.detected[:, net.value_parts] > 0.5  # (N, n_values)
     error = np.where(seen, mean - data.values, 0.0)
     counts = np.maximum(seen.sum(axis=0), 1)

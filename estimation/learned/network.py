@@ -24,7 +24,14 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["GaussianMLP", "checked_report", "file_sha256", "load_network", "save_network"]
+__all__ = [
+    "GaussianMLP",
+    "checked_report",
+    "file_sha256",
+    "load_network",
+    "save_network",
+    "save_weights",
+]
 
 # log-variance heads are clamped to this range (standardised units): exp(-14) ~ 1e-6 of
 # the target's spread, exp(6) ~ 400 times; keeps the NLL finite early in training
@@ -109,14 +116,21 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def save_network(net: GaussianMLP, path: Path, report: dict[str, Any]) -> None:
-    """Write ``path`` (.pt) and its report (.json, with the file's sha256)."""
+def save_weights(path: Path, saved: dict[str, Any], report: dict[str, Any]) -> None:
+    """Write ``saved`` (its ``architecture``, ``state_dict`` and any other plain data) to
+    ``path`` (.pt) and ``report`` beside it (.json, with the architecture and the file's
+    sha256, which :func:`checked_report` checks)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    architecture = {"n_in": net.n_in, "n_out": net.n_out, "hidden": net.hidden}
-    torch.save({"architecture": architecture, "state_dict": net.state_dict()}, path)
-    report = {**report, "architecture": architecture, "sha256": file_sha256(path)}
+    torch.save(saved, path)
+    report = {**report, "architecture": saved["architecture"], "sha256": file_sha256(path)}
     path.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+
+
+def save_network(net: GaussianMLP, path: Path, report: dict[str, Any]) -> None:
+    """Write ``path`` (.pt) and its report (.json, with the file's sha256)."""
+    architecture = {"n_in": net.n_in, "n_out": net.n_out, "hidden": net.hidden}
+    save_weights(path, {"architecture": architecture, "state_dict": net.state_dict()}, report)
 
 
 def checked_report(path: Path) -> dict[str, Any]:
