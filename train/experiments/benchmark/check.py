@@ -6,7 +6,8 @@ its per-episode records and the suite's definition give.
 the episode count (the suite's for an official run), the package versions recorded (this
 installation's), that every level has every episode, and then derives ``scores.json``
 and ``table.md`` again from ``episodes.csv`` and the suite
-(:func:`~observer_gym.train.experiments.benchmark.report.scores_document`). The first
+(:func:`~observer_gym.train.experiments.benchmark.report.scores_document`; an agent's
+camera scale derived from its recorded env options). The first
 difference raises :class:`FolderCheckError` with one line naming it. It finds an edited
 value, seed or score, a missing episode or file; it is no signature (whoever edits the
 records and writes every derived number again is not caught).
@@ -18,6 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from observer_gym.train.experiments.benchmark.camera_scale import camera_scale
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -172,6 +174,10 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
                 f"{path}: agent_env_options is {_short(options)}, not a table of options"
             )
         entry["agent_env_options"] = options
+        try:  # derived from the options: a recorded scale that differs is a difference
+            entry["camera_scale"] = camera_scale(suite.env_id, options)
+        except ValueError as exc:
+            raise FolderCheckError(f"{path}: {exc}") from None
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
     problem = _agent_options_problem(entry["controller"], entry.get("agent_env_options", {}))

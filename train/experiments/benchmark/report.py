@@ -61,8 +61,10 @@ def scores_document(
     """What ``scores.json`` holds (JSON types) and the :class:`Scores` it shows.
     ``entry``: ``observer``, ``controller``, ``observer_options``, ``controller_options``,
     ``episodes`` (per level), and ``agent_env_options`` if the controller is an agent
-    trained with env options (recorded only when there are some); the command is derived
-    from them (:func:`command_line`)."""
+    trained with env options (recorded only when there are some), ``camera_scale`` if
+    they change the camera's size (recorded only then: the levels' pixel-valued options
+    ran times it, the metric is in the default camera's pixels; camera_scale.py); the
+    command is derived from them (:func:`command_line`)."""
     scores = score_levels(values_by_level(suite, records), suite.references, suite.metric.better)
     episodes = entry["episodes"]
     document = {
@@ -75,6 +77,11 @@ def scores_document(
         **(
             {"agent_env_options": dict(entry["agent_env_options"])}
             if entry.get("agent_env_options")
+            else {}
+        ),
+        **(
+            {"camera_scale": float(entry["camera_scale"])}
+            if entry.get("camera_scale", 1.0) != 1.0
             else {}
         ),
         "command": command_line(
@@ -161,6 +168,12 @@ def table_markdown(suite: SystemSuite, document: Mapping[str, Any]) -> str:
         "0 = the floor (the worse of the raw camera baseline and doing nothing); 95 % "
         "intervals.\n\n"
     )
+    if document.get("camera_scale", 1.0) != 1.0:
+        head += (
+            f"The agent's own camera is the default scaled by {document['camera_scale']:.6g}: "
+            "the levels' pixel-valued options ran times that factor, and a metric in pixels "
+            "is in the default camera's pixels.\n\n"
+        )
     table = format_table(["level", "episodes", "metric", "oracle", "floor", "score [95 %]"], rows)
     return head + table + f"\n\nCommand: {document['command']}\n"
 
@@ -210,6 +223,7 @@ def write_outputs(
         "observer_options": request.observer_options,
         "controller_options": request.controller_options,
         "agent_env_options": request.agent_env_options,
+        "camera_scale": request.camera_scale,
         "episodes": request.episodes,
     }
     document, scores = scores_document(suite, entry, records, versions())

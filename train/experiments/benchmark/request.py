@@ -7,6 +7,10 @@ import shlex
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+from observer_gym.train.experiments.benchmark.camera_scale import (
+    level_options_in_entry_pixels,
+    metric_in_default_pixels,
+)
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.episode import EpisodeSpec
@@ -50,6 +54,9 @@ class BenchmarkRequest(NamedTuple):
     # a trained agent's env options (its config's env_kwargs: image size, reward
     # shaping), under every level's options; empty for any other controller
     agent_env_options: dict[str, Any]
+    # the agent's camera's focal length over the default camera's (camera_scale.py): the
+    # levels' pixel-valued options are scaled by it and a metric in pixels divided by it
+    camera_scale: float = 1.0
 
     @property
     def official(self) -> bool:
@@ -70,6 +77,7 @@ class BenchmarkRequest(NamedTuple):
             "levels": {level.name: level.env_options for level in self.suite.levels},
             # only when there are some: folders of other entries keep their identity
             **({"agent_env_options": self.agent_env_options} if self.agent_env_options else {}),
+            **({"camera_scale": self.camera_scale} if self.camera_scale != 1.0 else {}),
         }
 
     def digest(self) -> str:
@@ -82,13 +90,22 @@ class BenchmarkRequest(NamedTuple):
                 self.observer,
                 self.controller,
                 seed,
-                # the level's sensor options win over the agent's own
-                env_kwargs={**self.agent_env_options, **level.env_options},
+                # the level's sensor options (in the agent camera's pixels) win over the
+                # agent's own
+                env_kwargs={
+                    **self.agent_env_options,
+                    **level_options_in_entry_pixels(level.env_options, self.camera_scale),
+                },
                 observer_options=self.observer_options,
                 controller_options=self.controller_options,
             )
             for seed in level.seeds(self.episodes)
         ]
+
+    def headline(self, value: float) -> float:
+        """An episode's headline metric in the default camera's pixels if it is in
+        pixels (the entry's camera may be another size)."""
+        return metric_in_default_pixels(self.suite.metric.name, value, self.camera_scale)
 
     def command(self) -> str:
         """The command line that computes these numbers again (add ``--out DIR``)."""

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 
 from tqdm import tqdm
 
+from observer_gym.train.experiments.benchmark.camera_scale import camera_scale
 from observer_gym.train.experiments.benchmark.levels import (
     LEVELS_DIR,
     BenchmarkWarning,
@@ -117,6 +118,7 @@ def check_benchmark(
         request.observer(observer).options,
         request.controller(controller).options,
         request.controller(controller).env_options,
+        camera_scale(suite.env_id, request.controller(controller).env_options),
     )
 
 
@@ -211,7 +213,9 @@ def _run_levels(
         for index, episode in episodes:
             k, i = owner[index]
             where = f"level {levels[k].name!r}, episode {i} (seed {specs[index].seed})"
-            values[k][i] = metric_value(episode["metrics"].get(metric), metric, where)
+            values[k][i] = request.headline(
+                metric_value(episode["metrics"].get(metric), metric, where)
+            )
             times[k][i] = episode["time_s"]
             missing[k] -= 1
             if missing[k] == 0:

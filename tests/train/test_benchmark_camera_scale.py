@@ -1,0 +1,118 @@
+"""An agent with its own camera meets the suite's levels in its own pixels: the levels'
+pixel-valued options times its camera's scale (the same angles of view as every other
+entry), and a metric in pixels read back in the default camera's pixels
+(train/experiments/benchmark/camera_scale.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import gymnasium as gym
+import pytest
+
+from observer_gym.train.experiments.benchmark.camera_scale import (
+    camera_scale,
+    level_options_in_entry_pixels,
+)
+from observer_gym.train.experiments.benchmark.run import check_benchmark
+from observer_gym.train.experiments.benchmark.suite import load_suite
+
+BT, TF = "observer_gym/BallTable-v0", "observer_gym/TargetFollower-v0"
+# the shipped TargetFollower rgb agent's camera: 84 x 63, focal lengths times 84 / 320
+TF_AGENT = "ppo:target_follower-rgb"
+BT_AGENT = "ppo:ball_table-rgb"  # 84 x 84 at the default 90-degree field of view
+SMALL = 84.0 / 320.0
+
+
+def test_the_scale_is_the_ratio_of_the_focal_lengths():
+    # BallTable: f = (w / 2) / tan(hfov / 2), so at a fixed field of view f scales with w
+    small = {"image_width_px": 84, "image_height_px": 84}
+    assert camera_scale(BT, small) == pytest.approx(SMALL, rel=1e-12)
+    # a camera with the default focal lengths is not scaled, whatever its image size
+    assert camera_scale(BT, {}) == 1.0
+    assert camera_scale(TF, {"image_width_px": 84, "image_height_px": 63}) == 1.0
+
+
+def test_a_camera_not_scaled_as_a_whole_is_refused():
+    with pytest.raises(ValueError, match=r"scaled as a whole.*one factor for x and y"):
+        camera_scale(TF, {"fx_px": 200.0})
+
+
+def test_only_the_pixel_valued_options_are_scaled():
+    lab = load_suite("TargetFollower-v0").levels[1].env_options
+    scaled = level_options_in_entry_pixels(lab, 0.5)
+    assert scaled["measurement_noise_px"] == 0.5 * lab["measurement_noise_px"]
+    assert scaled["calib_principal_point_error_px"] == 0.5 * lab["calib_principal_point_error_px"]
+    unchanged = {k: v for k, v in lab.items() if not k.endswith("_px")}
+    assert {k: scaled[k] for k in unchanged} == unchanged
+    assert level_options_in_entry_pixels(lab, 1.0) == lab
+
+
+@pytest.mark.parametrize("agent", [TF_AGENT, BT_AGENT])
+def test_an_rgb_agents_request_carries_its_scale_into_episodes_and_identity(agent):
+    env = "TargetFollower-v0" if agent == TF_AGENT else "BallTable-v0"
+    request = check_benchmark(env, "pixels", agent, episodes=1)
+    assert request.camera_scale == pytest.approx(SMALL, rel=1e-9)
+    assert request.identity()["camera_scale"] == request.camera_scale
+    lab = request.suite.levels[1]
+    (spec,) = request.specs(lab)
+    assert spec.env_kwargs["calib_principal_point_error_px"] == pytest.approx(
+        lab.env_options["calib_principal_point_error_px"] * SMALL
+    )
+    assert spec.env_kwargs["image_width_px"] == 84  # the agent's own option is kept
+    # a metric in pixels comes back in the default camera's pixels; millimetres do not
+    expected = 0.9 / SMALL if request.suite.metric.name.endswith("_px") else 0.9
+    assert request.headline(0.9) == pytest.approx(expected)
+
+
+def test_a_classical_entry_is_not_scaled():
+    request = check_benchmark("TargetFollower-v0", "stkf-measurements", "vtc", episodes=1)
+    assert request.camera_scale == 1.0
+    assert "camera_scale" not in request.identity()
+    assert request.headline(0.9) == 0.9
+
+
+def _principal_point_angle_rad(env_kwargs: dict, seed: int) -> tuple[float, float]:
+    """The true camera's principal-point offset drawn at reset, as angles (dx/fx, dy/fy)."""
+    env = gym.make(TF, **env_kwargs)
+    try:
+        env.reset(seed=seed)
+        rig = env.unwrapped.rig
+        (nominal,), (true,) = rig.nominal, [camera.intrinsics for camera in rig.cameras]
+        return (
+            (true.cx_px - nominal.cx_px) / nominal.fx_px,
+            (true.cy_px - nominal.cy_px) / nominal.fy_px,
+        )
+    finally:
+        env.close()
+
+
+def test_the_agent_meets_the_same_angles_of_view_as_every_other_entry():
+    """At ``lab``, the principal point the agent's camera is off by, seen as an angle, is
+    the default camera's, episode by episode (before the scaling it was 1 / SMALL = 3.8x)."""
+    request = check_benchmark("TargetFollower-v0", "pixels", TF_AGENT, episodes=2)
+    lab = request.suite.levels[1]
+    for spec in request.specs(lab):
+        agent = _principal_point_angle_rad(spec.env_kwargs, spec.seed)
+        suite = _principal_point_angle_rad(lab.env_options, spec.seed)
+        assert math.hypot(*suite) > 1e-3  # lab's 2 px at f = 393 px: 5 mrad
+        assert agent == pytest.approx(suite, rel=1e-9)
+
+
+def test_check_derives_the_scale_and_finds_a_changed_one(tmp_path):
+    from observer_gym.train.cli import main
+    from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder
+
+    out = tmp_path / "run"
+    argv = ["benchmark", "--env", "TargetFollower-v0", "--policy", TF_AGENT,
+            "--episodes", "1", "--workers", "1", "--no-progress", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["camera_scale"] == pytest.approx(SMALL, rel=1e-9)
+    assert "default camera's pixels" in (out / "table.md").read_text()
+    assert "OK" in check_folder(out)
+    scores["camera_scale"] = 1.0
+    (out / "scores.json").write_text(json.dumps(scores))
+    with pytest.raises(FolderCheckError, match="camera_scale"):
+        check_folder(out)
