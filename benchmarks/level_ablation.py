@@ -11,7 +11,10 @@ It prints one table: the level itself, the ideal level, then per option "alone" 
 episodes run exactly as a benchmark entry's
 (:func:`observer_gym.train.experiments.benchmark.references.episode_values`); a trained
 agent (``--controller ALGO:DIR`` or ``ALGO:NAME``) gets the env options it was trained
-with under each row's, as in ``observer-gym benchmark`` (a row's option wins).
+with under each row's, as in ``observer-gym benchmark`` (a row's option wins), and, if
+they scale the camera, each row's pixel-valued options times the scale and a metric in
+pixels in the default camera's pixels
+(:mod:`observer_gym.train.experiments.benchmark.camera_scale`).
 """
 
 from __future__ import annotations
@@ -21,6 +24,11 @@ import time
 
 import numpy as np
 
+from observer_gym.train.experiments.benchmark.camera_scale import (
+    camera_scale,
+    level_options_in_entry_pixels,
+    metric_in_default_pixels,
+)
 from observer_gym.train.experiments.benchmark.references import episode_values
 from observer_gym.train.experiments.benchmark.run import agent_entry
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
@@ -58,6 +66,7 @@ def main() -> None:
     seeds = level.seeds(args.episodes)
     # an agent's own env options (an rgb agent's image size) under each row's
     agent_options = agent_entry(controller).env_options if parse_agent_spec(controller) else {}
+    scale = camera_scale(suite.env_id, agent_options)
     rows = [(f"level {level.name}", dict(level.env_options)), (f"{suite.levels[0].name}", ideal)]
     for key, value in level.env_options.items():
         rows.append((f"{key}={value} alone", {**ideal, key: value}))
@@ -65,16 +74,19 @@ def main() -> None:
     print(
         f"{suite.env_id} suite {suite.version}, level {level.name}'s first {len(seeds)} seeds: "
         f"{args.observer} + {controller}, metric {suite.metric.name} ({suite.metric.better} "
-        f"is better); the agent's own env options under each row's: {agent_options or 'none'}"
+        f"is better); the agent's own env options under each row's: {agent_options or 'none'}, "
+        f"its camera's scale {scale:.6g}"
     )
     print("| options | mean | 95 % interval |")
     print("|---|---|---|")
     tic = time.perf_counter()
     for name, options in rows:
+        in_entry_pixels = {**agent_options, **level_options_in_entry_pixels(options, scale)}
         values = episode_values(
-            suite, level._replace(env_options={**agent_options, **options}), args.observer,
+            suite, level._replace(env_options=in_entry_pixels), args.observer,
             controller, seeds, args.workers,
         )  # fmt: skip
+        values = np.array([metric_in_default_pixels(suite.metric.name, v, scale) for v in values])
         low, high = interval(values)
         print(f"| {name} | {values.mean():.3f} | [{low:.3f}, {high:.3f}] |", flush=True)
     print(f"({time.perf_counter() - tic:.0f} s of wall time)")
