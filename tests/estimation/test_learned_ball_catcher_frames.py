@@ -151,10 +151,10 @@ def _closed_loop(observer: str, obs_mode: str = "rgb") -> ClosedLoop:
 # measurements at the default 0.5 px, and kf from the same frames):
 #   learned: RMSE 260.6, 26.0, 31.0 mm, median 7.97 mm, NEES/dof 0.35 (measurements: 10.7,
 #     3.0, 4.8 mm, median 9.7 mm, 0.53). The RMSE is one step per throw: the last before
-#     the box's plane, where the ball entering the hole is hidden from camera 1 after
-#     camera 0 lost it at the image's edge; the network, trained on the perfect detector
-#     (no occlusion), never saw both cameras' newest frames without the ball then and
-#     errs by up to 1.36 m there.
+#     the box's plane, where the ball at the hole is hidden from camera 1 behind the box
+#     after camera 0 lost it at the image's edge; the network, trained on the perfect
+#     detector (no occlusion), never saw both cameras' newest frames without the ball
+#     then and errs by up to 1.36 m there (docs/observers.md).
 #   learned-kf: RMSE 9.8, 1.4, 4.5 mm, median 10.3 mm, NEES/dof 4.15 (measurements: 12.2,
 #     2.2, 3.9 mm, median 11.8 mm, 5.72): a frame without the ball is no update.
 #   kf from the same frames: 0.53, 0.57, 0.35 mm, median 0.60 mm, NEES/dof 0.44.
