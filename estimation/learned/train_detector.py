@@ -5,8 +5,10 @@ and ``learned-kf`` observers) and write its weights and report.
         [--episodes N] [--seed 0] [--epochs N] [--out FILE.pt] [--cache FILE.npz]
 
 Collects the system's lockstep frames (its ``learned_detector.collect_frames``), fits the
-network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, the last
-fifth of the episodes held out) and writes the weights (default: the shipped file beside
+network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, or the
+system's own ``fit``: BallCatcher's full-resolution heat-map detector,
+:mod:`~observer_gym.estimation.learned.heatmap_detector`; the last fifth of the episodes
+held out; ``--epochs`` defaults to the system's ``EPOCHS``, else 20) and writes the weights (default: the shipped file beside
 the system's observer) and the report beside them: this command, the data's size, the
 held-out per-value RMSE (px), NEES/dof and detected-flag accuracy, the wall times. The
 same command gives the same tensors. ``--cache`` keeps the collected frames (most of the

@@ -1,9 +1,9 @@
 """BallCatcher's learned observers from rendered frames (estimation/ball_catcher/
 learned_detector.py, estimation/learned/heatmap_detector.py): the learned detector's
 pixel error, NEES and detected flags on whole frames of a seed its training never drew,
-the shipped file and its report, refusal of a changed file, the observers' layout and
-covariance through it, the closed loop on it against the bounds measured, and
-reproducible training.
+the shipped file and its report, refusal of a changed file and of another image size,
+the observers' layout and covariance through it, the closed loop on it against the bounds
+measured, reproducible training, the heat map's decoding and bad input.
 
 Measured on 2026-11-26 with the shipped weights; each bound is the measured value x 1.5
 (errors) or half to twice it (NEES/dof), the measured value beside it.
@@ -26,8 +26,11 @@ from observer_gym.envs.ball_catcher.layout import BALL, STATE_DIM
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import OBSERVERS
 from observer_gym.estimation.ball_catcher import learned_detector as ball_catcher
+from observer_gym.estimation.learned.frame_data import collect_lockstep
+from observer_gym.estimation.learned.frame_training import FrameDataset
 from observer_gym.estimation.learned.heatmap_detector import (
     LearnedPointDetector,
+    PointHeatmapNet,
     fit_point_detector,
     point_report,
 )
@@ -187,3 +190,27 @@ def test_training_is_reproducible_from_its_seed():
     for (name, a), b in zip(first.state_dict().items(), second.state_dict().values(), strict=True):
         assert torch.equal(a, b), name
     assert report["train_episodes"] == 4 and report["held_out_episodes"] == 1
+
+
+def test_decode_reads_the_most_likely_cell_its_offset_and_variance():
+    """Cell (i, j) = (5, 7) has the largest logit: (u, v) = 4 (j, i) + 4 offset, the
+    variances exp(log-variance), the probability the logit's sigmoid."""
+    out = torch.full((1, 5, 12, 16), -5.0)
+    out[0, :, 5, 7] = torch.tensor([2.0, 0.25, -0.5, np.log(0.04), np.log(0.09)])
+    uv, variance, probability = PointHeatmapNet.decode(out)
+    np.testing.assert_allclose(uv[0], [4 * 7 + 1.0, 4 * 5 - 2.0])
+    np.testing.assert_allclose(variance[0], [0.04, 0.09], rtol=1e-6)
+    np.testing.assert_allclose(probability[0], 1 / (1 + np.exp(-2.0)), rtol=1e-6)
+
+
+def test_bad_input_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="channels = 1, must be an int >= 2"):
+        PointHeatmapNet(1)
+    frames = np.zeros((4, 3, 8, 8), np.uint8)
+    data = FrameDataset(frames, np.zeros((4, 3)), np.zeros((4, 1)), np.arange(4))
+    with pytest.raises(ValueError, match=r"values \(N, 2\) and detected \(N, 1\)"):
+        fit_point_detector(data, seed=0, epochs=1)
+    with pytest.raises(ValueError, match="needs samples_of, or labels_of and net_size_px"):
+        collect_lockstep(
+            ENV, 1, 0, steps=1, stride=1, ranges={}, controller="intercept", noise_range=(0, 0)
+        )
