@@ -8,13 +8,13 @@ Collects the system's lockstep frames (its ``learned_detector.collect_frames``),
 network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, or the
 system's own ``fit``: BallCatcher's full-resolution heat-map detector,
 :mod:`~observer_gym.estimation.learned.heatmap_detector`; the last fifth of the episodes
-held out; ``--epochs`` defaults to the system's ``EPOCHS``, else 20) and writes the weights (default: the shipped file beside
-the system's observer) and the report beside them: this command, the data's size, the
-held-out per-value RMSE (px), NEES/dof and detected-flag accuracy, the wall times. The
-same command gives the same tensors. ``--cache`` keeps the collected frames (most of the
-wall time: rendering) in a file and reads them back when it holds the same system,
-episodes and seed, so a refit costs only the fit; it does not change the weights. A
-mistake is one line on stderr and exit code 2.
+held out; ``--epochs`` defaults to the system's ``EPOCHS``, else 20) and writes the
+weights (default: the shipped file beside the system's observer) and the report beside
+them: this command, the data's size, the held-out per-value RMSE (px), NEES/dof and
+detected-flag accuracy, the wall times. The same command gives the same tensors.
+``--cache`` keeps the collected frames (most of the wall time: rendering) in a file and
+reads them back when it holds the same system, episodes and seed, so a refit costs only
+the fit; it does not change the weights. A mistake is one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
