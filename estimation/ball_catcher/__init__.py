@@ -17,10 +17,11 @@ filter and the observer pipelines (docs/spec/catcher.md).
   the truth, for analysis only (:class:`OracleVisibleObserver`).
 - ``learned``: a network trained on the simulator's truth maps the newest frames'
   detections of both cameras to the ball's state and a diagonal covariance, no filter
-  (:class:`LearnedObserver`, estimation/ball_catcher/learned.py; measurements only).
+  (:class:`LearnedObserver`, estimation/ball_catcher/learned.py; from frames through the
+  learned detector, estimation/ball_catcher/learned_detector.py, or from measurements).
 - ``learned-kf``: that network as the viewline filter's measurement model, a 3-D position
   measurement in place of the viewline rows (:class:`LearnedKFObserver`,
-  estimation/ball_catcher/learned_kf.py; measurements only).
+  estimation/ball_catcher/learned_kf.py; from frames or measurements, as ``learned``).
 """
 
 from observer_gym.estimation.ball_catcher.learned import LearnedObserver

@@ -1,6 +1,8 @@
 """The ball's pixel in one delivered BallCatcher frame, as every BallCatcher observer reads it.
 
-``obs_mode="rgb"``: :class:`~observer_gym.estimation.ball_catcher.detector.BallCatcherDetector`
+``obs_mode="rgb"``: a detector (by default
+:class:`~observer_gym.estimation.ball_catcher.detector.BallCatcherDetector`; the learned
+observers' is :class:`~observer_gym.estimation.ball_catcher.learned_detector.LearnedBallDetector`)
 on the frame's image (a uint8 H x W x 3 image of the frame's ``image_size_px``, else the
 env config's size; others raise ``ValueError``). ``obs_mode="measurements"``: the env's
 perfect-detector report ``uv_px`` ((2,) real numbers or None; others raise ``ValueError``).
@@ -9,7 +11,7 @@ Either way NaN, inf and pixels beyond ``MAX_PIXEL_PX`` are no detection.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -20,7 +22,13 @@ from observer_gym.estimation.observer import (
     checked_rgb_frame,
 )
 
-__all__ = ["FrameReader"]
+__all__ = ["BallDetector", "FrameReader"]
+
+
+class BallDetector(Protocol):
+    """What reads the ball's pixel from an image (the blob detector, the learned one)."""
+
+    def detect(self, image_rgb: np.ndarray) -> np.ndarray | None: ...
 
 
 class FrameReader:
@@ -28,16 +36,17 @@ class FrameReader:
 
     Args:
         config: the env's config (its ``obs_mode`` and image size).
-        detector: the rgb detector (default :class:`BallCatcherDetector`).
+        detector: the rgb detector (default :class:`BallCatcherDetector`), any
+            :class:`BallDetector`.
         owner: the observer's name, in error messages.
     """
 
     def __init__(
-        self, config: Any, detector: BallCatcherDetector | None = None, owner: str = "observer"
+        self, config: Any, detector: BallDetector | None = None, owner: str = "observer"
     ) -> None:
         self.rgb = config.obs_mode == "rgb"
         self.image_size_px = (int(config.image_width_px), int(config.image_height_px))
-        self.detector = detector if detector is not None else BallCatcherDetector()
+        self.detector: BallDetector = detector if detector is not None else BallCatcherDetector()
         self.owner = owner
 
     def detect(self, frame: dict) -> np.ndarray | None:

@@ -49,9 +49,16 @@ nor its covariance is to be trusted there: more pixel noise, latency above 10 ms
 jitter above 3 ms, drops above 10 %, any calibration error, air drag, the
 "synchronised" or "single" preset, another number of cameras (refused at construction),
 another frame rate, control period or throw distribution (launch point, flight time,
-target radius), the steps after the ball's first touch of the box, and rendered frames
-(refused at construction: it reads the perfect detector's measurements only,
-``learned-measurements``).
+target radius), and the steps after the ball's first touch of the box.
+
+**From rendered frames** (``obs_mode="rgb"``, the names without ``-measurements``) the
+learned detector (:mod:`~observer_gym.estimation.ball_catcher.learned_detector`, a
+fully convolutional network trained on the perfect detector's pixels of rendered
+frames, read at full resolution) gives each delivered frame's (u, v) or no detection in
+the perfect detector's place; the network above is the same, not retrained on the
+detector's errors (tests/estimation/test_learned_ball_catcher_frames.py measures what
+they cost). From measurements (``learned-measurements``) it reads the perfect
+detector's report.
 
 Trained by (the held-out figures are in ``learned.json`` and docs/observers.md)::
 
@@ -70,7 +77,7 @@ from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
-from observer_gym.estimation.learned.inputs import require_measurements
+from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
 
 __all__ = [
@@ -174,11 +181,12 @@ class LearnedFeatures:
 
 
 def checked_env(env: Any, owner: str, cameras: int) -> BallCatcherEnv:
-    """``env`` if a learned observer can read it: a BallCatcherEnv in measurements mode
-    with the rig's ``cameras`` cameras; else ValueError in one line."""
+    """``env`` if a learned observer can read it: a BallCatcherEnv in rgb mode (frames
+    through the learned detector) or measurements mode, with the rig's ``cameras``
+    cameras; else ValueError in one line."""
     if not isinstance(env, BallCatcherEnv):
         raise ValueError(f"{owner} needs a BallCatcherEnv, got {type(env).__name__}")
-    require_measurements(env, f"{owner} of BallCatcher-v1")
+    require_frames_or_measurements(env, f"{owner} of BallCatcher-v1")
     if env.num_cameras != cameras:
         raise ValueError(
             f"{owner} of BallCatcher-v1 is trained with {cameras} cameras, the env has "
@@ -192,18 +200,36 @@ class LearnedObserver:
     """``learned`` for BallCatcher-v1 (see the module docstring).
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"`` and two cameras.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``, and two cameras.
         weights: the weight file (default: the shipped :data:`WEIGHTS`); refused if its
             sha256 is not its report's.
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped :data:`~observer_gym.estimation.ball_catcher.learned_detector.WEIGHTS`;
+            refused if changed).
     """
 
-    def __init__(self, env: BallCatcherEnv, weights: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        env: BallCatcherEnv,
+        weights: str | Path | None = None,
+        detector_weights: str | Path | None = None,
+    ) -> None:
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
         cameras = (self.net.n_in - 1) // (HISTORY_FRAMES * PER_FRAME)
         env = checked_env(env, "LearnedObserver", cameras)
-        self.pixels = FrameReader(env.config, owner="LearnedObserver")
+        detector = None
+        if env.config.obs_mode == "rgb":
+            from observer_gym.estimation.ball_catcher.learned_detector import (
+                LearnedBallDetector,
+            )
+
+            path = Path(detector_weights) if detector_weights else None
+            owner = "the learned observer of BallCatcher-v1"
+            detector = LearnedBallDetector(path, env.rig.image_size_px, owner)
+        self.pixels = FrameReader(env.config, detector, owner="LearnedObserver")
         self.features = LearnedFeatures(cameras, image_centre_px(env))
 
     def reset(self) -> None:

@@ -22,9 +22,12 @@ outputs share seven of them per camera; and nothing of the network's own bias is
 Both make the filter trust it more than it should (the NEES/dof it reports is measured in
 tests/estimation/test_learned_ball_catcher.py). The filter runs without ``kf``'s
 calibration consider parameters (the network's position goes through no camera model);
-like ``learned`` it is trained on the perfect detector's measurements only
-(``learned-kf-measurements``), with the two cameras of the default presets, and outside
-``learned``'s training ranges nothing is claimed.
+like ``learned`` it is trained on the perfect detector's measurements, with the two
+cameras of the default presets, and outside ``learned``'s training ranges nothing is
+claimed. From rendered frames (``learned-kf``, obs_mode "rgb") the learned detector
+(estimation/ball_catcher/learned_detector.py) reads each frame in the perfect
+detector's place, as for ``learned``; from measurements (``learned-kf-measurements``)
+the perfect detector's report is read.
 """
 
 from __future__ import annotations
@@ -50,18 +53,26 @@ class LearnedKFObserver(BallCatcherObserver):
     """``learned-kf`` for BallCatcher-v1 (see the module docstring).
 
     Args:
-        env: the (unwrapped) env, made with ``obs_mode="measurements"`` and two cameras.
+        env: the (unwrapped) env, made with ``obs_mode="rgb"`` (frames through the learned
+            detector) or ``"measurements"``, and two cameras.
         weights: the network's weight file (default: ``learned``'s shipped one; refused
             if changed).
+        detector_weights: the learned detector's weight file, from frames (default: the
+            shipped one; refused if changed).
         **options: the filter's options as for ``kf`` (``gate_p``, ``accel_noise_std``,
             ``reacquire_after``); its pixel noise is not used.
     """
 
     def __init__(
-        self, env: BallCatcherEnv, weights: str | Path | None = None, **options: Any
+        self,
+        env: BallCatcherEnv,
+        weights: str | Path | None = None,
+        detector_weights: str | Path | None = None,
+        **options: Any,
     ) -> None:
         checked_env(env, "LearnedKFObserver", 2)  # the cheap checks before torch
-        self.learned = LearnedObserver(env, weights)  # refuses a changed weight file
+        # refuses a changed weight file; from frames, loads the learned detector
+        self.learned = LearnedObserver(env, weights, detector_weights)
         super().__init__(env, consider_calibration=False, **options)
 
     def reset(self) -> None:

@@ -6,7 +6,9 @@ frames' detections to the state estimate and its covariance.
 ``inputs.py`` which obs modes a learned observer reads. From rendered frames a learned
 detector reads each frame in the perfect detector's place: ``frame_detector.py`` the
 Gaussian CNN and its weight files, ``frame_data.py`` its lockstep training data,
-``frame_training.py`` its fit and held-out report. Each system's features and observer
+``frame_training.py`` its fit and held-out report; ``heatmap_detector.py`` a fully
+convolutional detector of one small point read at full resolution (BallCatcher's ball),
+with its fit, report and weight files. Each system's features and observer
 live in its own package (``estimation/<system>/learned.py``, ``learned_detector.py``),
 its shipped weights beside them. Train with
 ``python -m observer_gym.estimation.learned.train --env ENV`` and

@@ -9,6 +9,11 @@ label. The system's controller acts on the true state plus white noise whose std
 drawn per episode, so the scene is seen both where the controller keeps it and away from
 there; every ``stride``-th frame is kept.
 Latency and drops do not change a frame, so a system's ranges leave them out.
+
+By default a step's sample is its observation (the frame) resized to the network's
+input with its measurement's labels; a system whose network reads something else (the
+delivered frames of several cameras, crops of them) gives ``samples_of``, which makes a
+step's samples from both envs' observations and infos.
 """
 
 from __future__ import annotations
@@ -26,6 +31,20 @@ from observer_gym.estimation.learned.frame_training import FrameDataset
 __all__ = ["collect_lockstep"]
 
 Labels = Callable[[Any], tuple[np.ndarray, np.ndarray]]
+# (rgb obs, rgb info, measurements obs, measurements info, generator) -> the step's samples,
+# each (input, values, detected flags)
+Samples = Callable[
+    [Any, dict, Any, dict, np.random.Generator], list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+]
+
+
+def _resized_samples(net_size_px: tuple[int, int], labels_of: Labels) -> Samples:
+    """The default samples: the step's frame resized to ``net_size_px``, its labels."""
+
+    def samples_of(frame: Any, info: dict, measurement: Any, measured_info: dict, rng: Any):
+        return [(resized(frame, *net_size_px), *labels_of(measurement))]
+
+    return samples_of
 
 
 def collect_lockstep(
@@ -38,10 +57,11 @@ def collect_lockstep(
     ranges: Mapping[str, tuple[float, float]],
     controller: str,
     noise_range: tuple[float, float],
-    labels_of: Labels,
-    net_size_px: tuple[int, int],
+    labels_of: Labels | None = None,
+    net_size_px: tuple[int, int] | None = None,
     noise_scale: np.ndarray | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
+    samples_of: Samples | None = None,
 ) -> FrameDataset:
     """``episodes`` lockstep episodes of ``env_id`` (see the module docstring),
     reproducible from ``seed``.
@@ -51,12 +71,20 @@ def collect_lockstep(
         controller: the controller (``make_controller`` name) acting on the truth.
         noise_range: the action noise's std (times ``noise_scale``), drawn uniformly per
             episode.
-        labels_of: a measurement -> (values, detected flags).
-        net_size_px: the (width, height) the frames are resized to.
+        labels_of: a measurement -> (values, detected flags) (the default samples).
+        net_size_px: the (width, height) the frames are resized to (the default samples).
         noise_scale: each action's scale of the noise (default 1: the action's units).
         env_kwargs: options every episode keeps.
+        samples_of: a step's samples (see the module docstring), in place of
+            ``labels_of`` and ``net_size_px``; it may draw from the generator it is given
+            (the collection's, so the data stay reproducible from ``seed``).
     """
     from observer_gym.controllers import make_controller
+
+    if samples_of is None:
+        if labels_of is None or net_size_px is None:
+            raise ValueError("collect_lockstep needs samples_of, or labels_of and net_size_px")
+        samples_of = _resized_samples(net_size_px, labels_of)
 
     rng = np.random.default_rng(seed)
     frames, values, detected, eps = [], [], [], []
@@ -75,14 +103,14 @@ def collect_lockstep(
             scale = np.ones(box.shape) if noise_scale is None else np.asarray(noise_scale)
             noise_std = noise * scale
             frame, info = rgb.reset(seed=env_seed)
-            measurement, _ = measured.reset(seed=env_seed)
+            measurement, measured_info = measured.reset(seed=env_seed)
             for step in range(steps):
                 if step % stride == 0:
-                    frames.append(resized(frame, *net_size_px))
-                    v, d = labels_of(measurement)
-                    values.append(v)
-                    detected.append(d)
-                    eps.append(episode)
+                    for x, v, d in samples_of(frame, info, measurement, measured_info, rng):
+                        frames.append(x)
+                        values.append(v)
+                        detected.append(d)
+                        eps.append(episode)
                 planned, _ = policy.predict(info["state"], deterministic=True)
                 action = np.clip(planned + rng.normal(0.0, noise_std), box.low, box.high)
                 action = action.astype(np.float32)

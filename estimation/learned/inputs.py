@@ -4,21 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["require_frames_or_measurements", "require_measurements"]
-
-
-def require_measurements(env: Any, owner: str) -> None:
-    """ValueError in one line unless ``env`` (an unwrapped camera env) is in measurements
-    mode: the system's network is trained on the perfect detector's measurements, and no
-    learned detector reads its rendered frames yet. ``owner`` names the observer
-    ("learned-kf of TargetFollower-v0")."""
-    obs_mode = env.config.obs_mode
-    if obs_mode != "measurements":
-        raise ValueError(
-            f"{owner} reads the perfect detector's measurements only (its -measurements "
-            f"name): no learned detector is trained on its rendered frames (obs_mode "
-            f"{obs_mode!r})"
-        )
+__all__ = ["require_frames_or_measurements"]
 
 
 def require_frames_or_measurements(env: Any, owner: str) -> str:

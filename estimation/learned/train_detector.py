@@ -2,17 +2,19 @@
 and ``learned-kf`` observers) and write its weights and report.
 
     python -m observer_gym.estimation.learned.train_detector --env BallTable-v0
-        [--episodes N] [--seed 0] [--epochs 20] [--out FILE.pt] [--cache FILE.npz]
+        [--episodes N] [--seed 0] [--epochs N] [--out FILE.pt] [--cache FILE.npz]
 
 Collects the system's lockstep frames (its ``learned_detector.collect_frames``), fits the
-network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, the last
-fifth of the episodes held out) and writes the weights (default: the shipped file beside
-the system's observer) and the report beside them: this command, the data's size, the
-held-out per-value RMSE (px), NEES/dof and detected-flag accuracy, the wall times. The
-same command gives the same tensors. ``--cache`` keeps the collected frames (most of the
-wall time: rendering) in a file and reads them back when it holds the same system,
-episodes and seed, so a refit costs only the fit; it does not change the weights. A
-mistake is one line on stderr and exit code 2.
+network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, or the
+system's own ``fit``: BallCatcher's full-resolution heat-map detector,
+:mod:`~observer_gym.estimation.learned.heatmap_detector`; the last fifth of the episodes
+held out; ``--epochs`` defaults to the system's ``EPOCHS``, else 20) and writes the
+weights (default: the shipped file beside the system's observer) and the report beside
+them: this command, the data's size, the held-out per-value RMSE (px), NEES/dof and
+detected-flag accuracy, the wall times. The same command gives the same tensors.
+``--cache`` keeps the collected frames (most of the wall time: rendering) in a file and
+reads them back when it holds the same system, episodes and seed, so a refit costs only
+the fit; it does not change the weights. A mistake is one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -25,11 +27,14 @@ from pathlib import Path
 from typing import Any
 
 PROG = "python -m observer_gym.estimation.learned.train_detector"
-# The systems with a learned detector: env id -> its module (collect_frames, VALUE_PARTS,
-# CAMERA_PX, EPISODES, FRAME_RANGES, WEIGHTS)
+# The systems with a learned detector: env id -> its module (collect_frames, CAMERA_PX,
+# EPISODES, FRAME_RANGES, WEIGHTS, and VALUE_PARTS for frame_detector's network; a system
+# with a network of its own gives fit(data, seed, epochs) -> (net, report), save(net,
+# path, report) and its default EPOCHS)
 SYSTEMS = {
     "BallTable-v0": "observer_gym.estimation.ball_table.learned_detector",
     "TargetFollower-v0": "observer_gym.estimation.target_follower.learned_detector",
+    "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned_detector",
 }
 DEFAULT_EPOCHS = 20
 
@@ -64,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=None, help="(the system's EPISODES)")
     parser.add_argument("--seed", type=int, default=0, help="data and training seed (0)")
     parser.add_argument(
-        "--epochs", type=int, default=DEFAULT_EPOCHS, help=f"passes ({DEFAULT_EPOCHS})"
+        "--epochs", type=int, default=None, help=f"passes (the system's, else {DEFAULT_EPOCHS})"
     )
     parser.add_argument("--out", type=Path, default=None, help="weight file (.pt)")
     parser.add_argument(
@@ -76,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(f"no learned detector for {args.env!r} yet; allowed: {', '.join(SYSTEMS)}")
     system = importlib.import_module(SYSTEMS[env_id])
     episodes = system.EPISODES if args.episodes is None else args.episodes
-    if episodes < 5 or args.epochs < 1:
+    default_epochs = getattr(system, "EPOCHS", DEFAULT_EPOCHS)
+    epochs = default_epochs if args.epochs is None else args.epochs
+    if episodes < 5 or epochs < 1:
         return _fail("--episodes must be >= 5 and --epochs >= 1")
     out = args.out or system.WEIGHTS
     if out.suffix != ".pt":
@@ -89,14 +96,17 @@ def main(argv: list[str] | None = None) -> int:
     tic = time.perf_counter()
     data = _frames(system, env_id, episodes, args.seed, args.cache)
     collect_s = time.perf_counter() - tic
-    net, report = fit_detector(data, system.VALUE_PARTS, args.seed, args.epochs)
+    if hasattr(system, "fit"):  # a network of the system's own
+        net, report = system.fit(data, args.seed, epochs)
+    else:
+        net, report = fit_detector(data, system.VALUE_PARTS, args.seed, epochs)
     words = [PROG, "--env", env_id]
     if args.episodes is not None and episodes != system.EPISODES:
         words += ["--episodes", str(episodes)]
     if args.seed != 0:
         words += ["--seed", str(args.seed)]
-    if args.epochs != DEFAULT_EPOCHS:
-        words += ["--epochs", str(args.epochs)]
+    if epochs != default_epochs:
+        words += ["--epochs", str(epochs)]
     if args.out is not None:
         words += ["--out", str(args.out)]
     report = {
@@ -110,11 +120,15 @@ def main(argv: list[str] | None = None) -> int:
         "collect_s": round(collect_s, 1),
         "total_s": round(time.perf_counter() - tic, 1),
     }
-    save_detector(net, system.CAMERA_PX, out, report)
+    if hasattr(system, "save"):
+        system.save(net, out, report)
+    else:
+        save_detector(net, system.CAMERA_PX, out, report)
     held = report["held_out"]
     print(
-        f"{out}: {report['frames']} frames, held-out NEES/dof {held['nees_per_dof']:.2f}, "
-        f"RMSE {', '.join(f'{v:.2f}' for v in held['rmse_px'])} px; {report['total_s']} s"
+        f"{out}: {report['frames']} frames, held-out NEES/dof {held.get('nees_per_dof', 'n/a')}, "
+        f"RMSE {', '.join(f'{v:.2f}' for v in held.get('rmse_px', []))} px; "
+        f"{report['total_s']} s"
     )
     return 0
 

@@ -112,11 +112,13 @@ def test_learned_kf_gives_the_state_layout_and_a_positive_definite_ball_covarian
 
 @pytest.mark.parametrize("observer", ["learned", "learned-kf"])
 def test_what_it_is_not_trained_for_is_refused_in_one_line(observer):
-    with pytest.raises(ValueError, match="measurements only"):
-        VisionObserver(gym.make(ENV, obs_mode="rgb"), observer=observer)
+    with pytest.raises(ValueError, match=r"reads camera frames \(obs_mode 'rgb'\) or"):
+        OBSERVERS[observer](gym.make(ENV, obs_mode="state").unwrapped)
     for options in ({"camera_preset": "single"}, {"num_cameras": 4}):
-        with pytest.raises(ValueError, match=r"trained with 2 cameras, the env has [14]"):
-            VisionObserver(gym.make(ENV, obs_mode="measurements", **options), observer=observer)
+        for obs_mode in ("measurements", "rgb"):
+            env = gym.make(ENV, obs_mode=obs_mode, **options)
+            with pytest.raises(ValueError, match=r"trained with 2 cameras, the env has [14]"):
+                VisionObserver(env, observer=observer)
     table = gym.make("observer_gym/BallTable-v0", obs_mode="measurements")
     with pytest.raises(ValueError, match="needs a BallCatcherEnv"):
         OBSERVERS[observer](table.unwrapped)

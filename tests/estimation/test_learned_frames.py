@@ -148,9 +148,10 @@ def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(system, obs
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--env", "BallCatcher-v1"], "no learned detector for 'BallCatcher-v1'"),
+        (["--env", "CartPole-v1"], "no learned detector for 'CartPole-v1'"),
         (["--env", "BallTable-v0", "--epochs", "0"], "--epochs >= 1"),
         (["--env", "BallTable-v0", "--out", "x.pth"], "--out must end in .pt"),
+        (["--env", "BallCatcher-v1", "--episodes", "3"], "--episodes must be >= 5"),
     ],
 )
 def test_the_training_command_says_a_mistake_in_one_line(argv, message, capsys):

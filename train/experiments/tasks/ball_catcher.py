@@ -34,8 +34,10 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     # ground truth while the ball is seen: analysis only
     "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
     "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
-    # the network trained on the perfect detector's measurements (not on rendered frames),
-    # alone and as kf's measurement model
+    # the network trained on the perfect detector's measurements, alone and as kf's
+    # measurement model; from frames through the learned detector, or from measurements
+    "learned": ("rgb", {"observer": "learned"}),
+    "learned-kf": ("rgb", {"observer": "learned-kf"}),
     "learned-measurements": ("measurements", {"observer": "learned"}),
     "learned-kf-measurements": ("measurements", {"observer": "learned-kf"}),
 }
