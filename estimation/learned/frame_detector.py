@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from observer_gym.estimation.learned.network import LOG_VAR_RANGE, checked_report, save_weights
+from observer_gym.estimation.learned.network import LOG_VAR_RANGE, load_weights, save_weights
 
 __all__ = ["Detection", "GaussianFrameNet", "ImageCoordinates", "LearnedDetector", "save_detector"]
 
@@ -143,21 +143,20 @@ def resized(frame: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
     return np.ascontiguousarray(small.transpose(2, 0, 1))
 
 
-class LearnedDetector:
-    """A trained :class:`GaussianFrameNet` and its report, for one frame at a time.
+class SavedFrameNetwork:
+    """A trained network that reads a camera's frames, loaded with its report
+    (:func:`~observer_gym.estimation.learned.network.load_weights`), and the camera image
+    size it was trained on (its pixels' scale: an object's size in them).
 
     Args:
         path: the weight file; refused if missing or if its sha256 is not its report's.
+        network_class: the network's class (built from the file's architecture).
     """
 
-    def __init__(self, path: Path) -> None:
-        path = Path(path)
-        self.report = checked_report(path)
-        data = torch.load(path, weights_only=True)
-        self.net = GaussianFrameNet(**data["architecture"])
-        self.net.load_state_dict(data["state_dict"])
-        self.net.eval().requires_grad_(False)
-        self.camera_px = tuple(data["camera_px"])
+    def __init__(self, path: Path, network_class: type[nn.Module]) -> None:
+        net, saved, self.report = load_weights(Path(path), network_class)
+        self.net = net.requires_grad_(False)
+        self.camera_px: tuple[int, int] = (int(saved["camera_px"][0]), int(saved["camera_px"][1]))
 
     def check_camera(self, image_size_px: tuple[int, int], owner: str) -> None:
         """ValueError unless the env's camera image is the size the network was trained on."""
@@ -167,6 +166,19 @@ class LearnedDetector:
                 f"{self.camera_px[1]} px camera images; this env's are {image_size_px[0]} x "
                 f"{image_size_px[1]} px (set image_width_px and image_height_px to those)"
             )
+
+
+class LearnedDetector(SavedFrameNetwork):
+    """A trained :class:`GaussianFrameNet` and its report, for one frame at a time.
+
+    Args:
+        path: the weight file; refused if missing or if its sha256 is not its report's.
+    """
+
+    net: GaussianFrameNet
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path, GaussianFrameNet)
 
     def detect(self, frame: np.ndarray) -> Detection:
         """One (H, W, 3) uint8 frame -> its :class:`Detection`."""

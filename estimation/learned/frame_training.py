@@ -19,6 +19,7 @@ Reproducible from ``seed``: one torch thread, seeded shuffles and initial weight
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -28,7 +29,7 @@ from torch import nn
 from observer_gym.estimation.learned.frame_detector import GaussianFrameNet
 from observer_gym.estimation.learned.training import reproducible, split
 
-__all__ = ["FrameDataset", "detector_report", "fit_detector"]
+__all__ = ["FrameDataset", "detector_report", "fit_detector", "train_minibatches"]
 
 BATCH = 64
 LEARNING_RATE = 1e-3
@@ -70,6 +71,37 @@ def detector_report(net: GaussianFrameNet, data: FrameDataset) -> dict[str, Any]
     }
 
 
+def train_minibatches(
+    net: nn.Module,
+    samples: int,
+    batch_loss: Callable[[torch.Tensor], torch.Tensor],
+    epochs: int,
+    rng: np.random.Generator,
+) -> list[float]:
+    """Adam with a cosine learning-rate decay over ``epochs`` passes of shuffled
+    minibatches of :data:`BATCH` (``batch_loss(indices)``: the minibatch's mean loss);
+    each epoch's mean loss (4 decimals). The network is left in eval mode. The learned
+    detectors' loop (this module's, and the heat-map detector's)."""
+    optimiser = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, epochs * -(-samples // BATCH))
+    losses = []
+    for _ in range(epochs):
+        net.train()
+        order = rng.permutation(samples)
+        total = 0.0
+        for start in range(0, samples, BATCH):
+            index = torch.as_tensor(order[start : start + BATCH])
+            loss = batch_loss(index)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            total += loss.item() * len(index)
+        losses.append(round(total / samples, 4))
+    net.eval()
+    return losses
+
+
 def fit_detector(
     data: FrameDataset,
     value_parts: list[int],
@@ -89,32 +121,19 @@ def fit_detector(
         y = ((torch.as_tensor(train.values).float() - net.y_mean) / net.y_std).nan_to_num()
         mask = torch.as_tensor(train.detected[:, value_parts] > 0.5).float()
         flags = torch.as_tensor(train.detected).float()
-        optimiser = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
-        steps = epochs * -(-len(y) // BATCH)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, steps)
         bce = nn.BCEWithLogitsLoss()
-        losses = []
-        for _ in range(epochs):
-            net.train()
-            order = rng.permutation(len(y))
-            total = 0.0
-            for start in range(0, len(y), BATCH):
-                index = torch.as_tensor(order[start : start + BATCH])
-                mean_z, log_var_z, logits = net(frames[index])
-                m = mask[index]
-                # NLL_i = 1/2 [log var_i + (y_i - mean_i)^2 / var_i]
-                nll = 0.5 * (log_var_z + (y[index] - mean_z) ** 2 / torch.exp(log_var_z))
-                # sum_i m_i sg(var_i)^beta NLL_i / sum_i m_i
-                weight = m * torch.exp(BETA * log_var_z).detach()
-                loss = (weight * nll).sum(dim=1) / m.sum(dim=1).clamp(min=1.0)
-                loss = loss.mean() + bce(logits, flags[index])
-                optimiser.zero_grad()
-                loss.backward()
-                optimiser.step()
-                schedule.step()
-                total += loss.item() * len(index)
-            losses.append(round(total / len(y), 4))
-    net.eval()
+
+        def batch_loss(index: torch.Tensor) -> torch.Tensor:
+            mean_z, log_var_z, logits = net(frames[index])
+            m = mask[index]
+            # NLL_i = 1/2 [log var_i + (y_i - mean_i)^2 / var_i]
+            nll = 0.5 * (log_var_z + (y[index] - mean_z) ** 2 / torch.exp(log_var_z))
+            # sum_i m_i sg(var_i)^beta NLL_i / sum_i m_i
+            weight = m * torch.exp(BETA * log_var_z).detach()
+            loss = (weight * nll).sum(dim=1) / m.sum(dim=1).clamp(min=1.0)
+            return loss.mean() + bce(logits, flags[index])
+
+        losses = train_minibatches(net, len(y), batch_loss, epochs, rng)
     report = {
         "seed": seed,
         "epochs": epochs,

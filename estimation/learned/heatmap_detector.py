@@ -50,8 +50,15 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from observer_gym.estimation.learned.frame_training import BATCH, BETA, LEARNING_RATE, FrameDataset
-from observer_gym.estimation.learned.network import checked_report, save_weights
+from observer_gym.estimation.learned.frame_detector import SavedFrameNetwork
+from observer_gym.estimation.learned.frame_training import (
+    BATCH,
+    BETA,
+    LEARNING_RATE,
+    FrameDataset,
+    train_minibatches,
+)
+from observer_gym.estimation.learned.network import save_weights
 from observer_gym.estimation.learned.training import reproducible, split
 
 __all__ = [
@@ -232,24 +239,13 @@ def fit_point_detector(
         frames = torch.from_numpy(train.frames)
         uv = torch.as_tensor(np.nan_to_num(train.values)).float()
         detected = torch.as_tensor(train.detected[:, 0] > 0.5)
-        optimiser = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
-        steps = epochs * -(-len(uv) // BATCH)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, steps)
-        losses = []
-        for _ in range(epochs):
-            net.train()
-            order = rng.permutation(len(uv))
-            total = 0.0
-            for start in range(0, len(uv), BATCH):
-                index = torch.as_tensor(order[start : start + BATCH])
-                loss = _loss(net(frames[index]), uv[index], detected[index])
-                optimiser.zero_grad()
-                loss.backward()
-                optimiser.step()
-                schedule.step()
-                total += loss.item() * len(index)
-            losses.append(round(total / len(uv), 4))
-    net.eval()
+        losses = train_minibatches(
+            net,
+            len(uv),
+            lambda index: _loss(net(frames[index]), uv[index], detected[index]),
+            epochs,
+            rng,
+        )
     report = {
         "seed": seed,
         "epochs": epochs,
@@ -279,31 +275,17 @@ def save_point_detector(
     save_weights(path, saved, report)
 
 
-class LearnedPointDetector:
+class LearnedPointDetector(SavedFrameNetwork):
     """A trained :class:`PointHeatmapNet` and its report, for one frame at a time.
 
     Args:
         path: the weight file; refused if missing or if its sha256 is not its report's.
     """
 
-    def __init__(self, path: Path) -> None:
-        path = Path(path)
-        self.report = checked_report(path)
-        data = torch.load(path, weights_only=True)
-        self.net = PointHeatmapNet(**data["architecture"])
-        self.net.load_state_dict(data["state_dict"])
-        self.net.eval().requires_grad_(False)
-        self.camera_px: tuple[int, int] = (int(data["camera_px"][0]), int(data["camera_px"][1]))
+    net: PointHeatmapNet
 
-    def check_camera(self, image_size_px: tuple[int, int], owner: str) -> None:
-        """ValueError unless the env's camera image is the size the network was trained on
-        (its pixels' scale: the object's size in them)."""
-        if tuple(image_size_px) != self.camera_px:
-            raise ValueError(
-                f"{owner} reads frames through a network trained on {self.camera_px[0]} x "
-                f"{self.camera_px[1]} px camera images; this env's are {image_size_px[0]} x "
-                f"{image_size_px[1]} px (set image_width_px and image_height_px to those)"
-            )
+    def __init__(self, path: Path) -> None:
+        super().__init__(path, PointHeatmapNet)
 
     def detect(self, frame: np.ndarray) -> PointDetection:
         """One (H, W, 3) uint8 frame (H, W divisible by 4) -> its :class:`PointDetection`.

@@ -18,7 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -29,6 +29,7 @@ __all__ = [
     "checked_report",
     "file_sha256",
     "load_network",
+    "load_weights",
     "save_network",
     "save_weights",
 ]
@@ -157,8 +158,15 @@ def checked_report(path: Path) -> dict[str, Any]:
     return report
 
 
-def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
-    """The network in ``path`` and its report, in evaluation mode.
+Network = TypeVar("Network", bound=nn.Module)
+
+
+def load_weights(
+    path: Path, network_class: type[Network]
+) -> tuple[Network, dict[str, Any], dict[str, Any]]:
+    """The ``network_class`` written to ``path`` by :func:`save_weights` (in evaluation
+    mode), everything the file holds, and its report, once the file's sha256 is the
+    report's.
 
     Raises:
         ValueError: no weight file or report there, or the file's sha256 is not the
@@ -166,9 +174,16 @@ def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
     """
     path = Path(path)
     report = checked_report(path)
-    data = torch.load(path, weights_only=True)
-    net = GaussianMLP(**data["architecture"])
-    net.load_state_dict(data["state_dict"])
+    saved = torch.load(path, weights_only=True)
+    net = network_class(**saved["architecture"])
+    net.load_state_dict(saved["state_dict"])
     net.eval()
+    return net, saved, report
+
+
+def load_network(path: Path) -> tuple[GaussianMLP, dict[str, Any]]:
+    """The network in ``path`` and its report, in evaluation mode (see
+    :func:`load_weights`)."""
+    net, _, report = load_weights(path, GaussianMLP)
     net.freeze()
     return net, report
