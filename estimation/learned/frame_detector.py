@@ -34,7 +34,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from observer_gym.estimation.learned.network import LOG_VAR_RANGE, load_weights, save_weights
+from observer_gym.estimation.learned.network import (
+    LOG_VAR_RANGE,
+    load_weights,
+    one_torch_thread,
+    save_weights,
+)
 
 __all__ = ["Detection", "GaussianFrameNet", "ImageCoordinates", "LearnedDetector", "save_detector"]
 
@@ -158,6 +163,12 @@ class SavedFrameNetwork:
         self.net = net.requires_grad_(False)
         self.camera_px: tuple[int, int] = (int(saved["camera_px"][0]), int(saved["camera_px"][1]))
 
+    def outputs(self, x: torch.Tensor) -> Any:
+        """The network's outputs for the batch ``x``, without gradients, on one torch
+        thread (:func:`~observer_gym.estimation.learned.network.one_torch_thread`)."""
+        with one_torch_thread(), torch.no_grad():
+            return self.net(x)
+
     def check_camera(self, image_size_px: tuple[int, int], owner: str) -> None:
         """ValueError unless the env's camera image is the size the network was trained on."""
         if tuple(image_size_px) != self.camera_px:
@@ -184,8 +195,7 @@ class LearnedDetector(SavedFrameNetwork):
         """One (H, W, 3) uint8 frame -> its :class:`Detection`."""
         net = self.net
         x = torch.from_numpy(resized(frame, net.width_px, net.height_px)[None])
-        with torch.no_grad():
-            mean_z, log_var_z, logits = net(x)
+        mean_z, log_var_z, logits = self.outputs(x)
         values, variance = net.in_pixels(mean_z[0], log_var_z[0])
         return Detection(values, variance, logits[0].numpy() > 0.0)
 

@@ -288,18 +288,11 @@ class LearnedPointDetector(SavedFrameNetwork):
         super().__init__(path, PointHeatmapNet)
 
     def detect(self, frame: np.ndarray) -> PointDetection:
-        """One (H, W, 3) uint8 frame (H, W divisible by 4) -> its :class:`PointDetection`.
-
-        On one torch thread (restored after): one frame's convolutions are too small to
-        share, and on two cores shared with other work two threads took 4-15 times as
-        long (45-200 ms a 320 x 240 frame against 9-13 ms, 2026-11-26)."""
+        """One (H, W, 3) uint8 frame (H, W divisible by 4) -> its :class:`PointDetection`
+        (on one torch thread: on two cores shared with other work two threads took 45-200
+        ms a 320 x 240 frame against 9-13 ms, 2026-11-26)."""
         image = torch.from_numpy(np.ascontiguousarray(frame.transpose(2, 0, 1))[None])
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
-            with torch.no_grad():
-                uv, variance, probability = self.net.decode(self.net(image))
-        finally:
-            torch.set_num_threads(threads)
+        with torch.no_grad():
+            uv, variance, probability = self.net.decode(self.outputs(image))
         p = float(probability[0])
         return PointDetection(uv[0], variance[0], p, p > 0.5)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -30,6 +32,7 @@ __all__ = [
     "file_sha256",
     "load_network",
     "load_weights",
+    "one_torch_thread",
     "save_network",
     "save_weights",
 ]
@@ -111,6 +114,20 @@ class GaussianMLP(nn.Module):
             w[name] = buffer.detach().numpy().copy()
         self._frozen = w
         return w
+
+
+@contextmanager
+def one_torch_thread() -> Iterator[None]:
+    """Torch on one thread inside, its thread count restored after. For a fit, so that it
+    is reproducible; for one frame's inference, too small to share: under load, torch's
+    default threads took 136 ms a BallTable frame against 1 ms on one (two busy
+    processes on the two cores, 2026-11-26)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def file_sha256(path: Path) -> str:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from observer_gym.estimation.learned.network import GaussianMLP
+from observer_gym.estimation.learned.network import GaussianMLP, one_torch_thread
 
 __all__ = ["Dataset", "HeldOut", "fit", "held_out_report", "reproducible", "split"]
 
@@ -59,13 +59,9 @@ EpisodeData = TypeVar("EpisodeData", bound=tuple)
 def reproducible(seed: int) -> Iterator[np.random.Generator]:
     """A fit reproducible from ``seed``: one torch thread (restored after), torch's
     generator seeded; yields NumPy's generator of ``seed`` for the shuffles."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         torch.manual_seed(seed)
         yield np.random.default_rng(seed)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def split(data: EpisodeData, held_out: float) -> tuple[EpisodeData, EpisodeData]:
