@@ -126,8 +126,9 @@ class FrameStudy(NamedTuple):
 # out (BallTable's kf: 0.82 at 16 and 1.41 at 32 in a probe of one 150-step episode,
 # 11.1 at 32 in the study; TargetFollower's stkf: 0.57 at 32, 0.98 at 48, 1.77 at 64 in
 # docs/target_follower.md, at 48 in the study the target is lost); latency_s: 0, 0.1 and
-# 0.2 s, not 0.05 (an episode of BallTable's learned observers is 4-130 s of wall time
-# with the machine quiet or busy; the measurements study has 0.05-0.2 s)
+# 0.2 s, not 0.05 (an episode of BallTable's learned observers took 4-130 s of wall time,
+# quiet or busy, when these were chosen, before the detectors inferred on one torch
+# thread; the measurements study has 0.05-0.2 s)
 FRAME_SYSTEMS: dict[str, FrameStudy] = {
     "BallTable-v0": FrameStudy(
         ("kf", "learned", "learned-kf"),
