@@ -289,8 +289,7 @@ class LearnedPointDetector(SavedFrameNetwork):
 
     def detect(self, frame: np.ndarray) -> PointDetection:
         """One (H, W, 3) uint8 frame (H, W divisible by 4) -> its :class:`PointDetection`
-        (on one torch thread: on two cores shared with other work two threads took 45-200
-        ms a 320 x 240 frame against 9-13 ms, 2026-11-26)."""
+        (on one torch thread: :meth:`SavedFrameNetwork.outputs`)."""
         image = torch.from_numpy(np.ascontiguousarray(frame.transpose(2, 0, 1))[None])
         with torch.no_grad():
             uv, variance, probability = self.net.decode(self.outputs(image))

@@ -119,9 +119,11 @@ class GaussianMLP(nn.Module):
 @contextmanager
 def one_torch_thread() -> Iterator[None]:
     """Torch on one thread inside, its thread count restored after. For a fit, so that it
-    is reproducible; for one frame's inference, too small to share: under load, torch's
-    default threads took 136 ms a BallTable frame against 1 ms on one (two busy
-    processes on the two cores, 2026-11-26)."""
+    is reproducible; for one frame's inference, too small to share, and on a shared
+    machine torch's threads wait for each other: with three busy processes beside it,
+    torch's default two threads took 272 ms a BallTable frame against 1.1 ms on one; idle,
+    1.1 against 1.0 (``python benchmarks/bench_learned_detector_threads.py --busy 3``,
+    one run, 2026-11-26; the size of the effect depends on the load: 1.1x with 4 busy)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
