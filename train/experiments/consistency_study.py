@@ -288,6 +288,39 @@ def option_table(key: str, summary: Mapping[tuple[str, float], dict]) -> str:
     return format_table([f"observer \\ {key}", *(f"{v:g}" for v in values)], rows)
 
 
+def _sweep(
+    env_id: str,
+    study: SystemStudy,
+    observers: Sequence[str],
+    key: str,
+    values: Sequence[float],
+    out: Path,
+    episodes: int,
+    workers: int,
+    seed: int,
+) -> Any:
+    """One option's sweep of ``observers`` under the system's controller, step cap and
+    env options, into ``out`` (resumable: :func:`~observer_gym.train.experiments.sweep.
+    run_sweep`)."""
+    from observer_gym.train.experiments.sweep import (
+        run_sweep,  # heavy: after the arguments are read
+    )
+
+    return run_sweep(
+        env_id,
+        {key: list(values)},
+        list(observers),
+        [study.controller],
+        out,
+        episodes=episodes,
+        seed=seed,
+        workers=workers,
+        steps=study.steps,
+        env_kwargs=dict(study.env_kwargs),
+        progress=sys.stderr.isatty(),
+    )
+
+
 def run_study(
     out_dir: Path,
     systems: Sequence[str],
@@ -302,29 +335,16 @@ def run_study(
     ``frames_tables.md``)."""
     if frames:
         return _run_frames_study(out_dir, systems, options, episodes, workers, seed)
-    from observer_gym.train.experiments.sweep import (
-        run_sweep,  # heavy: after the arguments are read
-    )
-
     out_dir.mkdir(parents=True, exist_ok=True)
     sections = []
     for env_id in systems:
         study = SYSTEMS[env_id]
         for key in options:
             name = f"{_short(env_id)}_{key}"
-            result = run_sweep(
-                env_id,
-                {key: list(OPTIONS[key])},
-                list(study.observers),
-                [study.controller],
-                out_dir / name,
-                episodes=episodes,
-                seed=seed,
-                workers=workers,
-                steps=study.steps,
-                env_kwargs=dict(study.env_kwargs),
-                progress=sys.stderr.isatty(),
-            )
+            result = _sweep(
+                env_id, study, study.observers, key, OPTIONS[key], out_dir / name,
+                episodes, workers, seed,
+            )  # fmt: skip
             summary = summarise(result.results["episodes"], key)
             plot_option(out_dir / f"{name}.png", f"{env_id}: {key}", key, summary)
             sections += [f"### {env_id}: {key}", "", option_table(key, summary), ""]
@@ -344,8 +364,6 @@ def _run_frames_study(
     """The frames part of :func:`run_study`: per system, the first option's sweep runs
     every value, each later one its values but the default and takes the default cell's
     episodes from the first's (the same seeds and options)."""
-    from observer_gym.train.experiments.sweep import run_sweep
-
     out_dir.mkdir(parents=True, exist_ok=True)
     sections = []
     for env_id in systems:
@@ -355,19 +373,10 @@ def _run_frames_study(
             default, *others = frame_study.options[key]
             values = list(frame_study.options[key]) if i == 0 else others
             name = f"{_short(env_id)}_frames_{key}"
-            result = run_sweep(
-                env_id,
-                {key: values},
-                list(frame_study.observers),
-                [study.controller],
-                out_dir / name,
-                episodes=episodes,
-                seed=seed,
-                workers=workers,
-                steps=study.steps,
-                env_kwargs=dict(study.env_kwargs),
-                progress=sys.stderr.isatty(),
-            )
+            result = _sweep(
+                env_id, study, frame_study.observers, key, values, out_dir / name,
+                episodes, workers, seed,
+            )  # fmt: skip
             rows = list(result.results["episodes"])
             if i == 0:
                 default_rows = [
