@@ -21,9 +21,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from ball_catcher_throws import intercept_throws
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_catcher.layout import BALL, BOX, BOX_POS, BOX_VEL, STATE_DIM
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import OBSERVERS
@@ -45,7 +45,6 @@ from observer_gym.train.cli import main
 
 ENV = "observer_gym/BallCatcher-v1"
 THROWS = 10  # the default tests' throws; the slow test's: 100
-FROM_S = 0.1  # errors from this long after the launch (tasks/ball_catcher.py SETTLE_S)
 
 
 def test_features_hold_each_cameras_newest_frames_with_their_ages_and_flags():
@@ -152,29 +151,12 @@ class ClosedLoop(NamedTuple):
 @functools.cache
 def _closed_loop(observer: str, throws: int = THROWS) -> ClosedLoop:
     """``intercept`` on ``observer``'s estimate over seeds 10**6 ... (module docstring)."""
-    errors, nees, catches = [], [], 0
-    for seed in range(10**6, 10**6 + throws):
-        env = VisionObserver(
-            gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0), observer=observer
-        )
-        try:
-            controller = make_controller("intercept", env)
-            estimate, info = env.reset(seed=seed)
-            while True:
-                controller.observe_info(info)
-                action, _ = controller.predict(estimate, deterministic=True)
-                estimate, _, terminated, truncated, info = env.step(action)
-                crossing_s = info["throw"]["crossing_time_s"]
-                if info["ball_in_flight"] and FROM_S <= info["time_s"] < crossing_s:
-                    e = info["estimate"]["mean"][BALL] - info["state"][BALL]
-                    P = info["estimate"]["covariance"][BALL, BALL]
-                    errors.append(e)
-                    nees.append(e @ np.linalg.solve(P, e) / 6)
-                if terminated or truncated:
-                    break
-            catches += bool(info["caught"])
-        finally:
-            env.close()
+    result = intercept_throws(
+        lambda: gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0),
+        observer,
+        range(10**6, 10**6 + throws),
+    )
+    errors, nees, catches = result.errors, result.nees_per_dof, result.catches
     rmse = np.sqrt(np.mean(np.square(errors), axis=0))
     return ClosedLoop(rmse, float(np.median(nees)), catches)
 

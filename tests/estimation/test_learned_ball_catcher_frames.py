@@ -19,10 +19,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from ball_catcher_throws import intercept_throws
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.controllers import make_controller
-from observer_gym.envs.ball_catcher.layout import BALL, STATE_DIM
+from observer_gym.envs.ball_catcher.layout import STATE_DIM
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import OBSERVERS
 from observer_gym.estimation.ball_catcher import learned_detector as ball_catcher
@@ -37,7 +37,6 @@ from observer_gym.estimation.learned.heatmap_detector import (
 
 ENV = "observer_gym/BallCatcher-v1"
 NEW_SEED = 10**6  # the training draws its episode seeds from seed 0's generator
-FROM_S = 0.1  # closed-loop errors from this long after the launch (the task's SETTLE_S)
 THROWS = 3
 
 
@@ -121,26 +120,10 @@ class ClosedLoop(NamedTuple):
 def _closed_loop(observer: str, obs_mode: str = "rgb") -> ClosedLoop:
     """``intercept`` on ``observer``'s estimate, 3 throws of new seeds, the free flight
     from 0.1 s after the launch to the crossing of the box's plane."""
-    errors, nees = [], []
-    for seed in range(NEW_SEED, NEW_SEED + THROWS):
-        env = VisionObserver(gym.make(ENV, obs_mode=obs_mode), observer=observer)
-        try:
-            controller = make_controller("intercept", env)
-            estimate, info = env.reset(seed=seed)
-            while True:
-                controller.observe_info(info)
-                action, _ = controller.predict(estimate, deterministic=True)
-                estimate, _, terminated, truncated, info = env.step(action)
-                crossing_s = info["throw"]["crossing_time_s"]
-                if info["ball_in_flight"] and FROM_S <= info["time_s"] < crossing_s:
-                    e = info["estimate"]["mean"][BALL] - info["state"][BALL]
-                    P = info["estimate"]["covariance"][BALL, BALL]
-                    errors.append(e)
-                    nees.append(e @ np.linalg.solve(P, e) / 6)
-                if terminated or truncated:
-                    break
-        finally:
-            env.close()
+    throws = intercept_throws(
+        lambda: gym.make(ENV, obs_mode=obs_mode), observer, range(NEW_SEED, NEW_SEED + THROWS)
+    )
+    errors, nees = throws.errors, throws.nees_per_dof
     position = np.array(errors)[:, :3]
     return ClosedLoop(
         np.sqrt(np.mean(np.square(position), axis=0)),
