@@ -19,7 +19,6 @@ A mistake is one line on stderr and exit code 2.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -37,7 +36,10 @@ DEFAULT_EPISODES = 60
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    # the package's parser: a mistake is one line (exit code 2), not argparse's usage
+    from observer_gym.train.cli.args import Parser
+
+    parser = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", required=True, help=f"one of {', '.join(SYSTEMS)}")
     parser.add_argument(
         "--episodes",

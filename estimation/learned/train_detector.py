@@ -14,12 +14,13 @@ them: this command, the data's size, the held-out per-value RMSE (px), NEES/dof 
 detected-flag accuracy, the wall times. The same command gives the same tensors.
 ``--cache`` keeps the collected frames (most of the wall time: rendering) in a file and
 reads them back when it holds the same system, episodes and seed, so a refit costs only
-the fit; it does not change the weights. A mistake is one line on stderr and exit code 2.
+the fit; it does not change the weights, and is left out of the recorded command. A file
+that holds other frames is refused, not overwritten. A mistake is one line on stderr and
+exit code 2.
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import sys
 import time
@@ -45,8 +46,13 @@ def _fail(message: str) -> int:
 
 
 def _frames(system: Any, env_id: str, episodes: int, seed: int, cache: Path | None) -> Any:
-    """The system's collected frames: read from ``cache`` if it holds those of (env,
-    episodes, seed), else collected (and written to ``cache``)."""
+    """The system's collected frames: read from ``cache`` if it exists, else collected
+    (and written to ``cache``).
+
+    Raises:
+        ValueError: ``cache`` holds the frames of another (env, episodes, seed), or is no
+            frame file of this command.
+    """
     import numpy as np
 
     from observer_gym.estimation.learned.frame_training import FrameDataset
@@ -54,8 +60,13 @@ def _frames(system: Any, env_id: str, episodes: int, seed: int, cache: Path | No
     key = np.array([env_id, str(episodes), str(seed)])
     if cache is not None and cache.is_file():
         with np.load(cache) as saved:
-            if np.array_equal(saved["key"], key):
-                return FrameDataset(*(saved[name] for name in FrameDataset._fields))
+            found = saved["key"].tolist() if "key" in saved else None
+            if found != key.tolist():
+                raise ValueError(
+                    f"--cache {cache} holds the frames of (env, episodes, seed) = {found}, "
+                    f"not {key.tolist()}: name another file, or remove it to collect again"
+                )
+            return FrameDataset(*(saved[name] for name in FrameDataset._fields))
     data = system.collect_frames(episodes, seed)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
@@ -64,12 +75,22 @@ def _frames(system: Any, env_id: str, episodes: int, seed: int, cache: Path | No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    # the package's parser: a mistake is one line (exit code 2), not argparse's usage
+    from observer_gym.train.cli.args import Parser, nonnegative_int
+
+    parser = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", required=True, help=f"one of {', '.join(SYSTEMS)}")
-    parser.add_argument("--episodes", type=int, default=None, help="(the system's EPISODES)")
-    parser.add_argument("--seed", type=int, default=0, help="data and training seed (0)")
     parser.add_argument(
-        "--epochs", type=int, default=None, help=f"passes (the system's, else {DEFAULT_EPOCHS})"
+        "--episodes", type=nonnegative_int, default=None, help="(the system's EPISODES)"
+    )
+    parser.add_argument(
+        "--seed", type=nonnegative_int, default=0, help="data and training seed (0)"
+    )
+    parser.add_argument(
+        "--epochs",
+        type=nonnegative_int,
+        default=None,
+        help=f"passes (the system's, else {DEFAULT_EPOCHS})",
     )
     parser.add_argument("--out", type=Path, default=None, help="weight file (.pt)")
     parser.add_argument(
@@ -94,7 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     from observer_gym.estimation.learned.frame_training import fit_detector
 
     tic = time.perf_counter()
-    data = _frames(system, env_id, episodes, args.seed, args.cache)
+    try:
+        data = _frames(system, env_id, episodes, args.seed, args.cache)
+    except ValueError as exc:
+        return _fail(str(exc))
     collect_s = time.perf_counter() - tic
     if hasattr(system, "fit"):  # a network of the system's own
         net, report = system.fit(data, args.seed, epochs)

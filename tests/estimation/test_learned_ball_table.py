@@ -181,6 +181,13 @@ def test_the_training_command_refuses_an_unknown_env_in_one_line(capsys):
     assert "no learned observer for 'BallJuggler-v0' yet" in err and "\n" not in err
 
 
+def test_a_command_line_mistake_is_one_line_and_exit_code_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        train_main(["--env", "BallTable-v0", "--bogus"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--bogus" in err and err.count("\n") == 1
+
+
 def test_predict_is_the_networks_forward_pass():
     net, _ = load_network(WEIGHTS)
     x = np.random.default_rng(0).normal(100.0, 50.0, (5, N_FEATURES))

@@ -160,6 +160,25 @@ def test_the_training_command_says_a_mistake_in_one_line(argv, message, capsys):
     assert message in err and err.count("\n") == 1
 
 
+def test_a_command_line_mistake_is_one_line_and_exit_code_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        train_detector(["--env", "BallTable-v0", "--seed", "-1"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--seed" in err and err.count("\n") == 1
+
+
+def test_a_cache_of_other_frames_is_refused_not_overwritten(tmp_path, capsys):
+    cache = tmp_path / "frames.npz"
+    np.savez(cache, key=np.array(["TargetFollower-v0", "100", "0"]))
+    before = cache.read_bytes()
+    out = tmp_path / "detector.pt"
+    argv = ["--env", "BallTable-v0", "--cache", str(cache), "--out", str(out)]
+    assert train_detector(argv) == 2
+    err = capsys.readouterr().err
+    assert "holds the frames of (env, episodes, seed) = ['TargetFollower-v0'" in err, err
+    assert err.count("\n") == 1 and cache.read_bytes() == before and not out.exists()
+
+
 def test_training_is_reproducible_from_its_seed():
     """The same data and seed give the same tensors (a tiny run: 5 episodes of 4 steps,
     one epoch)."""

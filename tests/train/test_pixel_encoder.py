@@ -28,7 +28,7 @@ from observer_gym.train.rl.pixel_encoder import (
     encoder_sha256,
     load_encoder,
 )
-from observer_gym.train.rl.pretrain_encoder import fit_encoder, main
+from observer_gym.train.rl.pretrain_encoder import _without_option, fit_encoder, main
 from observer_gym.train.rl.shipped import shipped_path
 
 
@@ -141,6 +141,22 @@ def test_the_command_reports_a_mistake_in_one_line(argv, message, capsys, tmp_pa
     err = capsys.readouterr().err
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_frames_kept_for_other_arguments_are_refused(capsys, tmp_path):
+    data = tmp_path / "frames.npz"
+    np.savez(data, frames=np.zeros((8, 1, 84, 84), np.uint8), collected_with=np.array("[]"))
+    before = data.read_bytes()
+    out = tmp_path / "encoder.pt"
+    code = main(["--env", "BallTable-v0", "--out", str(out), "--frames", "8", "--data", str(data)])
+    err = capsys.readouterr().err
+    assert code == 2 and "holds frames collected with" in err and err.count("\n") == 1
+    assert data.read_bytes() == before and not out.exists()
+
+
+def test_the_recorded_command_leaves_out_where_the_frames_were_kept():
+    words = ["--env", "BallTable-v0", "--data", "/x/frames.npz", "--seed", "1", "--data=y.npz"]
+    assert _without_option(words, "--data") == ["--env", "BallTable-v0", "--seed", "1"]
 
 
 @pytest.mark.skipif(

@@ -4,14 +4,22 @@ and stays small; and the mechanism on a freshly shipped agent."""
 
 from __future__ import annotations
 
+from pathlib import PurePosixPath
+
 import pytest
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.experiments.episode import build_controller
+from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.rl import shipped
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import model_files, parse_agent_spec, read_config
-from observer_gym.train.rl.ship_agent import fingerprint_difference, read_fingerprint, ship_agent
+from observer_gym.train.rl.ship_agent import (
+    fingerprint_difference,
+    read_fingerprint,
+    ship_agent,
+    shipped_config,
+)
 from observer_gym.train.rl.training import train_agent
 
 MAX_AGENT_BYTES = 500_000  # the package stays small: a few hundred kB per agent at most
@@ -25,13 +33,19 @@ def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
     assert fingerprint_difference(folder) <= 1e-6
     agent = Agent.load(folder)
     assert agent.timesteps == model_files(folder)[2] > 0
-    # <system>-<obs>, -<features> for a feature set given with --hyperparam (not the
-    # YAML's), and -randomized for an agent trained with --randomize
+    # <system>-<obs>, -<observer> for an estimate of another observer than the system's
+    # default on measurements, -<features> for a feature set given with --hyperparam (not
+    # the YAML's), and -randomized for an agent trained with --randomize
     overrides = dict(map(tuple, config.get("cli_args", {}).get("hyperparam") or []))
+    default_observer = task_for(config["env_id"]).ESTIMATE_OBSERVERS["measurements"]
+    reads_another = config["obs"] == "estimate" and config["observer"] != default_observer
+    observer = f"-{config['observer']}" if reads_another else ""
     features = f"-{overrides['features']}" if "features" in overrides else ""
     randomized = "-randomized" if config.get("randomize") else ""
     system = system_for_id(config["env_id"]).name
-    assert name == f"{system}-{config['obs']}{features}{randomized}"
+    assert name == f"{system}-{config['obs']}{observer}{features}{randomized}"
+    # where the run lived on the trainer's machine is not recorded (ship_agent)
+    assert not PurePosixPath(config.get("cli_args", {}).get("out") or "runs").is_absolute()
     readme = (folder / shipped.README_FILE).read_text()
     assert "observer-gym train" in readme and f"--seed {config['seed']}" in readme
     # the README's command gives every hyperparameter the run overrode
@@ -69,3 +83,12 @@ def test_shipping_an_agent_makes_it_loadable_by_name(tmp_path, monkeypatch):
     assert parse_agent_spec("ppo:ball_table-state")[1].resolve() == tmp_path / "ball_table-state"
     with pytest.raises(ValueError, match="only a finished run"):
         ship_agent(tmp_path / "ball_table-state", "x", readme, folder=tmp_path / "agents")
+
+
+def test_a_shipped_config_records_the_run_folder_relative():
+    config = {"algo": "ppo", "cli_args": {"out": "/home/me/runs-rand/ppo-3", "seeds": [0, 1]}}
+    assert shipped_config(config) == {
+        "algo": "ppo",
+        "cli_args": {"out": "runs/ppo-3", "seeds": [0, 1]},
+    }
+    assert shipped_config({"algo": "ppo"}) == {"algo": "ppo"}  # a run made by the library

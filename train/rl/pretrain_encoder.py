@@ -21,6 +21,7 @@ It writes FILE.pt (weights and what they were trained on) and FILE.json (the rep
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 import time
 import warnings
@@ -208,8 +209,12 @@ def pretrain(
 ) -> Encoder:
     """Collect ``frames`` (:func:`collect_frames`) and fit an encoder of the system's
     :data:`FRAME_TARGETS` to them. With ``data_path`` the frames are read from that .npz
-    file if it exists (collected by an earlier call with the same arguments), else saved
-    there."""
+    file if it exists, else saved there with what they were collected with (env, frames,
+    seed, image, env options).
+
+    Raises:
+        ValueError: ``data_path`` holds frames collected with other arguments.
+    """
     from observer_gym.envs import system_for_id
 
     system = system_for_id(env_id)
@@ -227,18 +232,32 @@ def pretrain(
     camera_px = [config.image_width_px, config.image_height_px]
     tic = time.perf_counter()
     data_path = None if data_path is None else Path(data_path)
+    collected_with = json.dumps(
+        [env_id, frames, seed, dict(image), dict(env_kwargs)], sort_keys=True, default=str
+    )
     if data_path is not None and data_path.is_file():
         with np.load(data_path) as data:
+            found = str(data["collected_with"]) if "collected_with" in data else None
+            if found != collected_with:
+                raise ValueError(
+                    f"--data {data_path} holds frames collected with (env, frames, seed, "
+                    f"image, env options) = {found}, not {collected_with}: name another "
+                    "file, or remove it to collect again"
+                )
             images, states, episodes = data["frames"], data["states"], data["episodes"]
-        if len(images) != frames or images.shape[2] != image["size_px"]:
-            raise ValueError(f"{data_path} holds frames {images.shape}, not {frames} of these")
     else:
         controller = COLLECTING_CONTROLLERS[system.name]
         images, states, episodes = collect_frames(
             env_id, frames, seed, image, env_kwargs, controller
         )
         if data_path is not None:
-            np.savez(data_path, frames=images, states=states, episodes=episodes)
+            np.savez(
+                data_path,
+                frames=images,
+                states=states,
+                episodes=episodes,
+                collected_with=np.array(collected_with),
+            )
     collect_s = time.perf_counter() - tic
     tic = time.perf_counter()
     near_names, near_bound, per_width = NEAR_CENTRE[system.name]
@@ -277,6 +296,21 @@ def pretrain(
     return Encoder(net, meta)
 
 
+def _without_option(words: list[str], option: str) -> list[str]:
+    """The command line ``words`` without ``option`` and its value (``--opt V`` or
+    ``--opt=V``)."""
+    kept: list[str] = []
+    skip = False
+    for word in words:
+        if skip:
+            skip = False
+        elif word == option:
+            skip = True
+        elif not word.startswith(f"{option}="):
+            kept.append(word)
+    return kept
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m observer_gym.train.rl.pretrain_encoder --env ENV --out FILE.pt``: pretrain an
     encoder on the camera and image options of ``ppo.yml``'s rgb entry for ENV (or
@@ -307,7 +341,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--data",
         metavar="FILE.npz",
-        help="read the frames from FILE.npz if it exists, else save them there",
+        help="read the frames from FILE.npz if it exists (refused if they were collected "
+        "with other arguments), else save them there; left out of the recorded command",
     )
     args = parser.parse_args(argv)
     try:
@@ -329,7 +364,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(error_line(prog, exc), file=sys.stderr)
         return 2
-    encoder.meta["command"] = " ".join([prog, *(argv if argv is not None else sys.argv[1:])])
+    words = list(argv if argv is not None else sys.argv[1:])
+    if args.data is not None:  # where the frames were kept does not change the weights
+        words = _without_option(words, "--data")
+    encoder.meta["command"] = " ".join([prog, *words])
     encoder.save(args.out)
     errors = ", ".join(f"{k} {v:.4g}" for k, v in encoder.meta["held_out_rmse"].items())
     print(f"wrote {args.out}: held-out RMSE {errors}")

@@ -3,7 +3,9 @@ checking that a shipped agent still acts as it did when it was shipped.
 
 :func:`ship_agent` copies what loading needs from a finished run folder (``config.json``,
 ``model.zip``, ``vecnormalize.npz``; a ``state.json`` cut down to the status and the
-timestep count) into ``train/rl/agents/<name>/``, records their sha256 in ``final.json``
+timestep count) into ``train/rl/agents/<name>/``, the config's recorded ``--out`` made
+relative (``runs/<its last folder>``: the trainer's machine's path means nothing
+elsewhere), records their sha256 in ``final.json``
 (checked whenever the agent is loaded), writes the README it is given and
 ``fingerprint.json``: an observation (the first one of the env the agent reads, reset
 with :data:`FINGERPRINT_SEED`) and the agent's deterministic action for it. A test loads
@@ -26,13 +28,13 @@ from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.normalizer_file import record_final_files
 from observer_gym.train.rl.run_dir import (
-    CONFIG_FILE,
     FINAL_MODEL,
     FINAL_VECNORMALIZE,
     STATE_FILE,
     model_files,
     read_config,
     read_state,
+    write_config,
 )
 from observer_gym.train.rl.shipped import FINGERPRINT_FILE, README_FILE, SHIPPED_DIR
 
@@ -90,6 +92,16 @@ def _dtype(observation: Any) -> str:
     return str(np.asarray(first).dtype)
 
 
+def shipped_config(config: dict[str, Any]) -> dict[str, Any]:
+    """``config`` with its recorded ``--out`` (``cli_args["out"]``) as ``runs/<its last
+    folder>``, the form the shipped READMEs' commands use."""
+    cli_args = config.get("cli_args")
+    if not isinstance(cli_args, dict) or not cli_args.get("out"):
+        return config
+    out = Path(str(cli_args["out"]))
+    return {**config, "cli_args": {**cli_args, "out": (Path("runs") / out.name).as_posix()}}
+
+
 def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPPED_DIR) -> Path:
     """Copy the finished run in ``run_dir`` into ``folder/name/`` (replacing what is
     there) with ``readme`` as its README.md and a new fingerprint; returns the folder.
@@ -110,9 +122,10 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
     if target.exists():
         shutil.rmtree(target)
     target.mkdir(parents=True)
-    for file in (CONFIG_FILE, FINAL_MODEL, FINAL_VECNORMALIZE):
+    for file in (FINAL_MODEL, FINAL_VECNORMALIZE):
         if (run_dir / file).is_file():
             shutil.copyfile(run_dir / file, target / file)
+    write_config(target, shipped_config(read_config(run_dir)))
     record_final_files(target)
     write_json_atomic(
         target / STATE_FILE,
