@@ -14,7 +14,7 @@ agent (``--controller ALGO:DIR`` or ``ALGO:NAME``) gets the env options it was t
 with under each row's, as in ``observer-gym benchmark`` (a row's option wins), and, if
 they scale the camera, each row's pixel-valued options times the scale and a metric in
 pixels in the default camera's pixels
-(:mod:`observer_gym.train.experiments.benchmark.camera_scale`).
+(:mod:`observer_gym.train.experiments.camera_scale`).
 """
 
 from __future__ import annotations
@@ -24,14 +24,10 @@ import time
 
 import numpy as np
 
-from observer_gym.train.experiments.benchmark.camera_scale import (
-    camera_scale,
-    level_options_in_entry_pixels,
-    metric_in_default_pixels,
-)
 from observer_gym.train.experiments.benchmark.references import episode_values
 from observer_gym.train.experiments.benchmark.run import agent_entry
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
+from observer_gym.train.experiments.camera_scale import camera_scale, level_options_in_entry_pixels
 from observer_gym.train.reports.compare_stats import mean_interval, rate_interval
 from observer_gym.train.rl.run_dir import parse_agent_spec
 
@@ -86,7 +82,7 @@ def main() -> None:
             suite, level._replace(env_options=in_entry_pixels), args.observer,
             controller, seeds, args.workers,
         )  # fmt: skip
-        values = np.array([metric_in_default_pixels(suite.metric.name, v, scale) for v in values])
+        values = np.asarray(values)  # a metric in pixels: the default camera's (the task's)
         low, high = interval(values)
         print(f"| {name} | {values.mean():.3f} | [{low:.3f}, {high:.3f}] |", flush=True)
     print(f"({time.perf_counter() - tic:.0f} s of wall time)")

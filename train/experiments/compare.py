@@ -368,6 +368,12 @@ def run_comparison(
                     if request.agent_env_options
                     else {}
                 ),
+                # an agent with its own camera: the scale of its pixel-valued options
+                **(
+                    {"agent_camera_scale": scales}
+                    if (scales := request.agent_camera_scales())
+                    else {}
+                ),
                 "env_config": env_config,
                 "workers": request.workers,
                 "backend": request.backend,

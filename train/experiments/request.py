@@ -34,6 +34,11 @@ from observer_gym.train.cli.checks import (
     frames_message,
 )
 from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.camera_scale import (
+    camera_scale,
+    is_pixel_valued,
+    level_options_in_entry_pixels,
+)
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.experiments.entries import (
     Plugin,
@@ -107,16 +112,36 @@ class Request(NamedTuple):
     def controller(self, name: str) -> ControllerEntry:
         return next(entry for entry in self.controllers if entry.name == name)
 
-    def env_kwargs_for(self, controller: ControllerEntry) -> dict[str, Any]:
+    def env_kwargs_for(
+        self, controller: ControllerEntry, point: Mapping[str, Any] | None = None
+    ) -> dict[str, Any]:
         """The ``gym.make`` options of ``controller``'s episodes: a trained agent's own
-        env options, and the request's over them."""
-        return {**controller.env_options, **self.env_kwargs}
+        env options, and the request's (and a sweep cell's ``point``) over them, each
+        pixel-valued one in the agent camera's pixels (times :meth:`camera_scale`), so
+        that every entry meets the same angles (camera_scale.py)."""
+        given = {**self.env_kwargs, **(point or {})}
+        scale = self.camera_scale(controller, given)
+        return {**controller.env_options, **level_options_in_entry_pixels(given, scale)}
+
+    def camera_scale(self, controller: ControllerEntry, options: Mapping[str, Any]) -> float:
+        """The scale of ``controller``'s own camera (a trained agent's env options) if
+        ``options`` hold a pixel-valued option to translate to it, else 1."""
+        if not controller.env_options or not any(map(is_pixel_valued, options)):
+            return 1.0
+        return camera_scale(self.env_id, controller.env_options)
 
     @property
     def agent_env_options(self) -> dict[str, dict[str, Any]]:
         """Each trained agent's own env options, for the agents that have some (what
         results record beside ``env_kwargs``)."""
         return {c.name: c.env_options for c in self.controllers if c.env_options}
+
+    def agent_camera_scales(self, varied: Sequence[str] = ()) -> dict[str, float]:
+        """Each agent whose pixel-valued options (the request's, or the ``varied`` keys of
+        a sweep) are scaled to its camera: that scale (what results record)."""
+        names = {*self.env_kwargs, *varied}
+        scales = {c.name: self.camera_scale(c, dict.fromkeys(names)) for c in self.controllers}
+        return {name: scale for name, scale in scales.items() if scale != 1.0}
 
     @property
     def observer_names(self) -> list[str]:

@@ -147,6 +147,11 @@ class SweepPlan:
                             else {}
                         ),
                         **(
+                            {"agent_camera_scale": scales}
+                            if (scales := self.request.agent_camera_scales(self.grid.keys))
+                            else {}
+                        ),
+                        **(
                             {"controller_options": dict(self.controller_options)}
                             if self.controller_options
                             else {}
@@ -166,7 +171,8 @@ class SweepPlan:
         observer = self.request.observer(cell.observer)
         controller = self.request.controller(cell.controller)
         # an agent's own env options, under the sweep's fixed ones and the cell's point
-        env_kwargs = {**controller.env_options, **self.env_kwargs, **cell.point}
+        # (pixel-valued ones in the agent camera's pixels: Request.env_kwargs_for)
+        env_kwargs = self.request.env_kwargs_for(controller, cell.point)
         return [
             EpisodeSpec.of(
                 self.env_id,

@@ -413,6 +413,13 @@ def comparison_text(results: Mapping[str, Any]) -> str:
             f"{format_seeds(config['seeds'])}), {config['backend']} backend, "
             f"{results['wall_time_s']:.1f} s",
             *outside_entries(results["pairs"]),
+            *(
+                [
+                    f"{name}'s own camera is the default scaled by {scale:.6g}: its episodes' "
+                    "pixel-valued options are times that (the same angles as every entry)"
+                    for name, scale in config.get("agent_camera_scale", {}).items()
+                ]
+            ),
             comparison_table(results["pairs"], metrics, n),
             *(
                 ["across seeds:", across_seeds_table(across, next(iter(metrics.values())))]

@@ -19,7 +19,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.experiments.benchmark.camera_scale import camera_scale
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -29,6 +28,7 @@ from observer_gym.train.experiments.benchmark.report import (
     versions,
 )
 from observer_gym.train.experiments.benchmark.suite import load_suite
+from observer_gym.train.experiments.camera_scale import camera_scale
 
 
 class FolderCheckError(ValueError):

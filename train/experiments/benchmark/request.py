@@ -7,12 +7,9 @@ import shlex
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
-from observer_gym.train.experiments.benchmark.camera_scale import (
-    level_options_in_entry_pixels,
-    metric_in_default_pixels,
-)
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
+from observer_gym.train.experiments.camera_scale import level_options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec
 
 __all__ = ["BenchmarkRequest", "command_line"]
@@ -55,7 +52,8 @@ class BenchmarkRequest(NamedTuple):
     # shaping), under every level's options; empty for any other controller
     agent_env_options: dict[str, Any]
     # the agent's camera's focal length over the default camera's (camera_scale.py): the
-    # levels' pixel-valued options are scaled by it and a metric in pixels divided by it
+    # levels' pixel-valued options are scaled by it (a metric in pixels is the default
+    # camera's already: the task's)
     camera_scale: float = 1.0
 
     @property
@@ -101,11 +99,6 @@ class BenchmarkRequest(NamedTuple):
             )
             for seed in level.seeds(self.episodes)
         ]
-
-    def headline(self, value: float) -> float:
-        """An episode's headline metric in the default camera's pixels if it is in
-        pixels (the entry's camera may be another size)."""
-        return metric_in_default_pixels(self.suite.metric.name, value, self.camera_scale)
 
     def command(self) -> str:
         """The command line that computes these numbers again (add ``--out DIR``)."""

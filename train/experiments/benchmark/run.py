@@ -27,7 +27,6 @@ from typing import Any, NamedTuple
 
 from tqdm import tqdm
 
-from observer_gym.train.experiments.benchmark.camera_scale import camera_scale
 from observer_gym.train.experiments.benchmark.levels import (
     LEVELS_DIR,
     BenchmarkWarning,
@@ -43,6 +42,7 @@ from observer_gym.train.experiments.benchmark.suite import (
     Level,
     load_suite,
 )
+from observer_gym.train.experiments.camera_scale import camera_scale
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
 from observer_gym.train.experiments.request import resolve_request
 from observer_gym.train.experiments.sweep import sweep_episode
@@ -213,9 +213,7 @@ def _run_levels(
         for index, episode in episodes:
             k, i = owner[index]
             where = f"level {levels[k].name!r}, episode {i} (seed {specs[index].seed})"
-            values[k][i] = request.headline(
-                metric_value(episode["metrics"].get(metric), metric, where)
-            )
+            values[k][i] = metric_value(episode["metrics"].get(metric), metric, where)
             times[k][i] = episode["time_s"]
             missing[k] -= 1
             if missing[k] == 0:

@@ -12,6 +12,12 @@ Metrics per episode, from the ground truth of the record (state layout of
   end until |(x_i, y_i)| is back within ``RECOVERED_PX`` (None if it never is);
 - for an observer: RMSE of the estimated X_i and X_i^t' while its estimate is valid, and
   the fraction of steps it is valid.
+
+Every metric in pixels is in the default camera's pixels (f_x 393.4, f_y 391.8 px: an
+angle, 1 px about 2.5 mrad), whatever camera the episode had: an agent with its own,
+smaller camera (``ppo:target_follower-rgb``, 84 x 63 px) is scored on the same scale as
+every other entry (:func:`default_camera_factors`). The plots show the episode's own
+pixels.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs.target_follower.config import TargetFollowerConfig
 from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateIndex
 from observer_gym.train.reports.metrics import rmse
 
@@ -93,6 +100,13 @@ def _image_limits(record: Mapping[str, Any]) -> tuple[float, float]:
     return config["image_width_px"] / 2.0, config["image_height_px"] / 2.0
 
 
+def default_camera_factors(record: Mapping[str, Any]) -> np.ndarray:
+    """(x, y) factors from the episode camera's pixels to the default camera's: the
+    default focal lengths over the episode's (1, 1 for the default camera)."""
+    config, default = record["env_config"], TargetFollowerConfig()
+    return np.array([default.fx_px / config["fx_px"], default.fy_px / config["fy_px"]])
+
+
 def occlusion_intervals(state: np.ndarray, half_w: float, half_h: float) -> list[tuple[int, int]]:
     """(first, last) sample indices of each run with the target on the image but not seen."""
     on_image = (
@@ -119,7 +133,12 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
     desired = record["env_config"]["desired_width_px"]
     half_w, half_h = _image_limits(record)
     in_front = state[:, StateIndex.TRACKING_VALID] == 1.0
-    centre = np.hypot(state[:, StateIndex.X_I], state[:, StateIndex.Y_I])
+    to_default_x, to_default_y = default_camera_factors(record)
+    # x_i, y_i, d_x in the default camera's pixels (d_x is a width along x)
+    in_default_px = np.array([to_default_x, to_default_y, to_default_x])
+    centre = np.hypot(
+        to_default_x * state[:, StateIndex.X_I], to_default_y * state[:, StateIndex.Y_I]
+    )
     on_image = (
         in_front
         & (np.abs(state[:, StateIndex.X_I]) <= half_w)
@@ -137,7 +156,7 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
         "steps": len(record["actions"]),
         "centre_error_px": float(np.mean(centre[in_front])) if np.any(in_front) else None,
         "width_error_px": (
-            float(np.mean(np.abs(state[in_front, StateIndex.D_X] - desired)))
+            float(to_default_x * np.mean(np.abs(state[in_front, StateIndex.D_X] - desired)))
             if np.any(in_front)
             else None
         ),
@@ -156,9 +175,12 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
         valid = estimate[:, StateIndex.TRACKING_VALID] == 1.0
         metrics["fraction_estimate_valid"] = float(np.mean(valid))
         if np.any(valid):
-            metrics["image_rmse_px"] = rmse(estimate[valid][:, IMAGE], state[valid][:, IMAGE])
+            metrics["image_rmse_px"] = rmse(
+                in_default_px * estimate[valid][:, IMAGE], in_default_px * state[valid][:, IMAGE]
+            )
             metrics["rate_rmse_pxps"] = rmse(
-                estimate[valid][:, IMAGE_RATE], state[valid][:, IMAGE_RATE]
+                in_default_px * estimate[valid][:, IMAGE_RATE],
+                in_default_px * state[valid][:, IMAGE_RATE],
             )
     return metrics
 

@@ -1,35 +1,43 @@
-"""An entry with its own camera: the suite's pixels in the entry's pixels.
+"""An agent with its own camera: options in the default camera's pixels in the agent's.
 
-A level's pixel-valued options (every option whose name ends in ``_px``:
-``measurement_noise_px``, ``calib_principal_point_error_px``) and a metric in pixels
-(TargetFollower's ``centre_error_px``) are in pixels of the env's default camera. An
-agent trained with its own, smaller camera (``ppo:ball_table-rgb`` at 84 x 84: a focal
-length of 42 px against 160) would meet 2 px of principal-point error as 48 mrad of view
-where every other entry meets 12.5 mrad, and would report its image error in pixels four
-times as large. The benchmark therefore runs such an entry with each pixel-valued level
-option times the camera's scale (the entry's focal length over the default's) and reads
-a metric in pixels divided by it: every entry meets the same angles and is scored in the
-default camera's pixels.
+An option whose name ends in ``_px`` (``measurement_noise_px``,
+``calib_principal_point_error_px``) is in pixels of the camera it acts on. An agent
+trained with its own, smaller camera (``ppo:ball_table-rgb`` at 84 x 84: a focal length of
+42 px against 160) would meet 2 px of principal-point error as 48 mrad of view where
+every other entry meets 12.5 mrad. The benchmark (each level's options) and ``compare``,
+``run`` and ``sweep`` (the request's ``--env-option`` and a sweep's varied options) give
+such an agent each pixel-valued option times its camera's scale (the agent's focal length
+over the default's), so every entry meets the same angles. A metric in pixels needs no
+scaling here: the task reports it in the default camera's pixels
+(:func:`observer_gym.train.experiments.tasks.target_follower.default_camera_factors`).
 
 The scale comes from the cameras the episodes will have (``camera_intrinsics()`` of the
 env built with and without the agent's env options); a camera that is not the default
 scaled as a whole (x and y, every camera alike) is refused, since no single factor
-translates the level to it.
+translates the options to it.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 from collections.abc import Mapping
 from typing import Any
 
-PIXEL_SUFFIX = "_px"  # names say units: an option or metric ending so is in pixels
+PIXEL_SUFFIX = "_px"  # names say units: an option ending so is in pixels
+# the camera's own geometry, in its own pixels: what makes the agent's camera, not an
+# amount to translate
+CAMERA_GEOMETRY_OPTIONS = frozenset(
+    {"image_width_px", "image_height_px", "fx_px", "fy_px", "cx_px", "cy_px"}
+)
 RELATIVE_TOLERANCE = 1e-9
 
 
 def is_pixel_valued(name: str) -> bool:
-    """Whether the option or metric ``name`` is in the camera's pixels."""
-    return name.endswith(PIXEL_SUFFIX)
+    """Whether the option ``name`` is an amount in the camera's pixels (a noise, an error,
+    a set point such as ``desired_width_px``), not the camera's own geometry."""
+    return name.endswith(PIXEL_SUFFIX) and name not in CAMERA_GEOMETRY_OPTIONS
 
 
 def _focal_lengths_px(env_id: str, env_options: Mapping[str, Any]) -> list[tuple[float, float]]:
@@ -48,7 +56,7 @@ def _focal_lengths_px(env_id: str, env_options: Mapping[str, Any]) -> list[tuple
 
 def camera_scale(env_id: str, agent_env_options: Mapping[str, Any]) -> float:
     """The entry's focal length over the default camera's (1.0 if the agent's options
-    leave the camera as it is).
+    leave the camera as it is); computed once per env and options (it builds two envs).
 
     Raises:
         ValueError: the agent's camera is not the default scaled as a whole (x and y of
@@ -56,6 +64,12 @@ def camera_scale(env_id: str, agent_env_options: Mapping[str, Any]) -> float:
     """
     if not agent_env_options:
         return 1.0
+    return _camera_scale(env_id, json.dumps(dict(agent_env_options), sort_keys=True))
+
+
+@functools.cache
+def _camera_scale(env_id: str, agent_env_options_json: str) -> float:
+    agent_env_options = json.loads(agent_env_options_json)
     default = _focal_lengths_px(env_id, {})
     own = _focal_lengths_px(env_id, agent_env_options)
     ratios = [
@@ -68,7 +82,7 @@ def camera_scale(env_id: str, agent_env_options: Mapping[str, Any]) -> float:
         raise ValueError(
             f"the agent's env options {dict(agent_env_options)} change the camera's focal "
             f"lengths by the factors {[round(r, 6) for r in ratios]} (fx, fy per camera); "
-            "the benchmark can translate its levels only to a camera scaled as a whole "
+            "pixel-valued options translate only to a camera scaled as a whole "
             "(one factor for x and y of every camera)"
         )
     return 1.0 if math.isclose(scale, 1.0, rel_tol=RELATIVE_TOLERANCE) else scale
@@ -84,9 +98,3 @@ def level_options_in_entry_pixels(options: Mapping[str, Any], scale: float) -> d
         else value
         for key, value in options.items()
     }
-
-
-def metric_in_default_pixels(name: str, value: float, scale: float) -> float:
-    """An episode's metric ``value`` in the default camera's pixels, if ``name`` is in
-    pixels (divided by ``scale``); unchanged otherwise."""
-    return value / scale if is_pixel_valued(name) else value

@@ -1,7 +1,7 @@
-"""An agent with its own camera meets the suite's levels in its own pixels: the levels'
-pixel-valued options times its camera's scale (the same angles of view as every other
-entry), and a metric in pixels read back in the default camera's pixels
-(train/experiments/benchmark/camera_scale.py)."""
+"""An agent with its own camera meets the same angles as every other entry: the
+benchmark's levels and the pixel-valued options of compare, run and sweep times its
+camera's scale (train/experiments/camera_scale.py), and TargetFollower's pixel metrics in
+the default camera's pixels (train/experiments/tasks/target_follower.py)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,17 @@ import json
 import math
 
 import gymnasium as gym
+import numpy as np
 import pytest
 
-from observer_gym.train.experiments.benchmark.camera_scale import (
+from observer_gym.train.experiments.benchmark.run import check_benchmark
+from observer_gym.train.experiments.benchmark.suite import load_suite
+from observer_gym.train.experiments.camera_scale import (
     camera_scale,
     level_options_in_entry_pixels,
 )
-from observer_gym.train.experiments.benchmark.run import check_benchmark
-from observer_gym.train.experiments.benchmark.suite import load_suite
+from observer_gym.train.experiments.request import resolve_request
+from observer_gym.train.experiments.tasks import target_follower as follower_task
 
 BT, TF = "observer_gym/BallTable-v0", "observer_gym/TargetFollower-v0"
 # the shipped TargetFollower rgb agent's camera: 84 x 63, focal lengths times 84 / 320
@@ -61,16 +64,12 @@ def test_an_rgb_agents_request_carries_its_scale_into_episodes_and_identity(agen
         lab.env_options["calib_principal_point_error_px"] * SMALL
     )
     assert spec.env_kwargs["image_width_px"] == 84  # the agent's own option is kept
-    # a metric in pixels comes back in the default camera's pixels; millimetres do not
-    expected = 0.9 / SMALL if request.suite.metric.name.endswith("_px") else 0.9
-    assert request.headline(0.9) == pytest.approx(expected)
 
 
 def test_a_classical_entry_is_not_scaled():
     request = check_benchmark("TargetFollower-v0", "stkf-measurements", "vtc", episodes=1)
     assert request.camera_scale == 1.0
     assert "camera_scale" not in request.identity()
-    assert request.headline(0.9) == 0.9
 
 
 def _principal_point_angle_rad(env_kwargs: dict, seed: int) -> tuple[float, float]:
@@ -116,3 +115,57 @@ def test_check_derives_the_scale_and_finds_a_changed_one(tmp_path):
     (out / "scores.json").write_text(json.dumps(scores))
     with pytest.raises(FolderCheckError, match="camera_scale"):
         check_folder(out)
+
+
+def test_compare_gives_an_agent_the_same_angles_and_leaves_its_camera_alone():
+    options = {"measurement_noise_px": 2.0, "desired_width_px": 40.0, "push_rate_hz": 0.5}
+    classical = resolve_request(TF, "stkf", ["vtc"], [0], env_kwargs=options)
+    assert classical.env_kwargs_for(classical.controllers[0]) == options
+    assert classical.agent_camera_scales() == {}
+    request = resolve_request(TF, "pixels", [TF_AGENT], [0], env_kwargs=options)
+    (agent,) = request.controllers
+    kwargs = request.env_kwargs_for(agent)
+    assert kwargs["measurement_noise_px"] == pytest.approx(2.0 * SMALL)
+    assert kwargs["desired_width_px"] == pytest.approx(40.0 * SMALL)
+    assert kwargs["push_rate_hz"] == 0.5 and kwargs["image_width_px"] == 84
+    assert request.agent_camera_scales() == {TF_AGENT: pytest.approx(SMALL)}
+    # a sweep's varied pixel option is scaled too; the camera's own geometry never is
+    point = {"measurement_noise_px": 4.0, "image_height_px": 63}
+    kwargs = request.env_kwargs_for(agent, point)
+    assert kwargs["measurement_noise_px"] == pytest.approx(4.0 * SMALL)
+    assert kwargs["image_height_px"] == 63
+    # no pixel-valued option, nothing to scale (and no env is built to find the scale)
+    plain = resolve_request(TF, "pixels", [TF_AGENT], [0], env_kwargs={"push_rate_hz": 0.5})
+    assert plain.env_kwargs_for(plain.controllers[0])["push_rate_hz"] == 0.5
+    assert plain.agent_camera_scales() == {}
+
+
+def test_a_target_follower_pixel_metric_is_in_the_default_cameras_pixels():
+    """The same angles in a camera of a quarter of the default focal lengths: a quarter of
+    the pixels in the state, the same metric."""
+    default = follower_task.TargetFollowerConfig()
+    desired = 60.0
+
+    def record(factor: float) -> dict:
+        state = np.zeros((3, follower_task.StateIndex.TARGET_VISIBLE + 1))
+        state[:, follower_task.StateIndex.TRACKING_VALID] = 1.0
+        state[:, follower_task.StateIndex.X_I] = 30.0 * factor
+        state[:, follower_task.StateIndex.Y_I] = 40.0 * factor
+        state[:, follower_task.StateIndex.D_X] = (desired + 8.0) * factor
+        config = {
+            "fx_px": default.fx_px * factor,
+            "fy_px": default.fy_px * factor,
+            "image_width_px": 320 * factor,
+            "image_height_px": 240 * factor,
+            "desired_width_px": desired * factor,
+        }
+        return {
+            "state": state, "time_s": [0.0, 0.1, 0.2], "env_config": config,
+            "actions": [0, 0, 0], "rewards": [0, 0, 0], "terminated": False, "estimate": None,
+        }  # fmt: skip
+
+    full, quarter = (follower_task.episode_metrics(record(f)) for f in (1.0, 0.25))
+    assert full["centre_error_px"] == pytest.approx(50.0)  # hypot(30, 40)
+    assert full["width_error_px"] == pytest.approx(8.0)
+    assert quarter["centre_error_px"] == pytest.approx(50.0)
+    assert quarter["width_error_px"] == pytest.approx(8.0)
