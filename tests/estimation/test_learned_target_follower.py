@@ -242,7 +242,9 @@ def test_predict_is_the_networks_forward_pass():
         mean, variance = net(torch.as_tensor(x))
     for k in range(5):
         m, P = net.predict(x[k])
-        np.testing.assert_allclose(m, mean[k].numpy(), rtol=1e-5, atol=1e-6)
+        # torch runs the layers in float32, predict in float64: a fresh clone measured a
+        # relative difference of 1.08e-5 on one entry (features of std 20)
+        np.testing.assert_allclose(m, mean[k].numpy(), rtol=1e-4, atol=1e-6)
         np.testing.assert_allclose(np.diag(P), variance[k].numpy(), rtol=1e-4)
 
 

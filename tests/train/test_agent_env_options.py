@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from observer_gym.train.cli import main
 from observer_gym.train.experiments.request import resolve_request
 
@@ -77,7 +79,10 @@ def test_the_target_follower_rgb_agent_runs_on_its_small_camera_with_no_env_opti
     given = resolve_request(
         "TargetFollower-v0", ["pixels"], [agent_name], [0], env_kwargs={"desired_width_px": 9.0}
     )
-    assert given.env_kwargs_for(given.controller(agent_name))["desired_width_px"] == 9.0
+    # a pixel-valued option of the command is in the default camera's pixels: the agent's
+    # episodes get it times its camera's scale, 84 / 320 (the same angle)
+    scaled = given.env_kwargs_for(given.controller(agent_name))["desired_width_px"]
+    assert scaled == pytest.approx(9.0 * 84 / 320, rel=1e-9)
     out = tmp_path / "run"
     argv = ["run", "--env", "TargetFollower-v0", "--observer", "pixels", "--controller",
             agent_name, "--episodes", "1", "--steps", "5", "--no-progress", "--out",
