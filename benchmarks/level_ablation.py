@@ -27,7 +27,7 @@ import numpy as np
 from observer_gym.train.experiments.benchmark.references import episode_values
 from observer_gym.train.experiments.benchmark.run import agent_entry
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, load_suite
-from observer_gym.train.experiments.camera_scale import camera_scale, level_options_in_entry_pixels
+from observer_gym.train.experiments.camera_scale import camera_scale, options_in_entry_pixels
 from observer_gym.train.reports.compare_stats import mean_interval, rate_interval
 from observer_gym.train.rl.run_dir import parse_agent_spec
 
@@ -77,7 +77,7 @@ def main() -> None:
     print("|---|---|---|")
     tic = time.perf_counter()
     for name, options in rows:
-        in_entry_pixels = {**agent_options, **level_options_in_entry_pixels(options, scale)}
+        in_entry_pixels = {**agent_options, **options_in_entry_pixels(options, scale)}
         values = episode_values(
             suite, level._replace(env_options=in_entry_pixels), args.observer,
             controller, seeds, args.workers,

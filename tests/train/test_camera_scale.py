@@ -16,7 +16,7 @@ from observer_gym.train.experiments.benchmark.run import check_benchmark
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import (
     camera_scale,
-    level_options_in_entry_pixels,
+    options_in_entry_pixels,
 )
 from observer_gym.train.experiments.request import resolve_request
 from observer_gym.train.experiments.tasks import target_follower as follower_task
@@ -44,12 +44,12 @@ def test_a_camera_not_scaled_as_a_whole_is_refused():
 
 def test_only_the_pixel_valued_options_are_scaled():
     lab = load_suite("TargetFollower-v0").levels[1].env_options
-    scaled = level_options_in_entry_pixels(lab, 0.5)
+    scaled = options_in_entry_pixels(lab, 0.5)
     assert scaled["measurement_noise_px"] == 0.5 * lab["measurement_noise_px"]
     assert scaled["calib_principal_point_error_px"] == 0.5 * lab["calib_principal_point_error_px"]
     unchanged = {k: v for k, v in lab.items() if not k.endswith("_px")}
     assert {k: scaled[k] for k in unchanged} == unchanged
-    assert level_options_in_entry_pixels(lab, 1.0) == lab
+    assert options_in_entry_pixels(lab, 1.0) == lab
 
 
 @pytest.mark.parametrize("agent", [TF_AGENT, BT_AGENT])

@@ -88,7 +88,7 @@ def _camera_scale(env_id: str, agent_env_options_json: str) -> float:
     return 1.0 if math.isclose(scale, 1.0, rel_tol=RELATIVE_TOLERANCE) else scale
 
 
-def level_options_in_entry_pixels(options: Mapping[str, Any], scale: float) -> dict[str, Any]:
+def options_in_entry_pixels(options: Mapping[str, Any], scale: float) -> dict[str, Any]:
     """``options`` with each pixel-valued number times ``scale`` (the entry's camera)."""
     if scale == 1.0:
         return dict(options)

@@ -37,7 +37,7 @@ from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.camera_scale import (
     camera_scale,
     is_pixel_valued,
-    level_options_in_entry_pixels,
+    options_in_entry_pixels,
 )
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.experiments.entries import (
@@ -121,7 +121,7 @@ class Request(NamedTuple):
         that every entry meets the same angles (camera_scale.py)."""
         given = {**self.env_kwargs, **(point or {})}
         scale = self.camera_scale(controller, given)
-        return {**controller.env_options, **level_options_in_entry_pixels(given, scale)}
+        return {**controller.env_options, **options_in_entry_pixels(given, scale)}
 
     def camera_scale(self, controller: ControllerEntry, options: Mapping[str, Any]) -> float:
         """The scale of ``controller``'s own camera (a trained agent's env options) if

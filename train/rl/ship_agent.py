@@ -115,7 +115,7 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
         raise ValueError(f"name must be a plain folder name (ball_table-estimate), got {name!r}")
     if not (run_dir / FINAL_MODEL).is_file():
         raise ValueError(f"{run_dir} has no {FINAL_MODEL}: only a finished run can be shipped")
-    read_config(run_dir)
+    config = read_config(run_dir)  # refuses a changed config before anything is copied
     model_files(run_dir)  # its files as recorded, no pickled statistics
     state = read_state(run_dir) or {}
     target = folder / name
@@ -125,7 +125,7 @@ def ship_agent(run_dir: str | Path, name: str, readme: str, folder: Path = SHIPP
     for file in (FINAL_MODEL, FINAL_VECNORMALIZE):
         if (run_dir / file).is_file():
             shutil.copyfile(run_dir / file, target / file)
-    write_config(target, shipped_config(read_config(run_dir)))
+    write_config(target, shipped_config(config))
     record_final_files(target)
     write_json_atomic(
         target / STATE_FILE,

@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
-from observer_gym.train.experiments.camera_scale import level_options_in_entry_pixels
+from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec
 
 __all__ = ["BenchmarkRequest", "command_line"]
@@ -92,7 +92,7 @@ class BenchmarkRequest(NamedTuple):
                 # agent's own
                 env_kwargs={
                     **self.agent_env_options,
-                    **level_options_in_entry_pixels(level.env_options, self.camera_scale),
+                    **options_in_entry_pixels(level.env_options, self.camera_scale),
                 },
                 observer_options=self.observer_options,
                 controller_options=self.controller_options,
