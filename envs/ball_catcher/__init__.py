@@ -7,11 +7,12 @@ from observer_gym.envs.ball_catcher.config import (
     BallCatcherConfig,
     RobotProfile,
 )
-from observer_gym.envs.ball_catcher.env import BallCatcherEnv
+from observer_gym.envs.ball_catcher.env import MISS_REASONS, BallCatcherEnv
 from observer_gym.envs.ball_catcher.layout import STATE_DIM, STATE_NAMES, StateIndex
 
 __all__ = [
     "CAMERA_PRESETS",
+    "MISS_REASONS",
     "ROBOT_PROFILES",
     "STATE_DIM",
     "STATE_NAMES",

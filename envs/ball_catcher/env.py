@@ -28,6 +28,13 @@ from observer_gym.envs.suite_knobs import SuiteKnobs
 from observer_gym.envs.transforms import norm
 
 FLYING, CAUGHT, MISSED = "flying", "caught", "missed"
+# Why an episode missed (info["miss_reason"] on a miss; see Episode End), from the catch
+# judgement's record: it entered the front face after touching the box (the line before the
+# touch or the entry after it outside the clean radius), entered outside the clean radius
+# without a touch, touched the box but never entered it, or never touched nor entered it.
+RIM_TOUCH, OUTSIDE_CLEAN_RADIUS = "rim_touch", "outside_clean_radius"
+BOUNCED_OFF, MISSED_BOX = "bounced_off", "missed_box"
+MISS_REASONS = (RIM_TOUCH, OUTSIDE_CLEAN_RADIUS, BOUNCED_OFF, MISSED_BOX)
 NO_FRAME_AGE_S = 10.0  # frame age reported for a camera that has delivered nothing yet
 PASSED_MARGIN_M = 0.2  # the ball this far behind the box's back plane has passed it
 NEAR_M, FAR_M = 0.1, 8.0  # the cameras' clipping planes; nearer points are not seen
@@ -78,7 +85,8 @@ class BallCatcherEnv(CameraEnv):
     ``env.state_space`` is the state Box whatever the obs_mode. ``info`` holds ``state``
     (ground truth), ``time_s``, ``T_world_box``, ``box_pos_world_m`` and
     ``box_vel_world_mps`` (the robot's own forward kinematics, known to any controller),
-    ``outcome`` ("flying", "caught", "missed"), ``caught``, ``ball_in_flight`` (the ball
+    ``outcome`` ("flying", "caught", "missed"), ``caught``, ``miss_reason`` (on a miss, why:
+    one of ``MISS_REASONS``, see Episode End; None otherwise), ``ball_in_flight`` (the ball
     has not touched the box yet: free flight, where a ballistic model holds; NEES and NIS
     are taken over these steps), ``throw`` (launch position and velocity, drag-free
     crossing time and point of the box's home plane, None for a throw that never reaches
@@ -134,6 +142,19 @@ class BallCatcherEnv(CameraEnv):
     Terminated on a catch or on such a miss, and on a miss by the ball's centre falling
     below 0.15 m or getting 0.2 m behind the box's back plane. Truncated by the registered
     time limit of 200 steps (2 s).
+
+    On the step that ends an episode with a miss, ``info["miss_reason"]`` says which part
+    of the rule made it one (``MISS_REASONS``; None on every other step and on a catch):
+    ``"rim_touch"``, it entered after touching the box (the line it flew on before the
+    touch crossed outside the clean radius, or it crossed inside but the entry after the
+    touch was outside: a rim hit that rattled in); ``"outside_clean_radius"``, it entered
+    without a touch but outside the clean radius; ``"bounced_off"``, it touched the box
+    (rim, plate or a wall) and never entered; ``"missed_box"``, it neither touched nor
+    entered the box. A crossing that ``observer-gym run`` shows inside the clean radius can
+    be a ``rim_touch``: its centre crossed there after the rim deflected it (seeds
+    5000-5099 at the benchmark's lab level with kf-measurements and intercept: 71 misses,
+    all touches whose line before the touch crossed 5.1-16.2 mm from the axis; the 44
+    that rattled in then crossed 0.1-5.9 mm from it).
 
     ## Arguments
     ``gym.make("observer_gym/BallCatcher-v1", **options)``; the options are the fields of
@@ -209,6 +230,8 @@ class BallCatcherEnv(CameraEnv):
         self._ball_box: WorldNow | None = None
         self._approach_clean: bool | None = None
         self._entered_clean: bool | None = None
+        # Whether the ball had touched the box when it entered (read only once it entered).
+        self._entered_after_touch = False
         super().__init__(render_mode, **options)
 
     # --- the system's hooks -------------------------------------------------------------
@@ -316,6 +339,7 @@ class BallCatcherEnv(CameraEnv):
             if point is not None and geo.on_front_face(point):
                 clean = geo.is_clean(point, hole_m)
                 self._entered_clean = clean and self._approach_clean is not False
+                self._entered_after_touch = self._approach_clean is not None
 
     def _after_physics(self) -> None:
         self._truth = self.scene.ground_truth()
@@ -367,6 +391,7 @@ class BallCatcherEnv(CameraEnv):
             "box_vel_world_mps": truth.state[BOX_VEL].copy(),
             "outcome": self._outcome,
             "caught": self._outcome == CAUGHT,
+            "miss_reason": self._miss_reason(),
             # No touch of the box yet: the ball is in free flight, where the observers'
             # ballistic model holds (model_holds_key).
             "ball_in_flight": self._approach_clean is None,
@@ -500,6 +525,16 @@ class BallCatcherEnv(CameraEnv):
         if ball[2] < geo.MISS_HEIGHT_M or passed:
             return MISSED
         return FLYING
+
+    def _miss_reason(self) -> str | None:
+        """Why the episode missed (one of MISS_REASONS), from the record :meth:`_judge`
+        judged on; None unless it missed."""
+        if self._outcome != MISSED:
+            return None
+        if self._entered_clean is not None:  # entered the front face, not cleanly
+            return RIM_TOUCH if self._entered_after_touch else OUTSIDE_CLEAN_RADIUS
+        # fell below MISS_HEIGHT_M or passed the box without entering it
+        return BOUNCED_OFF if self._approach_clean is not None else MISSED_BOX
 
     def _miss_distance_m(self) -> float:
         """Distance between the hole and where the ball will cross its plane (the last

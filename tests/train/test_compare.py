@@ -18,12 +18,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from observer_gym.envs.ball_catcher import MISS_REASONS
 from observer_gym.train.cli import args as cli_args
 from observer_gym.train.cli import compare as compare_cli
 from observer_gym.train.experiments import ray_backend, request
 from observer_gym.train.experiments.compare import command_line, run_comparison
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.tasks import ball_table
+from observer_gym.train.experiments.tasks import ball_catcher, ball_table
 from observer_gym.train.experiments.tasks.ball_table import COMPARE_METRICS
 from observer_gym.train.reports import compare_report
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, safe_name
@@ -343,6 +344,68 @@ def parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="observer-gym compare")
     compare_cli.add_arguments(parser)
     return parser
+
+
+LAB = {  # the benchmark's lab level: kf-measurements with intercept misses most throws
+    "latency_s": 0.004,
+    "latency_jitter_s": 0.001,
+    "jitter_s": 0.0005,
+    "measurement_noise_px": 1.0,
+    "image_noise_std": 2.0,
+    "calib_focal_error": 0.005,
+    "calib_principal_point_error_px": 1.0,
+    "calib_rotation_error_deg": 0.1,
+    "calib_translation_error_m": 0.002,
+}
+
+
+def check_miss_counts(results: dict, text: str) -> None:
+    """The BallCatcher table's counted column: right after the catch rate, each pair's
+    episodes not caught counted by their reason, as results.json holds them."""
+    reasons = list(ball_catcher.NOT_CAUGHT_REASONS)
+    assert results["config"]["counts"] == {
+        "miss_reason": {"label": "misses by reason", "values": reasons}
+    }
+    header, *rows = table_rows(text)
+    assert header[2].startswith("catch rate") and header[3] == "misses by reason"
+    for row in rows:
+        found = pair(results, row[0], row[1])
+        episodes = found["episodes"]
+        for e in episodes:
+            assert (e["miss_reason"] is None) == e["caught"]
+        counts = found["counts"]["miss_reason"]
+        assert counts == {r: sum(e["miss_reason"] == r for e in episodes) for r in reasons}
+        assert counts == found["summary"]["miss_reasons"]
+        assert sum(counts.values()) == len(episodes) - sum(e["caught"] for e in episodes)
+        shown = ", ".join(f"{r} {k}" for r, k in counts.items() if k) or "none"
+        assert row[3] == shown
+
+
+def test_ball_catchers_table_counts_the_misses_by_reason(tmp_path, monkeypatch):
+    monkeypatch.setattr(compare_report, "plot_bars", lambda *args, **kwargs: None)
+    monkeypatch.setattr(ball_catcher, "plot", lambda records, observer, out_dir: [])
+    args = ("BallCatcher-v1", ["oracle", "kf-measurements"], ["intercept"])
+    results = run_comparison(
+        *args, [5000, 5001, 5002], tmp_path / "lab", env_kwargs=LAB, progress=False
+    )
+    assert json.loads((tmp_path / "lab" / "results.json").read_text()) == results
+    check_miss_counts(results, (tmp_path / "lab" / "table.md").read_text())
+    check_miss_counts(results, compare_report.comparison_text(results))
+    assert {e["miss_reason"] for p in results["pairs"] for e in p["episodes"]} <= {
+        None,
+        *MISS_REASONS,
+    }
+    # Cut at 0.1 s, long before the ball reaches the box (0.40-0.48 s): every episode is
+    # unfinished, none a catch.
+    cut = run_comparison(*args, [0, 1], tmp_path / "cut", steps=10, progress=False)
+    check_miss_counts(cut, (tmp_path / "cut" / "table.md").read_text())
+    assert [p["counts"]["miss_reason"]["unfinished"] for p in cut["pairs"]] == [2, 2]
+
+
+def test_a_task_without_counted_columns_keeps_its_results(compared):
+    _, results = compared
+    assert "counts" not in results["config"]
+    assert all("counts" not in p for p in results["pairs"])
 
 
 def test_cli_runs_a_comparison_that_its_command_line_repeats(tmp_path):

@@ -37,6 +37,7 @@ from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
     ORACLE,
     analyse_pairs,
+    compare_counts,
     compare_metrics,
 )
 from observer_gym.train.reports.outputs import (
@@ -289,8 +290,9 @@ def run_comparison(
     comparison fails before writing anything:
     :func:`~observer_gym.train.reports.outputs.output_folder`): ``table.md``
     (one row per pair: mean ± 95 % half-width of each of the task's
-    ``COMPARE_METRICS``, rates with their Wilson interval, and, with "oracle" among the
-    observers, the paired difference of the primary metric observer − oracle),
+    ``COMPARE_METRICS``, rates with their Wilson interval, the task's ``COMPARE_COUNTS``
+    counted, and, with "oracle" among the observers, the paired difference of the primary
+    metric observer − oracle),
     ``table.csv`` (observer, controller, metric, n,
     mean, half_width, low, high, interval; values in the metric's stored SI unit, rates
     0-1), ``bar_<metric>.png`` per metric, the task's plots of each pair in
@@ -318,7 +320,8 @@ def run_comparison(
         What ``results.json`` holds (JSON types): ``config``, ``versions``,
         ``wall_time_s``, ``pairs`` (per pair: ``observer``, ``controller``, ``folder``,
         ``episodes`` with each episode's metrics, the task's ``summary``, ``statistics``
-        per compared metric, ``vs_oracle``, ``files``), ``starts_match`` and ``files``.
+        per compared metric, ``counts`` per counted key if the task has
+        ``COMPARE_COUNTS``, ``vs_oracle``, ``files``), ``starts_match`` and ``files``.
 
     Raises:
         ValueError: a bad input (see :func:`check_comparison`).
@@ -386,6 +389,17 @@ def run_comparison(
                     )
                     for key, spec in metrics.items()
                 },
+                # only for a task with counted columns: other folders keep their bytes
+                **(
+                    {
+                        "counts": {
+                            key: {"label": label, "values": list(values)}
+                            for key, (label, values) in counted.items()
+                        }
+                    }
+                    if (counted := compare_counts(task))
+                    else {}
+                ),
                 **task.CONFIG,
                 "command": command_line(
                     request.env_id,

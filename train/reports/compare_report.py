@@ -15,7 +15,13 @@ import numpy as np
 
 from observer_gym.train.experiments.entries import entry_line
 from observer_gym.train.reports.aggregate import METHOD
-from observer_gym.train.reports.compare_stats import ORACLE, PERCENT, MetricSpec, compare_metrics
+from observer_gym.train.reports.compare_stats import (
+    ORACLE,
+    PERCENT,
+    MetricSpec,
+    compare_counts,
+    compare_metrics,
+)
 from observer_gym.train.reports.consistency import NEES_COLUMN, NEES_KEY_TEXT, consistency_text
 from observer_gym.train.reports.outputs import (
     format_table,
@@ -108,20 +114,31 @@ def difference_unit(unit: str) -> str:
     return "pp" if unit == "%" else unit
 
 
+def format_counts(counts: Mapping[str, int]) -> str:
+    """A counted cell: "value count" for every value that some episode had, in order
+    ("rim_touch 44, bounced_off 27"), or "none"."""
+    return ", ".join(f"{value} {count}" for value, count in counts.items() if count) or "none"
+
+
 def comparison_table(
     pairs: Sequence[Mapping[str, Any]],
     metrics: Mapping[str, MetricSpec],
     episodes: int,
+    counts: Mapping[str, str] | None = None,
 ) -> str:
-    """The Markdown table: one row per pair, a column per metric, when some pair has a
-    ``vs_oracle`` the column of the primary metric's paired difference from the oracle, and
-    when some pair has an estimate the NEES/dof column with its band (⚠ outside)."""
+    """The Markdown table: one row per pair, a column per metric, right after the primary
+    metric's a column per counted key of ``counts`` (key -> label: the pair's ``counts``,
+    :func:`format_counts`), when some pair has a ``vs_oracle`` the column of the primary
+    metric's paired difference from the oracle, and when some pair has an estimate the
+    NEES/dof column with its band (⚠ outside)."""
     primary = next(iter(metrics))
     label, unit, scale, digits, _ = metrics[primary]
+    counts = counts or {}
     with_oracle = any(p["vs_oracle"] is not None for p in pairs)
     with_nees = any((p.get("consistency") or {}).get("nees_ratio") is not None for p in pairs)
     headers = ["observer", "controller"]
     headers += [_header(lab, u, better) for lab, u, _, _, better in metrics.values()]
+    headers[3:3] = list(counts.values())
     if with_oracle:
         headers.append(_header(f"Δ {label} vs oracle", difference_unit(unit)))
     if with_nees:
@@ -131,6 +148,7 @@ def comparison_table(
         row = [pair["observer"], pair["controller"]]
         for key, (_, _, sc, dg, _) in metrics.items():
             row.append(format_statistic(pair["statistics"][key], sc, dg, episodes))
+        row[3:3] = [format_counts(pair["counts"][key]) for key in counts]
         if with_oracle:
             diff = pair["vs_oracle"]
             row.append(
@@ -187,11 +205,14 @@ def write_markdown(
     cli_args: Mapping[str, Any] | None,
     seeds_table: str | None = None,
     outside: Sequence[str] = (),
+    counts: Mapping[str, str] | None = None,
 ) -> None:
     """``table.md``: the command line (when run from it), what was run (with the
-    ``outside`` entries' lines, :func:`outside_entries`), the table, a key and, with
-    multi-seed agents, their table across seeds (``seeds_table``)."""
+    ``outside`` entries' lines, :func:`outside_entries`), the table, a key (naming the
+    counted columns, ``counts``: key -> label) and, with multi-seed agents, their table
+    across seeds (``seeds_table``)."""
     primary_label = next(iter(metrics.values()))[0]
+    counted = ", ".join(counts.values()) if counts else ""
     lines = [f"`{command}`", ""] if cli_args is not None else []
     lines += [
         f"{env_id}: {len(seeds)} episode(s) per pair, seeds {format_seeds(seeds)} "
@@ -207,7 +228,13 @@ def write_markdown(
         "↓ lower is better, ↑ higher is better. "
         f"Δ vs oracle: observer − oracle of {primary_label}, episode by episode on the same "
         f"seeds, mean ± {PERCENT} half-width (Student t), and (×) the ratio of the "
-        f"means. {NEES_KEY_TEXT}",
+        f"means. {NEES_KEY_TEXT}"
+        + (
+            f" Counted ({counted}): how many of the pair's episodes had each value "
+            "(values no episode had left out)."
+            if counted
+            else ""
+        ),
         "",
     ]
     if seeds_table is not None:
@@ -331,6 +358,7 @@ def write_comparison(
     """
     config, pairs = results["config"], results["pairs"]
     metrics = compare_metrics(task)
+    counts = {key: label for key, (label, _) in compare_counts(task).items()}
     n = config["episodes"]
     try:
         json_text(results)
@@ -353,7 +381,7 @@ def write_comparison(
             )
             files.append(name)
 
-        table = comparison_table(pairs, metrics, n)
+        table = comparison_table(pairs, metrics, n, counts)
         across = results.get("across_seeds") or []
         seeds_table = across_seeds_table(across, next(iter(metrics.values()))) if across else None
         write_markdown(
@@ -367,6 +395,7 @@ def write_comparison(
             config["cli_args"],
             seeds_table,
             outside_entries(pairs),
+            counts,
         )
         write_csv(staging / "table.csv", pairs, metrics)
         files += ["table.md", "table.csv", "results.json"]
@@ -405,6 +434,7 @@ def comparison_text(results: Mapping[str, Any]) -> str:
         key: (spec["label"], spec["unit"], spec["scale"], spec["digits"], spec["better"])
         for key, spec in config["metrics"].items()
     }
+    counts = {key: spec["label"] for key, spec in config.get("counts", {}).items()}
     n = config["episodes"]
     return "\n".join(
         [
@@ -420,7 +450,7 @@ def comparison_text(results: Mapping[str, Any]) -> str:
                     for name, scale in config.get("agent_camera_scale", {}).items()
                 ]
             ),
-            comparison_table(results["pairs"], metrics, n),
+            comparison_table(results["pairs"], metrics, n, counts),
             *(
                 ["across seeds:", across_seeds_table(across, next(iter(metrics.values())))]
                 if (across := results.get("across_seeds"))

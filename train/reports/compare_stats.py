@@ -25,6 +25,8 @@ BETTER = ("lower", "higher")
 # A metric of the table: key -> (label, unit, scale from the stored value to the unit,
 # digits, "lower" or "higher" is better)
 MetricSpec = tuple[str, str, float, int, str]
+# A counted column of the table: episode key -> (label, its values in the order shown)
+CountSpec = tuple[str, tuple[str, ...]]
 
 
 def _interval_of_nothing(n: int, method: str) -> dict[str, Any]:
@@ -134,6 +136,29 @@ def compare_metrics(task: Any) -> dict[str, MetricSpec]:
     return metrics
 
 
+def compare_counts(task: Any) -> dict[str, CountSpec]:
+    """The task's optional ``COMPARE_COUNTS`` (episode key -> label, its values in the
+    order shown: a column counting the pair's episodes of each value), checked; {} if it
+    has none."""
+    counts = dict(getattr(task, "COMPARE_COUNTS", {}))
+    for key, spec in counts.items():
+        if len(spec) != 2 or not isinstance(spec[0], str) or isinstance(spec[1], str):
+            raise ValueError(
+                f"{task.__name__}.COMPARE_COUNTS[{key!r}] must be (label, values), got {spec!r}"
+            )
+    return counts
+
+
+def value_counts(values: Sequence[Any], order: Sequence[str]) -> dict[str, int]:
+    """How many of ``values`` are each of ``order`` (0 for one that none is), then any other
+    value in the order met; None values are not counted."""
+    counts = dict.fromkeys(order, 0)
+    for value in values:
+        if value is not None:
+            counts[str(value)] = counts.get(str(value), 0) + 1
+    return counts
+
+
 def episode_values(task: Any, record: Mapping[str, Any]) -> dict[str, Any]:
     """One episode's metrics from its record: the task's ``episode_metrics``, the
     observer's consistency (:func:`~observer_gym.train.reports.consistency.episode_consistency`:
@@ -178,8 +203,10 @@ def analyse_pairs(
     same controller; each pair also carries ``observed[observer]``
     (:meth:`observer_gym.train.experiments.request.ObserverEntry.record`: obs_mode, pipeline
     options,
-    an outside observer's entry)."""
+    an outside observer's entry); with the task's ``COMPARE_COUNTS``, also ``counts``: per
+    counted key, the episodes of each value (:func:`value_counts`)."""
     metrics = compare_metrics(task)
+    counted = compare_counts(task)
     primary = next(iter(metrics))
     n = len(seeds)
     by_pair = {pair: records[k * n : (k + 1) * n] for k, pair in enumerate(pairs)}
@@ -200,6 +227,17 @@ def analyse_pairs(
                 "episodes": episodes,
                 "summary": task.summarize(episodes),
                 "statistics": metrics_statistics(episodes, metrics),
+                # only for a task with counted columns: other folders keep their bytes
+                **(
+                    {
+                        "counts": {
+                            key: value_counts([e.get(key) for e in episodes], order)
+                            for key, (_, order) in counted.items()
+                        }
+                    }
+                    if counted
+                    else {}
+                ),
                 "consistency": nees_flag(episodes)._asdict(),
                 "vs_oracle": None,
             }

@@ -31,7 +31,10 @@ class Task(Protocol):
     - ``COMPARE_METRICS``: the metrics of ``observer-gym compare``'s table, key -> (label,
       unit, scale, digits, "lower" or "higher" is better); the first is the primary one,
       whose paired observer - oracle difference gets a column. An optional
-      ``compare_extras(episode)`` adds per-episode numbers derived for the table.
+      ``compare_extras(episode)`` adds per-episode numbers derived for the table. An
+      optional ``COMPARE_COUNTS``, episode key -> (label, values in order), adds a column
+      beside the primary metric counting the pair's episodes of each value (BallCatcher's
+      misses by reason).
     - ``episode_metrics(record)``: one episode's metrics from the record of
       :func:`observer_gym.train.experiments.episode.run_episode`.
     - ``summarize(episodes)``: the summary of a list of ``episode_metrics`` dicts; it has

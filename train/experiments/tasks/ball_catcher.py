@@ -1,5 +1,6 @@
-"""BallCatcher-v1 in ``observer-gym run``: catch rate with its 95 % interval, the miss at
-the box's plane, and the observer's error (see the :class:`Task` interface).
+"""BallCatcher-v1 in ``observer-gym run``: catch rate with its 95 % interval, the misses
+counted by reason, the miss at the box's plane, and the observer's error (see the
+:class:`Task` interface).
 
 A record's arrays follow the env's state layout: ball position and velocity, box (hole
 centre) position and velocity, world frame.
@@ -13,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs.ball_catcher import MISS_REASONS
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
 from observer_gym.train.reports.metrics import rmse
@@ -50,6 +52,11 @@ CONFIDENCE = 0.95
 # ballistic model applies).
 SETTLE_S = 0.1
 CONFIG = {"catch_rate_interval": f"Wilson score, {CONFIDENCE:.0%}", "estimate_from_s": SETTLE_S}
+# Why an episode was not caught: the env's info["miss_reason"] on a miss (see the env's
+# Episode End), or UNFINISHED for an episode cut before the catch was judged (the ball still
+# flying at the time limit or at --steps). Every episode not caught has one.
+UNFINISHED = "unfinished"
+NOT_CAUGHT_REASONS = (*MISS_REASONS, UNFINISHED)
 
 # summary key -> (label, unit, scale from the stored SI value to the shown unit, digits)
 SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
@@ -58,6 +65,7 @@ SUMMARY_ROWS: dict[str, tuple[str, str, float, int]] = {
     "catch_rate": ("catch rate", "%", 100.0, 1),
     "catch_rate_low": ("catch rate, 95 % interval low", "%", 100.0, 1),
     "catch_rate_high": ("catch rate, 95 % interval high", "%", 100.0, 1),
+    **{f"misses_{reason}": (f"misses: {reason}", "", 1.0, 0) for reason in NOT_CAUGHT_REASONS},
     "miss_distance_median_m": ("ball centre to hole centre at the plane, median", "mm", 1e3, 1),
     "miss_distance_p90_m": (
         "ball centre to hole centre at the plane, 90th percentile",
@@ -84,6 +92,12 @@ COMPARE_METRICS: dict[str, tuple[str, str, float, int, str]] = {
     "position_rmse_m": ("estimate RMSE, ball position", "mm", 1e3, 2, "lower"),
     "box_travel_m": ("box travel", "mm", 1e3, 1, "lower"),
 }
+# observer-gym compare's counted columns, beside the primary metric: episode metric ->
+# (label, its values in the order shown); a cell counts the pair's episodes of each value
+# (None is not counted: here, the catches)
+COMPARE_COUNTS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "miss_reason": ("misses by reason", NOT_CAUGHT_REASONS),
+}
 
 
 def plane_offset_m(record: Mapping[str, Any]) -> np.ndarray | None:
@@ -103,6 +117,16 @@ def plane_offset_m(record: Mapping[str, Any]) -> np.ndarray | None:
     return offset
 
 
+def miss_reason(final_info: Mapping[str, Any]) -> str | None:
+    """Why the episode was not caught (one of NOT_CAUGHT_REASONS; None if it was): the env's
+    ``miss_reason`` on a miss, UNFINISHED if it ended with the ball still flying."""
+    if final_info.get("caught", False):
+        return None
+    if final_info.get("outcome") == "missed":
+        return str(final_info["miss_reason"])
+    return UNFINISHED
+
+
 def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
     state = np.asarray(record["state"], dtype=float)
     info = record["final_info"]
@@ -120,6 +144,7 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
         "duration_s": float(record["time_s"][-1] - record["time_s"][0]),
         "outcome": info.get("outcome"),
         "caught": bool(info.get("caught", False)),
+        "miss_reason": miss_reason(info),
         "terminated": bool(record["terminated"]),
         "return": float(np.sum(record["rewards"])),
         "plane_offset_m": None if offset is None else [float(v) for v in offset],
@@ -132,7 +157,8 @@ def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Catch rate with its Wilson score interval (SciPy's ``binomtest``), the miss
+    """Catch rate with its Wilson score interval (SciPy's ``binomtest``), the episodes not
+    caught by reason (``miss_reasons`` and one ``misses_<reason>`` count each), the miss
     distance's median and 90th percentile, and means of the rest."""
     from scipy.stats import binomtest  # imported on use: scipy.stats takes ~0.6 s to import
 
@@ -149,6 +175,10 @@ def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     outcomes: dict[str, int] = {}
     for e in episodes:
         outcomes[str(e["outcome"])] = outcomes.get(str(e["outcome"]), 0) + 1
+    reasons = dict.fromkeys(NOT_CAUGHT_REASONS, 0)
+    for e in episodes:
+        if e["miss_reason"] is not None:
+            reasons[e["miss_reason"]] = reasons.get(e["miss_reason"], 0) + 1
     return {
         "episodes": n,
         "catches": catches,
@@ -156,6 +186,8 @@ def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "catch_rate_low": float(interval.low),
         "catch_rate_high": float(interval.high),
         "outcomes": outcomes,
+        "miss_reasons": reasons,
+        **{f"misses_{reason}": reasons[reason] for reason in NOT_CAUGHT_REASONS},
         "miss_distance_median_m": float(np.median(misses)) if misses else None,
         "miss_distance_p90_m": float(np.percentile(misses, 90)) if misses else None,
         "position_rmse_m": mean_of("position_rmse_m"),
