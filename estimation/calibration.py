@@ -30,7 +30,12 @@ import numpy as np
 
 from observer_gym.envs.sensor import SensorSpec
 
-__all__ = ["calibration_covariance", "calibration_jacobian", "calibration_variances"]
+__all__ = [
+    "calibration_covariance",
+    "calibration_jacobian",
+    "calibration_variances",
+    "moved_camera",
+]
 
 _STEPS = {"rotation": 1e-4, "translation": 1e-4, "focal": 1e-4, "principal_point": 0.01}
 
@@ -100,6 +105,27 @@ def calibration_jacobian(
             columns.append((np.asarray(ahead, float) - np.asarray(behind, float)) / (2.0 * h))
             var.append(kind_var)
     return np.stack(columns, axis=-1), np.array(var)
+
+
+def moved_camera(
+    K: np.ndarray, T_world_cam: np.ndarray, variances: dict[str, float], c: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(K, T_world_cam) of the camera moved by ``c`` (m,) along the calibration parameters
+    of ``variances``, in :func:`calibration_jacobian`'s order and units (rad, m, focal
+    scale, px): the camera a filter's estimated parameters describe. The moves are
+    applied one after another (rotation about the camera's x, then y, then z, ...), which
+    agrees with the parameters' first-order model for small ``c``."""
+    K, T = np.array(K, dtype=float), np.array(T_world_cam, dtype=float)
+    c = np.asarray(c, dtype=float).reshape(-1)
+    expected = sum(_AXES[kind] for kind in variances)
+    if c.shape != (expected,):
+        raise ValueError(f"moved_camera: c has shape {c.shape}, expected ({expected},)")
+    i = 0
+    for kind in variances:
+        for index in range(_AXES[kind]):
+            K, T = _perturbed(kind, index, float(c[i]), K, T)
+            i += 1
+    return K, T
 
 
 def calibration_covariance(

@@ -92,6 +92,14 @@ def observers_of_system(system: System) -> Mapping[str, PipelineFactory]:
     return importlib.import_module(system.module("estimation")).OBSERVERS
 
 
+def env_options_of(system: System, observer: str | None) -> dict[str, Any]:
+    """The env options ``system``'s observer ``observer`` needs to run: its package's
+    ``ENV_OPTIONS`` (observer name -> options, e.g. BallCatcher's ``endpoint`` reads the
+    hole's pixels, ``hole_measurements=True``); {} for the others."""
+    module = importlib.import_module(system.module("estimation"))
+    return dict(getattr(module, "ENV_OPTIONS", {}).get(observer, {}))
+
+
 def observers_of(env: gym.Env) -> Mapping[str, PipelineFactory]:
     """The observers of ``env``'s system (see :func:`observers_of_system`)."""
     return observers_of_system(system_of(env))

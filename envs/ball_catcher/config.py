@@ -57,6 +57,11 @@ class BallCatcherConfig(SensorConfig):
         low=0.0,
         high=20.0,
     )
+    hole_measurements: bool = config_field(
+        False,
+        "measurements mode: also report the hole centre's pixels in every camera that has it "
+        "in view (a detector of the box's outline), with measurement_noise_px of noise",
+    )
     # Robot and box.
     robot_profile: str = config_field(
         "paper", "limits of the box's motion (see ROBOT_PROFILES)", choices=tuple(ROBOT_PROFILES)

@@ -78,6 +78,15 @@ class BallCatcherEnv(CameraEnv):
       projected ball centre
       with Gaussian noise of ``measurement_noise_px``, ``detected`` (N,) whether the ball
       was in the image, ``frame_age_s`` (N,).
+      With ``hole_measurements=True`` the Dict also holds ``hole_uv_px`` (2N,) and
+      ``hole_detected`` (N,): the same report of the hole's centre (the origin of
+      ``T_world_box``), as a detector of the box's outline would locate it: its
+      projection through the real camera with Gaussian noise of ``measurement_noise_px``
+      (drawn from a stream of its own, so the ball's noise is the same with and without
+      it), reported whenever it lies inside the image (occlusion is not modelled, as for
+      the ball). At the default placement camera 1 has the box in view and camera 0
+      does not. A camera that sees both the ball and the hole sees both shifted by its
+      own calibration error, so their difference is nearly free of it.
     - ``obs_mode="state"``: ``Box((12,), float32)``, ground truth with the layout
       ``observer_gym.envs.ball_catcher.STATE_NAMES``: ball position, ball velocity, box
       (hole centre) position, box velocity, world frame.
@@ -95,7 +104,8 @@ class BallCatcherEnv(CameraEnv):
     delivered this step, in capture-time order, each with ``camera_id``,
     ``capture_time_s``, ``delivery_time_s``, ``K``, ``T_world_cam``, ``image_size_px``
     and, by obs_mode, ``image`` (rgb) or ``uv_px`` ((2,) or None when the ball was not
-    in the image; measurements). A frame can arrive after a later-captured frame of
+    in the image; measurements; with ``hole_measurements`` also ``hole_uv_px``, the
+    hole's centre likewise). A frame can arrive after a later-captured frame of
     another camera (latency).
 
     ## Rewards
@@ -195,7 +205,10 @@ class BallCatcherEnv(CameraEnv):
       ``copy_history_max_steps`` actions, a copy right after ``reset`` no longer delivers
       the reset's frames again at its first step, and a closed env raises
       ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
-      data. (docs/envs.md, "Env versions".)
+      data. Since 2026-11-28 the option ``hole_measurements`` (off by default: the
+      default observation space is unchanged) reports the hole's pixels, and the step
+      that ends a miss says why (``info["miss_reason"]``). (docs/envs.md, "Env
+      versions".)
     - v0: initial version (0.1.0); no longer registered: ``gym.make`` raises Gymnasium's
       ``DeprecatedEnv`` naming v1. The git tag ``v0.1.0`` reproduces its results.
     """
@@ -232,6 +245,7 @@ class BallCatcherEnv(CameraEnv):
         self._entered_clean: bool | None = None
         # Whether the ball had touched the box when it entered (read only once it entered).
         self._entered_after_touch = False
+        self._hole_noise_rng: np.random.Generator | None = None  # hole_measurements' noise
         super().__init__(render_mode, **options)
 
     # --- the system's hooks -------------------------------------------------------------
@@ -266,13 +280,15 @@ class BallCatcherEnv(CameraEnv):
         if cfg.obs_mode == "state":
             return self.state_space
         uv_high = np.tile(np.array([w - 1, h - 1], dtype=np.float32), n)
-        return spaces.Dict(
-            {
-                "uv_px": spaces.Box(np.zeros(2 * n, np.float32), uv_high),
-                "detected": spaces.MultiBinary(n),
-                "frame_age_s": age,
-            }
-        )
+        keys: dict[str, spaces.Space] = {
+            "uv_px": spaces.Box(np.zeros(2 * n, np.float32), uv_high),
+            "detected": spaces.MultiBinary(n),
+            "frame_age_s": age,
+        }
+        if cfg.hole_measurements:
+            keys["hole_uv_px"] = spaces.Box(np.zeros(2 * n, np.float32), uv_high)
+            keys["hole_detected"] = spaces.MultiBinary(n)
+        return spaces.Dict(keys)
 
     def _build_world(self, sim: Simulation) -> None:
         cfg = self.config
@@ -295,6 +311,7 @@ class BallCatcherEnv(CameraEnv):
         self.scene.launch_ball(throw.launch_pos_world, throw.launch_vel_world)
         self._ball_box = self.scene.world_now()
         self._approach_clean = self._entered_clean = None
+        self._hole_noise_rng = None  # spawned from this episode's noise stream when needed
         self._throw = throw
         self._box_vel_cmd = np.zeros(3)
 
@@ -355,15 +372,28 @@ class BallCatcherEnv(CameraEnv):
         return self.camera_poses[camera_id]
 
     def _measure(self, camera_id: int, K: np.ndarray, T_world_cam: np.ndarray):
-        """A perfect detector's report: the projected centre with noise, or None when the
-        centre is behind the camera or outside the image."""
-        ball_pos_world = self.scene.ball_pos_world()
-        uv, depth = project_points(K, T_world_cam, ball_pos_world[None])
+        """A perfect detector's report: the ball's projected centre with noise, or None
+        when the centre is behind the camera or outside the image; with
+        ``hole_measurements``, the pair (ball, hole centre) of such reports."""
+        assert self.rig.noise_rng is not None, "reset() first"
+        ball = self._report(K, T_world_cam, self.scene.ball_pos_world(), self.rig.noise_rng)
+        if not self.config.hole_measurements:
+            return ball
+        if self._hole_noise_rng is None:  # a stream of its own: the ball's noise unchanged
+            self._hole_noise_rng = self.rig.noise_rng.spawn(1)[0]
+        hole_world = self.scene.ground_truth().T_world_box[:3, 3]
+        return ball, self._report(K, T_world_cam, hole_world, self._hole_noise_rng)
+
+    def _report(
+        self, K: np.ndarray, T_world_cam: np.ndarray, point_world: np.ndarray, rng
+    ) -> np.ndarray | None:
+        """``point_world`` projected through the camera with measurement_noise_px of noise
+        from ``rng``; None behind the near plane or outside the image."""
+        uv, depth = project_points(K, T_world_cam, np.asarray(point_world)[None])
         uv = uv[0]
         sigma = self.config.measurement_noise_px
         if sigma > 0.0:
-            assert self.rig.noise_rng is not None, "reset() first"
-            uv = uv + self.rig.noise_rng.normal(0.0, sigma, 2)
+            uv = uv + rng.normal(0.0, sigma, 2)
         w, h = self.rig.image_size_px
         if depth[0] <= NEAR_M or not (0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1):
             return None
@@ -410,6 +440,9 @@ class BallCatcherEnv(CameraEnv):
         if mode == "rgb":
             return {"image": frame.payload}
         if mode == "measurements":
+            if self.config.hole_measurements:
+                ball, hole = frame.payload
+                return {"uv_px": ball, "hole_uv_px": hole}
             return {"uv_px": frame.payload}
         return {}
 
@@ -437,13 +470,22 @@ class BallCatcherEnv(CameraEnv):
             }
             return {**images, "frame_age_s": ages}
         n = self.num_cameras
-        uv = np.zeros(2 * n, np.float32)
-        detected = np.zeros(n, np.int8)
+        holes = cfg.hole_measurements
+        reports = {"": [None] * n, "hole_": [None] * n}
         for c, f in enumerate(latest):
-            if f is not None and f.payload is not None:
-                uv[2 * c : 2 * c + 2] = f.payload
-                detected[c] = 1
-        return {"uv_px": uv, "detected": detected, "frame_age_s": ages}
+            if f is not None:
+                ball, hole = f.payload if holes else (f.payload, None)
+                reports[""][c], reports["hole_"][c] = ball, hole
+        out: dict[str, np.ndarray] = {}
+        for prefix in ("", "hole_") if holes else ("",):
+            uv = np.zeros(2 * n, np.float32)
+            detected = np.zeros(n, np.int8)
+            for c, report in enumerate(reports[prefix]):
+                if report is not None:
+                    uv[2 * c : 2 * c + 2] = report
+                    detected[c] = 1
+            out[f"{prefix}uv_px"], out[f"{prefix}detected"] = uv, detected
+        return {**out, "frame_age_s": ages}
 
     def _render_view(self) -> np.ndarray:
         return self.rig.render_view(VIEWER_POSE)

@@ -3,6 +3,8 @@ filter and the observer pipelines (docs/spec/catcher.md).
 
 ``OBSERVERS``: observer name -> pipeline factory, read by
 :func:`observer_gym.estimation.default_pipeline`; the first is the default.
+``ENV_OPTIONS``: the env options an observer needs (read by
+:func:`observer_gym.estimation.observer.env_options_of`; the experiments set them).
 
 - ``kf``: the viewline Kalman filter (:class:`BallCatcherObserver`).
 - ``kf-latency``: the same pipeline as ``kf``, registered under both names: ``kf``
@@ -19,6 +21,13 @@ filter and the observer pipelines (docs/spec/catcher.md).
   detections of both cameras to the ball's state and a diagonal covariance, no filter
   (:class:`LearnedObserver`, estimation/ball_catcher/learned.py; from frames through the
   learned detector, estimation/ball_catcher/learned_detector.py, or from measurements).
+- ``selfcal``: the pixel EKF with each camera's declared-uncertain calibration parameters
+  as states it estimates from the frames (:class:`SelfCalibratingObserver`,
+  estimation/ball_catcher/self_calibrating.py).
+- ``endpoint``: ``selfcal`` with the box's hole as a landmark of known position (the
+  robot's kinematics): a camera that sees both the ball and the hole has its error
+  measured by the hole, so the ball relative to the hole is nearly free of it; needs the
+  env's ``hole_measurements=True`` (measurements mode) (:class:`EndpointObserver`).
 - ``learned-kf``: that network as the viewline filter's measurement model, a 3-D position
   measurement in place of the viewline rows (:class:`LearnedKFObserver`,
   estimation/ball_catcher/learned_kf.py; from frames or measurements, as ``learned``).
@@ -30,6 +39,10 @@ from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.oracle_visible import OracleVisibleObserver
 from observer_gym.estimation.ball_catcher.pixel_ekf import PixelEKFObserver
 from observer_gym.estimation.ball_catcher.raw import RawObserver
+from observer_gym.estimation.ball_catcher.self_calibrating import (
+    EndpointObserver,
+    SelfCalibratingObserver,
+)
 
 OBSERVERS = {
     "kf": BallCatcherObserver,
@@ -37,16 +50,24 @@ OBSERVERS = {
     "raw": RawObserver,
     "ekf": PixelEKFObserver,
     "oracle-visible": OracleVisibleObserver,
+    "selfcal": SelfCalibratingObserver,
+    "endpoint": EndpointObserver,
     "learned": LearnedObserver,
     "learned-kf": LearnedKFObserver,
 }
 
+# the env options an observer needs to run
+ENV_OPTIONS = {"endpoint": {"hole_measurements": True}}
+
 __all__ = [
+    "ENV_OPTIONS",
     "OBSERVERS",
     "BallCatcherObserver",
+    "EndpointObserver",
     "LearnedKFObserver",
     "LearnedObserver",
     "OracleVisibleObserver",
     "PixelEKFObserver",
     "RawObserver",
+    "SelfCalibratingObserver",
 ]

@@ -33,25 +33,31 @@ Why this rule and not another:
   geometry, whose sensitivity one evaluation gives; here each estimate is a filter's over
   many frames of two cameras, and its sensitivity to each camera's parameters builds up
   frame by frame through the gains, which is what Cov(x, c) carries.
-- Not a bias state that is estimated (not tried): within a 0.44 s flight two cameras'
-  offsets are at best partly observable (a rotation of both cameras together moves the
-  whole trajectory they see), and J depends on the estimate, so estimated offsets would
-  feed the linearisation's error back into the estimate; the consider filter keeps the
-  estimate's model as it was and makes only the gain and the covariance account for the
-  offsets.
+- Not a bias state that is estimated, in ``kf`` and ``ekf``: within a 0.44 s flight two
+  cameras' offsets are at best partly observable (a rotation of both cameras together
+  moves the whole trajectory they see), and J depends on the estimate. The
+  self-calibrating observers (estimation/ball_catcher/self_calibrating.py) do estimate
+  them (``estimated``: the kinds that are states, the rest stay consider parameters,
+  a partial Schmidt filter), with the box's hole as a landmark where a camera sees it;
+  they measure what that wins.
 
 Without declared calibration uncertainty (the default) m = 0 and the filters run on x
-alone, as before.
+alone, as before. With ``estimated`` kinds, :meth:`CalibrationConsider.carry_over` takes a
+throw's estimate of them as the next throw's prior (one rig over many throws).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 
 import numpy as np
 
 from observer_gym.envs.sensor import SensorSpec
-from observer_gym.estimation.calibration import calibration_jacobian, calibration_variances
+from observer_gym.estimation.calibration import (
+    calibration_jacobian,
+    calibration_variances,
+    moved_camera,
+)
 
 __all__ = ["CalibrationConsider"]
 
@@ -62,7 +68,13 @@ class CalibrationConsider:
     the module docstring). ``m``: parameters per camera (0: nothing declared uncertain,
     every method then leaves its input as it is); ``dim``: the augmented state's size."""
 
-    def __init__(self, sensor: SensorSpec, cameras: int, n: int = 6) -> None:
+    def __init__(
+        self,
+        sensor: SensorSpec,
+        cameras: int,
+        n: int = 6,
+        estimated: Collection[str] = (),
+    ) -> None:
         if isinstance(cameras, bool) or not isinstance(cameras, int) or cameras < 1:
             raise ValueError(f"CalibrationConsider: cameras = {cameras!r}, must be an integer >= 1")
         self.variances = calibration_variances(sensor)
@@ -74,6 +86,23 @@ class CalibrationConsider:
         # V = diag(var) per camera, block-diagonal over the cameras
         var = np.concatenate([[v] * kinds_axes[k] for k, v in self.variances.items()] or [[]])
         self._V = np.diag(np.tile(var, cameras)) if self.m else np.zeros((0, 0))
+        unknown = sorted(set(estimated) - set(kinds_axes))
+        if isinstance(estimated, str) or unknown:
+            raise ValueError(
+                f"CalibrationConsider: estimated = {estimated!r}, must be a collection of "
+                f"{sorted(kinds_axes)}"
+            )
+        # The declared-uncertain kinds estimated as states (the others stay consider
+        # parameters), and their place in the parameter block of every camera.
+        self.estimated = tuple(kind for kind in self.variances if kind in set(estimated))
+        mask = np.concatenate(
+            [[kind in self.estimated] * kinds_axes[kind] for kind in self.variances] or [[]]
+        ).astype(bool)
+        self._estimated_mask = np.tile(mask, cameras)
+        # The parameters' prior: zero mean and the declared V, or (estimated, one rig over
+        # many throws) what earlier throws left (:meth:`carry_over`).
+        self.prior_mean = np.zeros(self.m * cameras)
+        self.prior_cov = self._V.copy()
 
     @property
     def active(self) -> bool:
@@ -81,18 +110,67 @@ class CalibrationConsider:
         return self.m > 0
 
     def augmented(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(x, P) of the state with the consider parameters appended: c = 0, Cov(c) = V,
-        Cov(x, c) = 0 (a prior independent of the calibration)."""
+        """(x, P) of the state with the consider parameters appended: c and Cov(c) their
+        prior (c = 0, Cov(c) = V unless :meth:`carry_over` set another), Cov(x, c) = 0 (a
+        prior independent of the calibration)."""
         x = np.asarray(x, dtype=float)
         P = np.asarray(P, dtype=float)
         if not self.active:
             return x.copy(), P.copy()
         x_aug = np.zeros(self.dim)
         x_aug[: self.n] = x[: self.n]
+        x_aug[self.n :] = self.prior_mean
         P_aug = np.zeros((self.dim, self.dim))
         P_aug[: self.n, : self.n] = P[: self.n, : self.n]
-        P_aug[self.n :, self.n :] = self._V
+        P_aug[self.n :, self.n :] = self.prior_cov
         return x_aug, P_aug
+
+    def carry_over(
+        self, x_aug: np.ndarray, P_aug: np.ndarray, cameras: Collection[int] | None = None
+    ) -> None:
+        """Take the parameters' estimate (mean and covariance) in an augmented state as
+        the prior of the next throw: one rig over many throws (``calib_error_draw=
+        "fixed"``), so each throw's evidence adds to the last. Estimated parameters
+        only: a consider filter's are not estimated (``ValueError``)."""
+        if not self.estimated:
+            raise ValueError("CalibrationConsider.carry_over: no parameter is estimated")
+        if not self.active:
+            return
+        e = self._estimated_mask.copy()
+        if cameras is not None:  # the other cameras' parameters start from the declared prior
+            kept = np.zeros(self.cameras, bool)
+            kept[list(cameras)] = True
+            e &= np.repeat(kept, self.m)
+        c = np.asarray(x_aug, dtype=float)[self.n :]
+        cov = np.asarray(P_aug, dtype=float)[self.n :, self.n :]
+        self.forget()  # the consider parameters' prior stays the declared one
+        self.prior_mean[e] = c[e]
+        self.prior_cov[np.ix_(e, e)] = 0.5 * (cov[np.ix_(e, e)] + cov[np.ix_(e, e)].T)
+
+    @property
+    def considered_index(self) -> np.ndarray:
+        """The consider parameters' places in the augmented state (the ones not estimated)."""
+        return self.n + np.flatnonzero(~self._estimated_mask)
+
+    def camera_at(
+        self, x_aug: np.ndarray, camera: int, K: np.ndarray, T_world_cam: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(K, T_world_cam) of ``camera``'s nominal calibration moved by its parameters in
+        the augmented state ``x_aug`` (:func:`~observer_gym.estimation.calibration.
+        moved_camera`): the camera the filter's estimate describes."""
+        c = self.offsets(x_aug)[int(camera)]
+        return moved_camera(K, T_world_cam, self.variances, c)
+
+    def forget(self) -> None:
+        """Back to the declared prior (c = 0, Cov(c) = V)."""
+        self.prior_mean = np.zeros(self.m * self.cameras)
+        self.prior_cov = self._V.copy()
+
+    def offsets(self, x_aug: np.ndarray) -> np.ndarray:
+        """The parameters' part of an augmented state, (cameras, m): camera j's row holds
+        its parameters in :func:`~observer_gym.estimation.calibration.calibration_jacobian`'s
+        order."""
+        return np.asarray(x_aug, dtype=float)[self.n :].reshape(self.cameras, self.m)
 
     def transition(
         self, Phi: np.ndarray, Q: np.ndarray, Gamma: np.ndarray | None = None
@@ -143,11 +221,16 @@ class CalibrationConsider:
 
     def reset_consider(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(x, P) with the consider part set back after an update (Schmidt): c = 0 and
-        Cov(c) = V; x, Cov(x) and Cov(x, c) kept. Fresh arrays."""
+        Cov(c) = V; x, Cov(x) and Cov(x, c) kept. Fresh arrays. Estimated parameters
+        (``estimated``) are states of the filter and keep the update's values; so do their
+        covariances with the consider parameters (a partial Schmidt filter)."""
         if not self.active:
             return x, P
         x = np.array(x, dtype=float)
         P = np.array(P, dtype=float)
-        x[self.n :] = 0.0
-        P[self.n :, self.n :] = self._V
+        considered = self.considered_index
+        x[considered] = 0.0
+        P[np.ix_(considered, considered)] = self._V[
+            np.ix_(considered - self.n, considered - self.n)
+        ]
         return x, P

@@ -10,11 +10,16 @@ camera centre):
 
     h(x) = (q1 / q3, q2 / q3),   H = dh/dp = [[1/q3, 0, -q1/q3^2], [0, 1/q3, -q2/q3^2]] K R^T
 
-(zero for the velocity), R = ``pixel_std_px``^2 I. The declared calibration uncertainty
+(zero for the velocity), R = ``pixel_std_px``^2 I. A :class:`LandmarkMeasurement` (a point
+of known world position: the self-calibrating observers' box hole) has the same h with
+that point for p, and H zero on the ball. The declared calibration uncertainty
 enters as consider parameters (:mod:`~observer_gym.estimation.ball_catcher.
 calibration_consider`): each frame's pixel also carries J c_camera, J = dh/dc of the
 pixel model along each calibration parameter of the frame's camera at the linearisation
-point; the iteration below runs on the augmented state with c held at 0.
+point; the iteration below runs on the augmented state with c held at 0. Parameters that
+the calibration object marks as estimated (``CalibrationConsider(estimated=...)``, the
+self-calibrating observers) are states instead: the frame is projected through the
+camera they describe and they are iterated with the ball.
 
 The viewline filter (``kf``) instead turns each pixel into two planes through the camera
 centre, which are linear in p, so it needs no linearisation; this filter linearises the
@@ -102,7 +107,13 @@ from observer_gym.estimation.latency import CaptureTimeFusion, TimedMeasurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.viewline import MIN_DEPTH_M
 
-__all__ = ["PixelEKFCore", "PixelEKFObserver", "PixelMeasurement", "pixel_model"]
+__all__ = [
+    "LandmarkMeasurement",
+    "PixelEKFCore",
+    "PixelEKFObserver",
+    "PixelMeasurement",
+    "pixel_model",
+]
 
 INITIAL_STD_POS_M = 1.0  # the prior's standard deviations (see the module docstring)
 INITIAL_STD_VEL_MPS = 3.0
@@ -119,6 +130,19 @@ class PixelMeasurement:
     K: np.ndarray
     T_world_cam: np.ndarray
     uv_px: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarkMeasurement:
+    """A point of known world position ``point_world`` (3,) (m; the box's hole, from the
+    robot's kinematics) detected at ``uv_px`` (2,) in a frame of ``camera_id`` (nominal K,
+    ``T_world_cam``): it measures only the camera's calibration parameters."""
+
+    camera_id: Any
+    K: np.ndarray
+    T_world_cam: np.ndarray
+    uv_px: np.ndarray
+    point_world: np.ndarray
 
 
 def pixel_model(
@@ -225,16 +249,23 @@ class PixelEKFCore:
         itself without consider parameters)."""
         return self.ekf.P if self.calibration is None else self.ekf.P[:6, :6]
 
-    def _linearised(self, m: PixelMeasurement, x: np.ndarray):
+    def _linearised(self, m: PixelMeasurement | LandmarkMeasurement, x: np.ndarray):
         """(h(x), H (2, dim)) at ``x`` (with ``calibration``: the camera's offsets' J in
-        its columns), or None when x is not MIN_DEPTH_M in front of the camera."""
-        position_m = x[:3].copy()
-        h_x, H_pos, depth_m = pixel_model(m.K, m.T_world_cam, position_m)
+        its columns, and the camera moved by its estimated parameters), or None when the
+        point is not MIN_DEPTH_M in front of the camera. A landmark's point is known: H
+        is zero on the ball."""
+        landmark = isinstance(m, LandmarkMeasurement)
+        position_m = np.array(m.point_world if isinstance(m, LandmarkMeasurement) else x[:3])
+        calibration = self.calibration
+        K, T = m.K, m.T_world_cam
+        if calibration is not None and calibration.estimated:
+            K, T = calibration.camera_at(x, m.camera_id, K, T)
+        h_x, H_pos, depth_m = pixel_model(K, T, position_m)
         if not depth_m > MIN_DEPTH_M:
             return None
         H = np.zeros((2, 6))
-        H[:, :3] = H_pos
-        calibration = self.calibration
+        if not landmark:
+            H[:, :3] = H_pos
         if calibration is None:
             return h_x, H
 
@@ -244,12 +275,12 @@ class PixelEKFCore:
             return uv if depth > MIN_DEPTH_M else None
 
         # h = h(x) + J c_camera (calibration_consider)
-        J = calibration.jacobian(pixel_px, m.K, m.T_world_cam)
+        J = calibration.jacobian(pixel_px, K, T)
         if J is None:
             return None
         return h_x, calibration.rows(H, J, m.camera_id)
 
-    def update(self, measurement: PixelMeasurement) -> bool:
+    def update(self, measurement: PixelMeasurement | LandmarkMeasurement) -> bool:
         """Fuse one frame's pixel at the current time, iterated (see the module docstring);
         whether it was used (False: gated out, or the predicted position is not in front of
         the camera)."""
@@ -267,8 +298,8 @@ class PixelEKFCore:
             PHt = P_prior @ H.T
             S = H @ PHt + self.R_px2
             x_next = x_prior + PHt @ np.linalg.solve(S, y - h_x - H @ (x_prior - x_lin))
-            if self.calibration is not None:
-                x_next[6:] = 0.0  # the offsets are considered, not estimated
+            if self.calibration is not None:  # consider parameters stay at 0
+                x_next[self.calibration.considered_index] = 0.0
             step_m = float(np.max(np.abs(x_next - x_lin)))
             relinearised = self._linearised(measurement, x_next)
             if relinearised is None:
@@ -387,8 +418,9 @@ class PixelEKFObserver:
                 m = PixelMeasurement(frame["camera_id"], frame["K"], frame["T_world_cam"], uv)
                 timed.append(TimedMeasurement(float(frame["capture_time_s"]), m))
         now_s = float(info["time_s"])
-        self._kept.extend(timed)
-        used = self.fusion.step(now_s, action, timed)
+        landmarks = self._landmarks(info)
+        self._kept.extend(timed + landmarks)
+        used = self.fusion.step(now_s, action, timed + landmarks)
         # The run of each camera, frame by frame in capture order (as the viewline
         # filter's observer adds them); a restart fuses this step's later frames again.
         for tm in sorted(timed, key=lambda t: t.capture_time_s):
@@ -407,6 +439,12 @@ class PixelEKFObserver:
             nis=float(sum(r.nis for r in accepted)) if accepted else None,
             nis_dof=2 * len(accepted),
         )
+
+    def _landmarks(self, info: dict) -> list[TimedMeasurement]:
+        """This step's landmark detections (:class:`LandmarkMeasurement`), fused with the
+        frames at their capture times but not counted in the cameras' runs; none here
+        (the self-calibrating observers add the box's hole)."""
+        return []
 
     def _count(self, m: TimedMeasurement, now_s: float, action: np.ndarray | None) -> bool:
         """Extend or end the run of ``m``'s camera by its latest decision; restart after

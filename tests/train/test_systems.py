@@ -12,6 +12,7 @@ import pytest
 from observer_gym.controllers import ControllerDesign, controllers_for, make_controller
 from observer_gym.envs import SYSTEMS, system_for_id, system_named, system_of
 from observer_gym.estimation import VisionObserver, observers_of
+from observer_gym.estimation.observer import env_options_of
 from observer_gym.train import cli
 from observer_gym.train.cli.args import controller_name
 from observer_gym.train.cli.checks import check_observer
@@ -55,7 +56,8 @@ def test_every_observer_of_the_task_builds_its_pipeline(system):
     for observer, (obs_mode, options) in task_for(system.env_id).OBSERVERS.items():
         if options is None or observer == "oracle":
             continue
-        env = VisionObserver(gym.make(system.env_id, obs_mode=obs_mode), **options)
+        needed = env_options_of(system, options.get("observer"))  # e.g. the hole's pixels
+        env = VisionObserver(gym.make(system.env_id, obs_mode=obs_mode, **needed), **options)
         env.close()
 
 
@@ -88,11 +90,12 @@ def test_a_retired_id_names_its_replacement():
 def test_a_subclass_of_an_env_finds_its_system_observers_and_controllers(system):
     cls = system.env_class()
     subclass = type(f"My{cls.__name__}", (cls,), {})
-    env = subclass(obs_mode="measurements")
+    observers = importlib.import_module(system.module("estimation")).OBSERVERS
+    needed = {k: v for name in observers for k, v in env_options_of(system, name).items()}
+    env = subclass(obs_mode="measurements", **needed)  # what every observer needs
     try:
         assert system_of(env) is system
         assert system_of(gym.wrappers.RecordEpisodeStatistics(env)) is system
-        observers = importlib.import_module(system.module("estimation")).OBSERVERS
         assert observers_of(env) is observers
         for name in observers:
             wrapped = VisionObserver(env, observer=name)

@@ -14,7 +14,9 @@ from typing import Any
 import gymnasium as gym
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
+from observer_gym.envs.registration import system_for_id
 from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.observer import env_options_of
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.tasks import task_for
 
@@ -36,6 +38,33 @@ def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] |
     return plugin.obs_mode, None, plugin
 
 
+def observer_env_options(env_id: str, observer: str) -> dict[str, Any]:
+    """The env options a task observer's pipeline needs to run (its system's estimation
+    ``ENV_OPTIONS``, :func:`~observer_gym.estimation.observer.env_options_of`: e.g.
+    BallCatcher's ``endpoint-measurements`` reads the hole's pixels,
+    ``hole_measurements=True``); {} for the others and outside entries."""
+    setup = task_for(env_id).OBSERVERS.get(observer)
+    if setup is None or setup[1] is None:
+        return {}
+    return env_options_of(system_for_id(env_id), setup[1].get("observer"))
+
+
+def with_observer_env_options(
+    env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """``env_kwargs`` with the options ``observer`` needs; a given option that contradicts
+    one of them raises ValueError naming both."""
+    given = dict(env_kwargs or {})
+    for key, value in observer_env_options(env_id, observer).items():
+        if key in given and given[key] != value:
+            raise ValueError(
+                f"observer {observer!r} needs the env option {key}={value!r}; "
+                f"got {key}={given[key]!r}"
+            )
+        given[key] = value
+    return given
+
+
 def make_env(
     env_id: str,
     observer: str,
@@ -46,9 +75,11 @@ def make_env(
     observer without a pipeline ("pixels"), else the env in the observer's obs_mode
     wrapped in :class:`VisionObserver` with the observer's pipeline (a task observer's
     default pipeline with its options and ``observer_options``; an outside observer's
-    factory called with ``observer_options``). ``env_kwargs`` go to ``gym.make``."""
+    factory called with ``observer_options``). ``env_kwargs`` go to ``gym.make``, with
+    the env options the observer needs (:func:`observer_env_options`)."""
     obs_mode, _, _ = observer_setup(env_id, observer)
-    env = gym.make(env_id, obs_mode=obs_mode, **dict(env_kwargs or {}))
+    env_kwargs = with_observer_env_options(env_id, observer, env_kwargs)
+    env = gym.make(env_id, obs_mode=obs_mode, **env_kwargs)
     return wrap_observer(env, env_id, observer, observer_options)
 
 

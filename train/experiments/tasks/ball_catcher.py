@@ -36,6 +36,12 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     # ground truth while the ball is seen: analysis only
     "oracle-visible": ("rgb", {"observer": "oracle-visible"}),
     "oracle-visible-measurements": ("measurements", {"observer": "oracle-visible"}),
+    # the pixel EKF estimating each camera's calibration error with the ball; and with
+    # the box's hole as a landmark (it needs the env's hole_measurements, which make_env
+    # sets: estimation/ball_catcher's ENV_OPTIONS)
+    "selfcal": ("rgb", {"observer": "selfcal"}),
+    "selfcal-measurements": ("measurements", {"observer": "selfcal"}),
+    "endpoint-measurements": ("measurements", {"observer": "endpoint"}),
     # the network trained on the perfect detector's measurements, alone and as kf's
     # measurement model; from frames through the learned detector, or from measurements
     "learned": ("rgb", {"observer": "learned"}),
