@@ -371,6 +371,11 @@ def run_comparison(
                     if request.agent_env_options
                     else {}
                 ),
+                **(
+                    {"observer_env_options": request.observer_env_options}
+                    if request.observer_env_options
+                    else {}
+                ),
                 # an agent with its own camera: the scale of its pixel-valued options
                 **(
                     {"agent_camera_scale": scales}

@@ -45,7 +45,7 @@ from observer_gym.train.experiments.entries import (
     find_plugin,
     load_factory,
 )
-from observer_gym.train.experiments.observer_env import observer_setup
+from observer_gym.train.experiments.observer_env import observer_env_options, observer_setup
 from observer_gym.train.experiments.systems import resolve_env_id
 from observer_gym.train.experiments.tasks import task_of
 from observer_gym.train.reports.aggregate import check_rliable
@@ -135,6 +135,14 @@ class Request(NamedTuple):
         """Each trained agent's own env options, for the agents that have some (what
         results record beside ``env_kwargs``)."""
         return {c.name: c.env_options for c in self.controllers if c.env_options}
+
+    @property
+    def observer_env_options(self) -> dict[str, dict[str, Any]]:
+        """The env options each observer needs and gets wherever it runs
+        (observer_env.make_env), for the observers that need some (what results record
+        beside ``env_kwargs``)."""
+        needed = {o.name: observer_env_options(self.env_id, o.name) for o in self.observers}
+        return {name: options for name, options in needed.items() if options}
 
     def agent_camera_scales(self, varied: Sequence[str] = ()) -> dict[str, float]:
         """Each agent whose pixel-valued options (the request's, or the ``varied`` keys of

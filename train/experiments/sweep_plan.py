@@ -147,6 +147,11 @@ class SweepPlan:
                             else {}
                         ),
                         **(
+                            {"observer_env_options": self.request.observer_env_options}
+                            if self.request.observer_env_options
+                            else {}
+                        ),
+                        **(
                             {"agent_camera_scale": scales}
                             if (scales := self.request.agent_camera_scales(self.grid.keys))
                             else {}

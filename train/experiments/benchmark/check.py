@@ -29,6 +29,7 @@ from observer_gym.train.experiments.benchmark.report import (
 )
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import camera_scale
+from observer_gym.train.experiments.observer_env import observer_env_options
 
 
 class FolderCheckError(ValueError):
@@ -180,6 +181,8 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
             raise FolderCheckError(f"{path}: {exc}") from None
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
+    # derived from the observer's name: a recorded table that differs is a difference
+    entry["observer_env_options"] = observer_env_options(suite.env_id, entry["observer"])
     problem = _agent_options_problem(entry["controller"], entry.get("agent_env_options", {}))
     if problem:
         raise FolderCheckError(f"{path}: {problem}")

@@ -63,7 +63,8 @@ def scores_document(
     ``episodes`` (per level), and ``agent_env_options`` if the controller is an agent
     trained with env options (recorded only when there are some), ``camera_scale`` if
     they change the camera's size (recorded only then: the levels' pixel-valued options
-    ran times it, the metric is in the default camera's pixels; camera_scale.py); the
+    ran times it, the metric is in the default camera's pixels; camera_scale.py), and
+    ``observer_env_options`` if the observer needs env options (recorded only then); the
     command is derived from them (:func:`command_line`)."""
     scores = score_levels(values_by_level(suite, records), suite.references, suite.metric.better)
     episodes = entry["episodes"]
@@ -82,6 +83,11 @@ def scores_document(
         **(
             {"camera_scale": float(entry["camera_scale"])}
             if entry.get("camera_scale", 1.0) != 1.0
+            else {}
+        ),
+        **(
+            {"observer_env_options": dict(entry["observer_env_options"])}
+            if entry.get("observer_env_options")
             else {}
         ),
         "command": command_line(
@@ -224,6 +230,7 @@ def write_outputs(
         "controller_options": request.controller_options,
         "agent_env_options": request.agent_env_options,
         "camera_scale": request.camera_scale,
+        "observer_env_options": request.observer_env_options,
         "episodes": request.episodes,
     }
     document, scores = scores_document(suite, entry, records, versions())

@@ -11,6 +11,7 @@ from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec
+from observer_gym.train.experiments.observer_env import observer_env_options
 
 __all__ = ["BenchmarkRequest", "command_line"]
 
@@ -57,6 +58,12 @@ class BenchmarkRequest(NamedTuple):
     camera_scale: float = 1.0
 
     @property
+    def observer_env_options(self) -> dict[str, Any]:
+        """The env options the observer needs (set by make_env wherever it runs; e.g.
+        BallCatcher's ``endpoint-measurements``: ``hole_measurements``), recorded."""
+        return observer_env_options(self.suite.env_id, self.observer)
+
+    @property
     def official(self) -> bool:
         """Whether the run uses the suite's full episode count on every level."""
         return self.episodes == self.suite.episodes
@@ -76,6 +83,11 @@ class BenchmarkRequest(NamedTuple):
             # only when there are some: folders of other entries keep their identity
             **({"agent_env_options": self.agent_env_options} if self.agent_env_options else {}),
             **({"camera_scale": self.camera_scale} if self.camera_scale != 1.0 else {}),
+            **(
+                {"observer_env_options": self.observer_env_options}
+                if self.observer_env_options
+                else {}
+            ),
         }
 
     def digest(self) -> str:
