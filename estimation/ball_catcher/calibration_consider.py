@@ -125,9 +125,7 @@ class CalibrationConsider:
         P_aug[self.n :, self.n :] = self.prior_cov
         return x_aug, P_aug
 
-    def carry_over(
-        self, x_aug: np.ndarray, P_aug: np.ndarray, cameras: Collection[int] | None = None
-    ) -> None:
+    def carry_over(self, x_aug: np.ndarray, P_aug: np.ndarray) -> None:
         """Take the parameters' estimate (mean and covariance) in an augmented state as
         the prior of the next throw: one rig over many throws (``calib_error_draw=
         "fixed"``), so each throw's evidence adds to the last. Estimated parameters
@@ -136,11 +134,7 @@ class CalibrationConsider:
             raise ValueError("CalibrationConsider.carry_over: no parameter is estimated")
         if not self.active:
             return
-        e = self._estimated_mask.copy()
-        if cameras is not None:  # the other cameras' parameters start from the declared prior
-            kept = np.zeros(self.cameras, bool)
-            kept[list(cameras)] = True
-            e &= np.repeat(kept, self.m)
+        e = self._estimated_mask
         c = np.asarray(x_aug, dtype=float)[self.n :]
         cov = np.asarray(P_aug, dtype=float)[self.n :, self.n :]
         self.forget()  # the consider parameters' prior stays the declared one

@@ -141,24 +141,39 @@ def test_ball_relative_to_hole_against_the_closed_form(make_env):
 # --- a camera's error recovered -------------------------------------------------------------
 
 
-def _image_error_at_hole_px(calibration, x_aug, frame, true_frame, camera):
-    """How far the estimated camera puts the hole's home from where the real camera does."""
+# Where each camera's error is judged: camera 1 at the hole's home; camera 0 along the mean
+# throw's path, where it sees the ball (it does not see the box).
+_PATH = np.linspace([3.2, 0.0, 0.55], [0.7, 0.0, 0.5], 25)
+_PATH[:, 2] += 0.5 * 9.81 * 0.22**2 * (1 - np.linspace(-1, 1, 25) ** 2)
+_POINTS = {0: _PATH, 1: geo.HOLE_HOME_WORLD[None]}
+
+
+def _image_error_px(calibration, x_aug, frame, true_frame, camera):
+    """(estimated, nominal): the mean distance between where the camera the filter
+    estimates, and the nominal one, put the camera's points and where the real camera
+    does (the points inside its image)."""
     c = calibration.offsets(x_aug)[camera]
     K, T = moved_camera(frame["K"], frame["T_world_cam"], calibration.variances, c)
-    hole = geo.HOLE_HOME_WORLD[None]
-    estimated, _ = project_points(K, T, hole)
-    true, _ = project_points(true_frame["K"], true_frame["T_world_cam"], hole)
-    nominal, _ = project_points(frame["K"], frame["T_world_cam"], hole)
-    return float(np.linalg.norm(estimated - true)), float(np.linalg.norm(nominal - true))
+    true, depth = project_points(true_frame["K"], true_frame["T_world_cam"], _POINTS[camera])
+    w, h = frame["image_size_px"]
+    seen = (depth > 0) & (true[:, 0] >= 0) & (true[:, 0] < w) & (true[:, 1] >= 0) & (true[:, 1] < h)
+    assert seen.any()
+    estimated, _ = project_points(K, T, _POINTS[camera][seen])
+    nominal, _ = project_points(frame["K"], frame["T_world_cam"], _POINTS[camera][seen])
+    return tuple(
+        float(np.linalg.norm(uv - true[seen], axis=1).mean()) for uv in (estimated, nominal)
+    )
 
 
-def test_camera_1s_error_is_recovered_from_throws_and_carried_over(make_env):
+def test_a_cameras_error_is_recovered_from_throws_and_carried_over(make_env):
     """One rig over consecutive throws (``calib_error_draw="fixed"``) at lab's errors and
     noise: camera 1, which sees the hole, is recovered to within 0.3 px at the hole (the
-    nominal camera is off by 1.2 px there) after the first throw, and to within 0.15 px
-    once three throws have carried over; camera 0 restarts from the declared prior each
-    throw (the module docstring says why). Measured (seeds 7000-7005): 0.25, 0.15, 0.19,
-    0.05, 0.08, 0.07 px."""
+    nominal camera is off by 1.4 px there) after each throw, and to within 0.15 px once
+    three throws have carried over; camera 0 (the ball its only evidence) ends every throw
+    closer to its true camera along its view of the flight than the nominal one is (0.95
+    px), and its carried prior is tighter than the declared one. Measured (seeds
+    7000-7005): camera 1 0.08, 0.22, 0.25, 0.10, 0.02, 0.01 px; camera 0 0.59, 0.43, 0.47,
+    0.41, 0.31, 0.49 px (benchmarks/ball_catcher_calibration.py --only-rig prints 20)."""
     env = make_env(
         ENV_ID, obs_mode="measurements", hole_measurements=True, calib_error_draw="fixed", **LAB
     )
@@ -182,15 +197,16 @@ def test_camera_1s_error_is_recovered_from_throws_and_carried_over(make_env):
             if terminated or truncated:
                 break
         x_aug = observer.estimate_in_flight()
-        error, nominal = _image_error_at_hole_px(observer.parameters, x_aug, *frames[1], 1)
-        errors.append(error)
-        assert nominal > 1.0
-    print("camera 1's error at the hole per throw (px):", np.round(errors, 3))
-    assert max(errors) < 0.3, errors
-    assert max(errors[3:]) < 0.15, errors
-    assert observer.parameters.prior_cov.shape[0] == 2 * observer.parameters.m
-    m = observer.parameters.m  # camera 0's block is the declared prior again
-    np.testing.assert_array_equal(observer.parameters.prior_mean[:m], 0.0)
+        errors.append([_image_error_px(observer.parameters, x_aug, *frames[c], c) for c in (0, 1)])
+    print("image error per throw, cameras 0 and 1 (estimated, nominal; px):", np.round(errors, 3))
+    (camera_0, nominal_0), (camera_1, nominal_1) = np.array(errors).transpose(1, 2, 0)
+    assert np.all(nominal_1 > 1.3) and np.all(nominal_0 > 0.9)
+    assert camera_1.max() < 0.3 and camera_1[3:].max() < 0.15, camera_1
+    assert np.all(camera_0 < nominal_0), camera_0
+    m = observer.parameters.m  # camera 0's carried prior: tighter than the declared one
+    declared = np.diag(observer.parameters._V)[:m]
+    assert np.all(np.diag(observer.parameters.prior_cov)[:m] <= declared)
+    assert np.diag(observer.parameters.prior_cov)[:m].sum() < 0.9 * declared.sum()
 
 
 def test_box_track_interpolates_the_kinematics():
@@ -251,6 +267,7 @@ def test_the_observers_env_option_travels_and_a_contradiction_is_refused():
         ({"landmarks": "yes"}, "landmarks"),
         ({"landmarks": 1}, "landmarks"),
         ({"carry_over": "always"}, "carry_over"),
+        ({"carry_over": 1}, "carry_over"),
         ({"estimated": ("rotation", "warp")}, "estimated"),
         ({"estimated": "rotation"}, "estimated"),
     ],
