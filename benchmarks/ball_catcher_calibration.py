@@ -93,6 +93,25 @@ def make_observer(name: str, env):
     raise ValueError(f"unknown variant {name!r}")
 
 
+def throw(env, pipeline, controller, seed: int, each_step=None) -> dict:
+    """One throw from ``seed``: the intercept planner on ``pipeline``'s estimate (its
+    covariance too); ``each_step(info)`` sees every step's info; the last info."""
+    obs, info = env.reset(seed=seed)
+    pipeline.reset()
+    controller.reset()
+    action = None
+    while True:
+        if each_step is not None:
+            each_step(info)
+        estimate = pipeline.observe(obs, info, action)
+        controller.observe_info({"estimate": estimate.as_info()})
+        command, _ = controller.predict(estimate.mean.astype(np.float32), deterministic=True)
+        obs, _, terminated, truncated, info = env.step(command)
+        action = info["applied_action"]
+        if terminated or truncated:
+            return info
+
+
 def catch_rate(job: tuple[str, str, dict, int, int]) -> tuple[str, str, int, int, float]:
     """(row, observer, catches, throws, seconds) of ``throws`` throws from ``seed``."""
     row, observer, options, throws, seed = job
@@ -100,21 +119,9 @@ def catch_rate(job: tuple[str, str, dict, int, int]) -> tuple[str, str, int, int
     env = gym.make(ENV_ID, obs_mode="measurements", hole_measurements=True, **options)
     pipeline = make_observer(observer, env)
     controller = make_controller("intercept", env)
-    caught = 0
-    for s in range(seed, seed + throws):
-        obs, info = env.reset(seed=s)
-        pipeline.reset()
-        controller.reset()
-        action = None
-        while True:
-            estimate = pipeline.observe(obs, info, action)
-            controller.observe_info({"estimate": estimate.as_info()})
-            command, _ = controller.predict(estimate.mean.astype(np.float32), deterministic=True)
-            obs, _, terminated, truncated, info = env.step(command)
-            action = info["applied_action"]
-            if terminated or truncated:
-                break
-        caught += bool(info["caught"])
+    caught = sum(
+        bool(throw(env, pipeline, controller, s)["caught"]) for s in range(seed, seed + throws)
+    )
     env.close()
     return row, observer, caught, throws, time.perf_counter() - start
 
@@ -161,21 +168,15 @@ def fixed_rig(throws: int, level: dict) -> dict[str, list[float]]:
     path[:, 2] += 0.5 * 9.81 * 0.22**2 * (1 - np.linspace(-1, 1, 25) ** 2)  # the arc
     points = {0: path, 1: np.array([[0.7, 0.0, 0.5]])}
     out: dict[str, list[float]] = {"camera 0": [], "camera 1": [], "nominal 0": [], "nominal 1": []}
+    frames: dict[int, tuple[dict, dict]] = {}  # each camera's newest (nominal, true) frame
+
+    def keep_frames(info: dict) -> None:
+        for frame, true in zip(info["frames"], info["truth"]["frames"], strict=True):
+            frames[frame["camera_id"]] = (frame, true)
+
     for seed in range(FIXED_SEED, FIXED_SEED + throws):
-        obs, info = env.reset(seed=seed)
-        observer.reset()
-        controller.reset()
-        action, frames = None, {}
-        while True:
-            for frame, true in zip(info["frames"], info["truth"]["frames"], strict=True):
-                frames[frame["camera_id"]] = (frame, true)
-            estimate = observer.observe(obs, info, action)
-            controller.observe_info({"estimate": estimate.as_info()})
-            command, _ = controller.predict(estimate.mean.astype(np.float32), deterministic=True)
-            obs, _, terminated, truncated, info = env.step(command)
-            action = info["applied_action"]
-            if terminated or truncated:
-                break
+        frames.clear()
+        throw(env, observer, controller, seed, keep_frames)
         x_aug = observer.estimate_in_flight()
         for camera, (frame, true) in sorted(frames.items()):
             c = calibration.offsets(x_aug)[camera]

@@ -16,36 +16,13 @@ from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import EndpointObserver, SelfCalibratingObserver
 from observer_gym.estimation.ball_catcher.self_calibrating import BoxTrack
 from observer_gym.estimation.calibration import moved_camera
+from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.observer_env import make_env as make_observer_env
 
 ENV_ID = "observer_gym/BallCatcher-v1"
-# suite v1's lab level (train/experiments/benchmark/suites/v1/ball_catcher.json)
-LAB = {
-    "latency_s": 0.004,
-    "latency_jitter_s": 0.001,
-    "jitter_s": 0.0005,
-    "measurement_noise_px": 1.0,
-    "image_noise_std": 2.0,
-    "calib_focal_error": 0.005,
-    "calib_principal_point_error_px": 1.0,
-    "calib_rotation_error_deg": 0.1,
-    "calib_translation_error_m": 0.002,
-}
-# and its field level
-FIELD = {
-    "camera_preset": "random_offsets",
-    "latency_s": 0.01,
-    "latency_jitter_s": 0.003,
-    "jitter_s": 0.002,
-    "frame_drop_prob": 0.1,
-    "measurement_noise_px": 2.0,
-    "image_noise_std": 8.0,
-    "calib_focal_error": 0.01,
-    "calib_principal_point_error_px": 3.0,
-    "calib_rotation_error_deg": 0.3,
-    "calib_translation_error_m": 0.005,
-    "air_drag": True,
-}
+# suite v1's lab and field levels
+LAB = load_suite("BallCatcher-v1", "v1").level("lab").env_options
+FIELD = load_suite("BallCatcher-v1", "v1").level("field").env_options
 ROTATION_ONLY = {"rotation": 1.0}  # moved_camera's parameters: a rotation about x, y, z
 
 

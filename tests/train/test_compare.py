@@ -22,6 +22,7 @@ from observer_gym.envs.ball_catcher import MISS_REASONS
 from observer_gym.train.cli import args as cli_args
 from observer_gym.train.cli import compare as compare_cli
 from observer_gym.train.experiments import ray_backend, request
+from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.compare import command_line, run_comparison
 from observer_gym.train.experiments.run import run_experiment
 from observer_gym.train.experiments.tasks import ball_catcher, ball_table
@@ -346,17 +347,8 @@ def parser() -> argparse.ArgumentParser:
     return parser
 
 
-LAB = {  # the benchmark's lab level: kf-measurements with intercept misses most throws
-    "latency_s": 0.004,
-    "latency_jitter_s": 0.001,
-    "jitter_s": 0.0005,
-    "measurement_noise_px": 1.0,
-    "image_noise_std": 2.0,
-    "calib_focal_error": 0.005,
-    "calib_principal_point_error_px": 1.0,
-    "calib_rotation_error_deg": 0.1,
-    "calib_translation_error_m": 0.002,
-}
+# the benchmark's lab level: kf-measurements with intercept misses most throws
+LAB = load_suite("BallCatcher-v1", "v1").level("lab").env_options
 
 
 def check_miss_counts(results: dict, text: str) -> None:
