@@ -82,6 +82,9 @@ OBSERVER_ROLES = {
     "(from frames: a learned detector's) to the estimate and its covariance (no filter)",
     "learned-kf": "the learned network as the Kalman filter's measurement model (it "
     "replaces the detector, the filter stays)",
+    "selfcal": "the pixel EKF estimating each camera's calibration error with the state",
+    "endpoint": "selfcal with a landmark of known position (the robot's tool) in the cameras "
+    "that see it: the target relative to the tool, nearly free of each camera's error",
 }
 
 
