@@ -80,6 +80,8 @@ SYSTEMS: dict[str, SystemStudy] = {
         (
             "kf-measurements",  # kf-latency is kf under a second name
             "ekf-measurements",
+            "selfcal-measurements",
+            "endpoint-measurements",
             "learned-measurements",
             "learned-kf-measurements",
         ),
