@@ -4,8 +4,11 @@ agent, and Zoo trains every system from them."""
 
 from __future__ import annotations
 
+import os
+import shlex
 import subprocess
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -124,3 +127,51 @@ def test_zoo_trains_every_system_from_the_shipped_file(system, tmp_path):
     result = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
     assert list(tmp_path.glob(f"ppo/*/{system.env_id.replace('/', '-')}.zip"))
+
+
+def _documented_command(text: str) -> str:
+    """The one ``python -m rl_zoo3.train`` command of a Markdown page, joined into one line."""
+    (block,) = [
+        line
+        for line in text.replace("\\\n    ", "").splitlines()
+        if line.startswith("python -m rl_zoo3.train")
+    ]
+    return block
+
+
+def test_the_documented_command_is_the_one_a_file_prints():
+    """docs/training.md shows the command in ppo_ball_table_estimate.yml's header, and every
+    header's command gives Zoo's evaluation env the file's env_kwargs."""
+    docs = Path(__file__).resolve().parents[2] / "docs" / "training.md"
+    entry = zoo.zoo_hyperparams("observer_gym/BallTable-v0", "ppo", "estimate")
+    assert _documented_command(docs.read_text()) == zoo.zoo_command(entry)
+    for entry in zoo.zoo_files():
+        words = shlex.split(zoo.zoo_command(entry, conf="x.yml"))
+        given = words[words.index("--eval-env-kwargs") + 1 :]
+        kwargs = {word.split(":", 1)[0]: eval(word.split(":", 1)[1]) for word in given}
+        assert kwargs == entry.hyperparams["env_kwargs"], entry.name
+
+
+@pytest.mark.slow
+def test_the_documented_zoo_command_runs_with_evaluation(tmp_path):
+    """The command of the shipped file's header, as printed (the shell finds the file), with a
+    tiny budget appended: Zoo's evaluation env is the agent's, so the evaluations run."""
+    pytest.importorskip("rl_zoo3")
+    path = zoo.zoo_path("ppo", "BallTable-v0", "estimate")
+    (printed,) = [
+        line.removeprefix("#   ")
+        for line in path.read_text().splitlines()
+        if line.startswith("#   python -m rl_zoo3.train")
+    ]
+    budget = (
+        "-n 256 --eval-freq 128 --eval-episodes 1 --save-freq -1 --vec-env dummy --seed 0 "
+        f"--log-folder {shlex.quote(str(tmp_path))} -params n_envs:1 n_steps:128 batch_size:64"
+    )
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
+    result = subprocess.run(
+        ["bash", "-c", f"{printed} {budget}"],
+        capture_output=True, text=True, timeout=900, env=env,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-3000:]
+    (evaluations,) = tmp_path.glob("ppo/*/evaluations.npz")
+    assert len(np.load(evaluations)["timesteps"]) == 2

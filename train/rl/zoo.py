@@ -2,7 +2,8 @@
 tuned values:
 
     python -m rl_zoo3.train --algo ppo --env observer_gym/BallTable-v0 \\
-        --gym-packages observer_gym.envs -conf <.../zoo/ppo_ball_table_estimate.yml>
+        --gym-packages observer_gym.envs -conf <.../zoo/ppo_ball_table_estimate.yml> \\
+        --eval-env-kwargs "obs_mode:'measurements'"
 
 One file per algorithm, system and ``--obs`` type ships in
 ``observer_gym/train/rl/hyperparams/zoo/`` (:func:`zoo_path`), each holding one entry keyed
@@ -24,7 +25,10 @@ How our keys become Zoo's (:func:`zoo_hyperparams`):
 - the keys Zoo takes on its command line instead (``vec_env`` -> ``--vec-env``,
   ``eval_freq`` -> ``--eval-freq``, ``eval_episodes`` -> ``--eval-episodes``,
   ``checkpoint_freq`` -> ``--save-freq``, ``torch_threads`` -> ``--num-threads``) are in
-  the file's header, in the command that trains with them.
+  the file's header, in the command that trains with them;
+- ``env_kwargs`` again as ``--eval-env-kwargs`` in that command: rl_zoo3 builds its
+  evaluation env with the YAML's ``env_kwargs`` only when ``--env-kwargs`` is given
+  (:func:`eval_env_kwargs`).
 
 ``--obs estimate`` uses the system's default estimating observer on measurements (what
 ``observer-gym train --obs estimate`` picks); another observer is one edit of the
@@ -94,7 +98,9 @@ def agent_wrapper(
     if made_with != obs_mode:
         raise ValueError(
             f"observer {feeding!r} reads obs_mode {obs_mode!r}; the env was made with "
-            f"obs_mode {made_with!r} (set env_kwargs.obs_mode: {obs_mode})"
+            f"obs_mode {made_with!r} (set env_kwargs.obs_mode: {obs_mode}; Zoo's evaluation "
+            f"env takes its env_kwargs from --eval-env-kwargs: add "
+            f"--eval-env-kwargs \"obs_mode:'{obs_mode}'\" and the file's other env_kwargs)"
         )
     return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image, features)
 
@@ -205,19 +211,44 @@ def _python_dict(policy_kwargs: Mapping[str, Any]) -> str:
     return f"dict({', '.join(items)})"
 
 
+def eval_env_kwargs(entry: ZooFile) -> list[str]:
+    """Zoo's ``--eval-env-kwargs`` words carrying ``entry``'s ``env_kwargs``.
+
+    rl_zoo3 (2.9.2 at least) builds its evaluation env with the YAML's ``env_kwargs``
+    only when ``--env-kwargs`` is given on its command line; otherwise the eval env comes
+    up with the env's defaults (``obs_mode="rgb"``), and the wrapper refuses it at the
+    first evaluation. Each value is Python text, as Zoo evaluates it (``obs_mode:'state'``).
+    """
+    return ["--eval-env-kwargs"] + [
+        f"{key}:{value!r}" for key, value in entry.hyperparams["env_kwargs"].items()
+    ]
+
+
+def _shell_word(word: str) -> str:
+    """``word`` quoted for a POSIX shell; a word holding single quotes (Zoo's Python
+    text) in double quotes when nothing in it is special there, for a readable command."""
+    if "'" in word and not any(char in word for char in '"$`\\!'):
+        return f'"{word}"'
+    return shlex.quote(word)
+
+
 def zoo_command(entry: ZooFile, conf: str | None = None) -> str:
     """The Zoo command line that trains ``entry`` from the file at ``conf`` (None: the
-    shell's ``$(python -m observer_gym.train.rl.zoo path ...)`` of the shipped file)."""
+    shell's ``$(python -m observer_gym.train.rl.zoo path ...)`` of the shipped file).
+
+    It carries the file's ``env_kwargs`` as ``--eval-env-kwargs`` (:func:`eval_env_kwargs`),
+    so Zoo's evaluation env is the training env."""
     words = [
         "python", "-m", "rl_zoo3.train", "--algo", entry.algo, "--env", entry.system.env_id,
         "--gym-packages", "observer_gym.envs", "-conf",
     ]  # fmt: skip
     options = [word for option, value in entry.options.items() for word in (option, value)]
+    tail = " ".join(_shell_word(word) for word in [*options, *eval_env_kwargs(entry)])
     if conf is not None:
-        return shlex.join([*words, conf, *options])
+        return f"{shlex.join([*words, conf])} {tail}"
     path = f"python -m observer_gym.train.rl.zoo path {entry.algo} {entry.system.short_id}"
     find = f'"$({path} {entry.obs})"'
-    return f"{shlex.join(words)} {find} {shlex.join(options)}"
+    return f"{shlex.join(words)} {find} {tail}"
 
 
 def zoo_text(entry: ZooFile) -> str:
