@@ -27,7 +27,8 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help=(
             "the folder of an 'observer-gym train' run; of a multi-seed run (--seeds), every "
-            "seed's agent on the same episodes, with the primary metric across seeds"
+            "seed's agent on the same episodes, with the primary metric across seeds; or a "
+            "shipped agent, ALGO:NAME or NAME (ppo:ball_table-estimate, see 'observer-gym list')"
         ),
     )
     parser.add_argument(
@@ -62,10 +63,19 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         check_observer,
         observer_mode,
     )
-    from observer_gym.train.rl.run_dir import is_multi_seed, read_config, seed_run_dirs
+    from observer_gym.train.rl.run_dir import (
+        agent_folder,
+        is_multi_seed,
+        read_config,
+        seed_run_dirs,
+    )
 
-    multi_seed = is_multi_seed(args.model)
-    runs = list(seed_run_dirs(args.model).values()) if multi_seed else [args.model]
+    try:
+        model = agent_folder(args.model)  # a shipped agent by name too
+    except ValueError as exc:
+        return command_error("evaluate", exc)
+    multi_seed = is_multi_seed(model)
+    runs = list(seed_run_dirs(model).values()) if multi_seed else [model]
     try:
         if multi_seed:
             from observer_gym.train.reports.aggregate import check_rliable
@@ -98,9 +108,9 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     }
     try:
         if multi_seed:
-            print(seeds_evaluation_text(evaluate_seeds(args.model, **options)))
+            print(seeds_evaluation_text(evaluate_seeds(model, **options)))
         else:
-            print(api.evaluate(args.model, **options).text)
+            print(api.evaluate(model, **options).text)
     except ValueError as exc:  # an outside observer that fails its first try, or mid-episode
         print(error_line("observer-gym evaluate", exc), file=sys.stderr)
         return 1

@@ -16,6 +16,13 @@ take an observer or a controller, it may be
   (a module-level function or class does; a lambda does not): ValueError before
   anything runs otherwise.
 
+Which episodes run is said the same way in all four: ``episodes=N`` from ``seed=S``
+(episode i resets with S + i; default 10 episodes from seed 0), or ``seeds=[...]``, one
+episode each. Both may be given when they agree (``len(seeds) == episodes``,
+``seeds[0] == seed``); ValueError otherwise. ``compare`` takes any list of seeds; ``run``,
+``sweep`` and ``evaluate`` record their episodes as a first seed and a count (results.json,
+the sweep's plan and command line), so their ``seeds`` are consecutive (``range(3, 8)``).
+
 Example::
 
     import observer_gym
@@ -126,6 +133,58 @@ def _listed(value: Entry | Sequence[Entry]) -> list[Entry]:
     return [value]
 
 
+DEFAULT_EPISODES = 10
+DEFAULT_SEED = 0
+
+
+def episode_seeds(
+    episodes: int | None,
+    seed: int | None,
+    seeds: Sequence[int] | None,
+    *,
+    consecutive: bool = False,
+) -> list[int]:
+    """The seeds of the episodes that ``episodes``, ``seed`` and ``seeds`` ask for (the
+    module docstring): ``seeds`` as given, else ``episodes`` seeds from ``seed`` (defaults
+    10 and 0). ``consecutive``: the seeds must be ``seed``, ``seed + 1``, ...
+
+    Raises:
+        ValueError: ``seeds`` empty or not integers >= 0; ``episodes`` or ``seed`` given
+            with ``seeds`` and disagreeing with them; ``consecutive`` and the seeds are not.
+    """
+    if seeds is None:
+        first = DEFAULT_SEED if seed is None else seed
+        count = DEFAULT_EPISODES if episodes is None else episodes
+        for name, value, low in (("episodes", count, 1), ("seed", first, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        return list(range(first, first + count))
+    if isinstance(seeds, str | bytes) or not isinstance(seeds, Sequence | range):
+        raise ValueError(f"seeds must be a sequence of integers >= 0, got {seeds!r}")
+    listed = list(seeds)
+    if not listed:
+        raise ValueError("seeds must hold at least one seed")
+    for value in listed:
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"seeds must be integers >= 0, got {value!r} in {seeds!r}")
+    if episodes is not None and episodes != len(listed):
+        raise ValueError(
+            f"episodes={episodes!r} and seeds={seeds!r} disagree: seeds runs one episode per "
+            f"seed ({len(listed)}); give one of them"
+        )
+    if seed is not None and seed != listed[0]:
+        raise ValueError(
+            f"seed={seed!r} and seeds={seeds!r} disagree: seed is the first seed "
+            f"({listed[0]}); give one of them"
+        )
+    if consecutive and listed != list(range(listed[0], listed[0] + len(listed))):
+        raise ValueError(
+            f"seeds={seeds!r}: this experiment runs consecutive seeds (episodes from a first "
+            "seed, e.g. range(3, 8)); compare takes any list of seeds"
+        )
+    return listed
+
+
 def _out_dir(out_dir: str | Path | None, command: str) -> Path:
     """``out_dir``, or a new folder under the default place for ``command``."""
     from observer_gym.train.reports.outputs import default_out_dir
@@ -138,8 +197,9 @@ def run(
     observer: Entry,
     controller: Entry,
     *,
-    episodes: int = 10,
-    seed: int = 0,
+    episodes: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[int] | None = None,
     out_dir: str | Path | None = None,
     steps: int | None = None,
     workers: int = 1,
@@ -150,10 +210,11 @@ def run(
     cli_args: Mapping[str, Any] | None = None,
 ) -> RunResult:
     """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env``
-    (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with ``seed + i``;
-    writes results.json and the env's plots into ``out_dir`` (default: a new folder
-    under runs/). ``observer_options`` and ``controller_options`` go to an outside
-    observer's and controller's factory. ValueError for a bad input, before anything
+    (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with
+    ``seed + i`` (or ``seeds``, consecutive: the module docstring); writes results.json
+    and the env's plots into ``out_dir`` (default: a new folder under runs/).
+    ``observer_options`` and ``controller_options`` go to an outside observer's and
+    controller's factory. ValueError for a bad input, before anything
     runs; :class:`observer_gym.train.experiments.episode.EpisodeError` for an episode that fails
     part-way (nothing is written).
 
@@ -172,6 +233,7 @@ def run(
     """
     from observer_gym.train.experiments.run import results_text, run_experiment
 
+    listed = episode_seeds(episodes, seed, seeds, consecutive=True)
     found = _names([observer], [controller], workers, "local")
     folder = _out_dir(out_dir, "run")
     with entries.objects_in_use(found.objects):
@@ -179,8 +241,8 @@ def run(
             env_id=env,
             observer=found.observers[0],
             controller=found.controllers[0],
-            episodes=episodes,
-            seed=seed,
+            episodes=len(listed),
+            seed=listed[0],
             out_dir=folder,
             steps=steps,
             workers=workers,
@@ -210,7 +272,9 @@ def compare(
     observers: Entry | Sequence[Entry],
     controllers: Entry | Sequence[Entry],
     *,
-    seeds: Sequence[int] = range(10),
+    episodes: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[int] | None = None,
     out_dir: str | Path | None = None,
     workers: int = 1,
     backend: str = "local",
@@ -222,7 +286,8 @@ def compare(
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
 ) -> ComparisonResult:
-    """Every (observer, controller) pair on the same ``seeds``, with intervals, paired
+    """Every (observer, controller) pair on the same episodes (``seeds``, or ``episodes``
+    from ``seed``: the module docstring), with intervals, paired
     differences from the oracle and NEES/NIS
     (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
     processes or as Ray tasks (``backend="ray"``), with the same records.
@@ -242,6 +307,7 @@ def compare(
     from observer_gym.train.experiments.compare import run_comparison
     from observer_gym.train.reports.compare_report import comparison_text
 
+    listed = episode_seeds(episodes, seed, seeds)
     found = _names(_listed(observers), _listed(controllers), workers, backend)
     folder = _out_dir(out_dir, "compare")
     with entries.objects_in_use(found.objects):
@@ -249,7 +315,7 @@ def compare(
             env_id=env,
             observers=found.observers,
             controllers=found.controllers,
-            seeds=list(seeds),
+            seeds=listed,
             out_dir=folder,
             workers=workers,
             backend=backend,
@@ -289,8 +355,9 @@ def sweep(
     controllers: Entry | Sequence[Entry],
     *,
     out_dir: str | Path,
-    episodes: int = 10,
-    seed: int = 0,
+    episodes: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[int] | None = None,
     workers: int = 1,
     backend: str = "local",
     address: str | None = None,
@@ -303,7 +370,8 @@ def sweep(
     cli_args: Mapping[str, Any] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
-    resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`).
+    resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`);
+    ``episodes`` from ``seed``, or ``seeds`` (consecutive): the module docstring.
 
     Example:
         >>> import tempfile
@@ -320,6 +388,7 @@ def sweep(
     from observer_gym.train.experiments.sweep import run_sweep
     from observer_gym.train.reports.sweep_report import sweep_text
 
+    listed = episode_seeds(episodes, seed, seeds, consecutive=True)
     found = _names(_listed(observers), _listed(controllers), workers, backend)
     with entries.objects_in_use(found.objects):
         result = run_sweep(
@@ -328,8 +397,8 @@ def sweep(
             observers=found.observers,
             controllers=found.controllers,
             out_dir=out_dir,
-            episodes=episodes,
-            seed=seed,
+            episodes=len(listed),
+            seed=listed[0],
             workers=workers,
             backend=backend,
             address=address,
@@ -358,8 +427,9 @@ def sweep(
 def evaluate(
     model: str | Path,
     *,
-    episodes: int = 10,
-    seed: int = 0,
+    episodes: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[int] | None = None,
     observer: Entry | None = None,
     out_dir: str | Path | None = None,
     steps: int | None = None,
@@ -367,31 +437,34 @@ def evaluate(
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
 ) -> RunResult:
-    """Episodes of the agent trained in the folder ``model`` (one seed's run) on its env
+    """Episodes of the agent trained in the folder ``model`` (one seed's run; or a shipped
+    agent by name, ``"ppo:ball_table-estimate"`` or ``"ball_table-estimate"``) on its env
     with its training options, reading what it was trained on or ``observer``
     (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`).
 
     Example, a shipped agent (PPO on the kf's estimate of BallTable):
         >>> import tempfile
         >>> import observer_gym
-        >>> from observer_gym.train.rl.shipped import shipped_path
         >>> with tempfile.TemporaryDirectory() as out:
-        ...     result = observer_gym.evaluate(shipped_path("ball_table-estimate"),
+        ...     result = observer_gym.evaluate("ppo:ball_table-estimate",
         ...                                    episodes=2, steps=150, out_dir=out)
         >>> result.summary["fraction_settled"]
         1.0
     """
     from observer_gym.train.experiments.evaluate import evaluate_agent
     from observer_gym.train.experiments.run import results_text
+    from observer_gym.train.rl.run_dir import agent_folder
 
+    listed = episode_seeds(episodes, seed, seeds, consecutive=True)
+    run_dir = agent_folder(model)
     found = _names([] if observer is None else [observer], [], workers, "local")
     folder = _out_dir(out_dir, "evaluate")
     with entries.objects_in_use(found.objects):
         results = evaluate_agent(
-            model,
-            episodes,
+            run_dir,
+            len(listed),
             folder,
-            seed=seed,
+            seed=listed[0],
             observer=found.observers[0] if found.observers else None,
             steps=steps,
             workers=workers,

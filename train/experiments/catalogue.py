@@ -28,7 +28,7 @@ class Listed(NamedTuple):
 
     kind: str  # "system", "observer", "controller" or "agent"
     name: str  # what a command takes
-    systems: tuple[str, ...]  # the env ids it applies to (all of them for an outside one)
+    systems: tuple[str, ...]  # the env ids it fits (an outside entry: entry_systems)
     summary: str  # one line
     source: str  # "observer-gym", or "entry point of <distribution>"
 
@@ -94,14 +94,56 @@ def catalogue() -> list[Listed]:
         assert folder is not None  # one of shipped_names()
         algo = json.loads((folder / "config.json").read_text(encoding="utf-8"))["algo"]
         items.append(Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym"))
-    all_envs = tuple(system.env_id for system in SYSTEMS)
     for kind in ("observer", "controller"):
         for name, entry_point in entries.entry_points(kind).items():
             plugin = entries.find_plugin(kind, name)
             assert plugin is not None  # an installed entry point
             items.append(
                 Listed(
-                    kind, name, all_envs, f"{entry_point.value} ({plugin.version})", plugin.source
+                    kind,
+                    name,
+                    entry_systems(plugin),
+                    f"{entry_point.value} ({plugin.version})",
+                    plugin.source,
                 )
             )
     return items
+
+
+def entry_systems(plugin: entries.Plugin) -> tuple[str, ...]:
+    """The env ids an outside entry fits: those its factory declares
+    (:func:`~observer_gym.train.experiments.entries.declared_systems`), else those a trial
+    build succeeds on (:func:`~observer_gym.train.experiments.episode.check_entries` with the
+    system's first controller, or on the true state for a controller; an observer on
+    measurements, then on frames). An entry that cannot even be imported fits none."""
+    try:
+        declared = entries.declared_systems(entries.load_factory(plugin))
+    except ValueError:
+        return ()
+    if declared is not None:
+        ids = {**{s.env_id: s.env_id for s in SYSTEMS}, **{s.short_id: s.env_id for s in SYSTEMS}}
+        return tuple(dict.fromkeys(ids[d] for d in declared if d in ids))
+    return tuple(system.env_id for system in SYSTEMS if _trial(plugin, system.env_id))
+
+
+def _trial(plugin: entries.Plugin, env_id: str) -> bool:
+    """Whether ``plugin`` builds and acts once on ``env_id`` (warnings silenced)."""
+    import warnings
+
+    from observer_gym.controllers import controllers_for
+    from observer_gym.train.experiments.episode import check_entries
+
+    if plugin.kind == "controller":
+        pairs = [("oracle", plugin.name)]
+    else:
+        first = next(iter(controllers_for(env_id)))
+        pairs = [(f"{plugin.name}{MEASUREMENTS}", first), (plugin.name, first)]
+    for observer, controller in pairs:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                check_entries(env_id, observer, controller)
+        except Exception:  # any failure: it does not fit (run names the cause)
+            continue
+        return True
+    return False

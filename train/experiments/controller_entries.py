@@ -68,7 +68,12 @@ class CheckedController:
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        result = self.controller.predict(observation, state, episode_start, deterministic)
+        try:
+            result = self.controller.predict(observation, state, episode_start, deterministic)
+        except Exception as exc:  # its own fault: one line naming it, not the bare cause
+            raise ValueError(
+                f"controller {self.name!r}: predict() raised {type(exc).__name__}: {exc}"
+            ) from exc
         if not (isinstance(result, tuple) and len(result) == 2):
             raise ValueError(
                 f"controller {self.name!r}: predict() must return (action, state) as "

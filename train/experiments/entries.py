@@ -27,6 +27,12 @@ module-level factory is named by its import path; anything else gets the name
 ``python:<module>.<qualname>`` and travels to the workers inside each episode's spec
 (:func:`as_name`), so it must pickle when episodes run in other processes.
 
+A factory may declare the systems it is made for as an attribute ``systems``, a sequence
+of env ids (``make_controller.systems = ("BallTable-v0",)``, or a class attribute): an
+experiment on another system refuses it in one line before any episode, and
+``observer-gym list`` shows those systems (for an entry that declares none, the systems a
+trial build on each succeeds on).
+
 Names of the package's own observers and controllers win over an entry point of the same
 name. This module imports nothing but the standard library, so the command line checks an
 entry before it loads any layer.
@@ -181,6 +187,41 @@ def load_factory(plugin: Plugin) -> Callable[..., Any]:
             "(a callable taking the env and the options)"
         )
     return target
+
+
+def declared_systems(factory: Any) -> tuple[str, ...] | None:
+    """The env ids a factory declares it is made for (its attribute ``systems``: a text or
+    a sequence of texts), None if it declares none. ValueError for a declaration of
+    anything else."""
+    declared = getattr(factory, "systems", None)
+    if declared is None:
+        return None
+    if isinstance(declared, str):
+        declared = (declared,)
+    try:
+        listed = tuple(declared)
+    except TypeError:
+        listed = ()
+    if not listed or not all(isinstance(env_id, str) for env_id in listed):
+        raise ValueError(
+            f"{getattr(factory, '__qualname__', factory)!r} declares systems={declared!r}; "
+            "expected env ids, e.g. ('BallTable-v0',)"
+        )
+    return listed
+
+
+def check_declared(plugin: Plugin, env_id: str, short_id: str) -> None:
+    """ValueError, one line naming ``plugin``, if its factory declares systems
+    (:func:`declared_systems`) and ``env_id`` (``observer_gym/X``, short ``X``) is not one."""
+    declared = declared_systems(load_factory(plugin))
+    if declared is None:
+        return
+    if env_id in declared or short_id in declared:
+        return
+    raise ValueError(
+        f"{plugin.kind} {plugin.name!r} does not fit {short_id}: it declares it is made for "
+        f"{', '.join(declared)} (its factory's systems)"
+    )
 
 
 def build(plugin: Plugin, env: Any, options: Mapping[str, Any] | None = None) -> Any:

@@ -26,7 +26,7 @@ from observer_gym.controllers import (
     controllers_of,
     make_controller,
 )
-from observer_gym.envs import system_of
+from observer_gym.envs import system_for_id, system_of
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.controller_entries import (
     CheckedController,
@@ -124,12 +124,21 @@ def check_entries(
     controller_options: Mapping[str, Any] | None = None,
     seed: int = 0,
 ) -> None:
-    """Try an outside observer or controller once before anything runs: build the env,
-    the pipeline and the controller, reset with ``seed``, and ask for one action (the
-    estimate's layout and the action are checked as in every step). ValueError naming the
-    entry and what is wrong; nothing for a pair of the package's own (tested) entries."""
+    """Try an outside observer or controller once before anything runs: refuse one whose
+    factory declares other systems (:func:`~observer_gym.train.experiments.entries.check_declared`),
+    then build the env, the pipeline and the controller, reset with ``seed``, and ask for
+    one action (the estimate's layout and the action are checked as in every step).
+    ValueError, one line naming the entry, the system and what is wrong; nothing for a
+    pair of the package's own (tested) entries."""
     if not is_outside(env_id, observer, controller):
         return
+    system = system_for_id(env_id)
+    plugins = [observer_setup(env_id, observer)[2]]
+    if parse_agent_spec(controller) is None and controller not in controllers_for(env_id):
+        plugins.append(entries.find_plugin("controller", controller))
+    for plugin in plugins:
+        if plugin is not None:
+            entries.check_declared(plugin, system.env_id, system.short_id)
     env = make_env(env_id, observer, env_kwargs, observer_options)
     try:
         built = build_controller(controller, env, controller_options)
@@ -139,6 +148,13 @@ def check_entries(
         getattr(built, "observe_info", lambda info: None)(info)
         action, _ = built.predict(obs)
         env.step(action)
+    except ValueError as exc:
+        raise ValueError(f"{exc} (on {system.short_id}, tried before any episode)") from exc
+    except Exception as exc:  # an outside observer's own fault, raised inside the wrappers
+        raise ValueError(
+            f"observer {observer!r} with controller {controller!r} fails on {system.short_id} "
+            f"(tried before any episode): {type(exc).__name__}: {exc}"
+        ) from exc
     finally:
         env.close()
 

@@ -59,6 +59,38 @@ def parse_agent_spec(name: str) -> tuple[str, Path] | None:
     return algo, shipped if shipped is not None else Path(run_dir)
 
 
+def agent_folder(model: str | Path) -> Path:
+    """The folder of the agent ``model`` names, wherever an agent is taken alone
+    (``evaluate``): a folder (a training run or a multi-seed run), ``ALGO:DIR``, or a
+    shipped agent as ``ALGO:NAME`` or ``NAME`` (``ppo:ball_table-estimate``) when no
+    folder of that name exists.
+
+    Raises:
+        ValueError: no folder and no shipped agent of that name (the message lists the
+            shipped ones), or ``ALGO:`` naming a run trained with another algorithm.
+    """
+    text = str(model)
+    if Path(text).exists():
+        return Path(text)
+    spec = parse_agent_spec(text)
+    if spec is not None and spec[1].exists():
+        algo, folder = spec
+        if folder.is_dir() and not is_multi_seed(folder):
+            read_config(folder, algo)  # the algorithm it names is the run's
+        return folder
+    shipped = shipped_path(text)
+    if shipped is not None:
+        return shipped
+    from observer_gym.train.rl.shipped import shipped_names
+
+    names = ", ".join(shipped_names())
+    raise ValueError(
+        f"{text} is not an observer-gym training run (no such folder) nor a shipped agent "
+        f"({names}; also as ALGO:NAME, e.g. ppo:ball_table-estimate); make one with "
+        "'observer-gym train'"
+    )
+
+
 def seed_run_dirs(folder: str | Path) -> dict[int, Path]:
     """The runs of a multi-seed folder: seed -> ``folder/seed_<seed>``, for every such
     subfolder, by seed; empty for any other folder."""

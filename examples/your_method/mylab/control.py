@@ -24,3 +24,8 @@ class BallPD:
 def make_controller(env, omega_radps=3.0, damping=0.8):
     """observer-gym's controller factory: ``factory(env, **options) -> object with predict``."""
     return BallPD(env, omega_radps, damping)
+
+
+# The systems it is made for: elsewhere observer-gym refuses it before any episode, and
+# 'observer-gym list' shows these.
+make_controller.systems = ("BallTable-v0",)

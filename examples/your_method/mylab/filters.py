@@ -53,3 +53,8 @@ class AlphaBeta:
 def make_observer(env, alpha=0.5, beta=0.2):
     """observer-gym's observer factory: ``factory(env, **options) -> pipeline``."""
     return AlphaBeta(env, alpha, beta)
+
+
+# The systems it is made for: elsewhere observer-gym refuses it before any episode, and
+# 'observer-gym list' shows these.
+make_observer.systems = ("BallTable-v0",)

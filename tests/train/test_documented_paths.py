@@ -1,0 +1,168 @@
+"""What a new user meets on the documented paths (issue 42): one signature family for the
+experiment functions' episodes, shipped agents by name wherever an agent is taken, and an
+outside entry refused on a system it does not fit, in one line naming it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from observer_gym.train.cli import main
+from observer_gym.train.experiments import api, catalogue, entries
+from observer_gym.train.experiments.episode import check_entries
+from observer_gym.train.rl.run_dir import agent_folder
+from observer_gym.train.rl.shipped import shipped_path
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "your_method"
+BALL_PD = "mylab.control:make_controller"
+
+
+# --- episodes= and seeds= ------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("episodes", "seed", "seeds", "expected"),
+    [
+        (None, None, None, list(range(10))),
+        (3, None, None, [0, 1, 2]),
+        (2, 5, None, [5, 6]),
+        (None, None, [4, 9, 2], [4, 9, 2]),
+        (3, 4, range(4, 7), [4, 5, 6]),  # both given, agreeing
+    ],
+)
+def test_episodes_seed_and_seeds_name_the_same_episodes(episodes, seed, seeds, expected):
+    assert api.episode_seeds(episodes, seed, seeds) == expected
+
+
+@pytest.mark.parametrize(
+    ("episodes", "seed", "seeds", "consecutive", "message"),
+    [
+        (2, None, [0, 1, 2], False, r"episodes=2 and seeds=\[0, 1, 2\] disagree"),
+        (None, 1, [0, 1], False, r"seed=1 and seeds=\[0, 1\] disagree"),
+        (None, None, [], False, "at least one seed"),
+        (None, None, [0, -1], False, "integers >= 0"),
+        (None, None, "0-3", False, "a sequence of integers"),
+        (0, None, None, False, "episodes must be an integer >= 1"),
+        (None, None, [3, 7], True, "consecutive seeds"),
+    ],
+)
+def test_inconsistent_or_bad_episodes_are_a_value_error(
+    episodes, seed, seeds, consecutive, message
+):
+    with pytest.raises(ValueError, match=message):
+        api.episode_seeds(episodes, seed, seeds, consecutive=consecutive)
+
+
+class _Called(Exception):
+    """Raised by a stand-in for the experiment, carrying the arguments it got."""
+
+
+def _capture(monkeypatch, module: str, function: str) -> None:
+    import importlib
+
+    # the modules that import these by name are imported before any is replaced
+    for imported in ("compare", "run", "sweep", "evaluate"):
+        importlib.import_module(f"observer_gym.train.experiments.{imported}")
+
+    def stand_in(*args, **kwargs):
+        raise _Called(kwargs)
+
+    monkeypatch.setattr(importlib.import_module(module), function, stand_in)
+
+
+def test_compare_takes_episodes_and_run_sweep_evaluate_take_seeds(monkeypatch, tmp_path):
+    _capture(monkeypatch, "observer_gym.train.experiments.compare", "run_comparison")
+    _capture(monkeypatch, "observer_gym.train.experiments.run", "run_experiment")
+    _capture(monkeypatch, "observer_gym.train.experiments.sweep", "run_sweep")
+    _capture(monkeypatch, "observer_gym.train.experiments.evaluate", "evaluate_agent")
+    with pytest.raises(_Called) as called:
+        api.compare("BallTable-v0", "kf-measurements", "lqr", episodes=2, seed=3, out_dir=tmp_path)
+    assert called.value.args[0]["seeds"] == [3, 4]
+    with pytest.raises(_Called) as called:
+        api.run("BallTable-v0", "kf-measurements", "lqr", seeds=range(3, 5), out_dir=tmp_path)
+    assert (called.value.args[0]["episodes"], called.value.args[0]["seed"]) == (2, 3)
+    with pytest.raises(_Called) as called:
+        api.sweep(
+            "BallTable-v0", {"latency_s": [0.0]}, "kf-measurements", "lqr", seeds=[1, 2, 3],
+            out_dir=tmp_path,
+        )  # fmt: skip
+    assert (called.value.args[0]["episodes"], called.value.args[0]["seed"]) == (3, 1)
+    with pytest.raises(_Called) as called:
+        api.evaluate("ppo:ball_table-estimate", seeds=[7], out_dir=tmp_path)
+    assert called.value.args[0]["seed"] == 7
+    with pytest.raises(ValueError, match="disagree"):
+        api.compare("BallTable-v0", "kf-measurements", "lqr", episodes=2, seeds=[0, 1, 2])
+
+
+# --- shipped agents by name ----------------------------------------------------------------
+def test_a_shipped_agent_is_taken_by_name_wherever_an_agent_is_taken(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no folder of that name here
+    folder = shipped_path("ball_table-estimate")
+    assert agent_folder("ppo:ball_table-estimate") == folder
+    assert agent_folder("ball_table-estimate") == folder
+    assert agent_folder(folder) == folder
+    with pytest.raises(ValueError, match=r"nor a shipped agent \(.*ball_table-estimate"):
+        agent_folder("ball_table-nothing")
+    with pytest.raises(ValueError, match="holds a ppo agent, not sac"):
+        agent_folder("sac:ball_table-estimate")
+
+
+def test_evaluate_takes_a_shipped_agent_by_name(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(
+        ["evaluate", "--model", "ball_table-estimate", "--episodes", "1", "--steps", "5",
+         "--out", str(out), "--no-progress"]
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert (out / "results.json").is_file()
+    assert main(["evaluate", "--model", "ball_table-nothing", "--out", str(out)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "nor a shipped agent" in line
+
+
+# --- an outside entry on a system it does not fit ------------------------------------------
+@pytest.fixture
+def example(monkeypatch):
+    """The example package (examples/your_method) on sys.path, its systems declaration
+    removed or kept by the test."""
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    import mylab.control
+
+    return mylab.control
+
+
+def test_a_declared_entry_is_refused_elsewhere_in_one_line(example):
+    with pytest.raises(ValueError) as refused:
+        check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
+    assert str(refused.value) == (
+        f"controller {BALL_PD!r} does not fit BallCatcher-v1: it declares it is made for "
+        "BallTable-v0 (its factory's systems)"
+    )
+    check_entries("observer_gym/BallTable-v0", "kf-measurements", BALL_PD)  # where it fits, it runs
+
+
+def test_an_undeclared_entry_that_does_not_fit_is_named_with_the_cause(example, monkeypatch):
+    monkeypatch.delattr(example.make_controller, "systems")
+    with pytest.raises(ValueError) as refused:
+        check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
+    message = str(refused.value)
+    assert "\n" not in message
+    assert message.startswith(f"controller {BALL_PD!r}: predict() raised ValueError: operands")
+    assert message.endswith("(on BallCatcher-v1, tried before any episode)")
+
+
+def test_list_shows_the_systems_an_entry_fits(example, monkeypatch):
+    plugin = entries.find_plugin("controller", BALL_PD)
+    assert catalogue.entry_systems(plugin) == ("observer_gym/BallTable-v0",)  # declared
+    monkeypatch.delattr(example.make_controller, "systems")
+    fits = catalogue.entry_systems(plugin)  # by trial (the tests' toy system may fit too)
+    assert "observer_gym/BallTable-v0" in fits
+    assert not {"observer_gym/BallCatcher-v1", "observer_gym/TargetFollower-v0"} & set(fits)
+
+
+def test_a_bad_declaration_is_a_value_error():
+    def factory(env):
+        return None
+
+    factory.systems = 3  # type: ignore[attr-defined]
+    with pytest.raises(ValueError, match="expected env ids"):
+        entries.declared_systems(factory)
