@@ -4,6 +4,8 @@ outside entry refused on a system it does not fit, in one line naming it."""
 
 from __future__ import annotations
 
+import re
+import shlex
 from pathlib import Path
 
 import pytest
@@ -14,7 +16,8 @@ from observer_gym.train.experiments.episode import check_entries
 from observer_gym.train.rl.run_dir import agent_folder
 from observer_gym.train.rl.shipped import shipped_path
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "your_method"
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "examples" / "your_method"
 BALL_PD = "mylab.control:make_controller"
 
 
@@ -112,7 +115,9 @@ def test_evaluate_takes_a_shipped_agent_by_name(tmp_path, capsys):
         ["evaluate", "--model", "ball_table-estimate", "--episodes", "1", "--steps", "5",
          "--out", str(out), "--no-progress"]
     )  # fmt: skip
-    assert code == 0, capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert printed.out.startswith("observer-gym evaluate: observer_gym/BallTable-v0")
     assert (out / "results.json").is_file()
     assert main(["evaluate", "--model", "ball_table-nothing", "--out", str(out)]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
@@ -166,3 +171,54 @@ def test_a_bad_declaration_is_a_value_error():
     factory.systems = 3  # type: ignore[attr-defined]
     with pytest.raises(ValueError, match="expected env ids"):
         entries.declared_systems(factory)
+
+
+# --- the README's and docs' commands ------------------------------------------------------
+def _commands(path: Path, command: str) -> list[list[str]]:
+    """Every ``observer-gym COMMAND --...`` of a Markdown page (in code blocks and inline;
+    not the lines it prints), its lines joined, as words."""
+    text = path.read_text().replace("\\\n", " ")
+    start = f"observer-gym {command} -"
+    found = [line for line in text.splitlines() if line.strip().startswith(start)]
+    found += re.findall(rf"`({start}[^`]*)`", text.replace("\n", " "))
+    return [shlex.split(" ".join(line.split("#")[0].split())) for line in found]
+
+
+def test_every_readme_run_command_names_its_observer_and_controller():
+    commands = _commands(ROOT / "README.md", "run")
+    assert len(commands) >= 2
+    for words in commands:
+        assert "--observer" in words and "--controller" in words, " ".join(words)
+
+
+def test_the_sweep_examples_write_different_folders():
+    """The README's sweep and docs/sweep.md's (command and Python) would refuse each other's
+    folder ('holds a sweep with other arguments')."""
+    outs = [
+        words[words.index("--out") + 1]
+        for page in (ROOT / "README.md", ROOT / "docs" / "sweep.md")
+        for words in _commands(page, "sweep")
+        if "--out" in words
+    ]
+    outs += re.findall(r'out_dir="([^"]+)"', (ROOT / "docs" / "sweep.md").read_text())
+    assert len(outs) >= 3
+    assert len(set(outs)) == len(outs), outs
+
+
+def test_the_readme_names_each_modes_space():
+    """The Dict spaces, which Gymnasium's image and normalisation wrappers refuse, are said."""
+    import gymnasium as gym
+
+    readme = (ROOT / "README.md").read_text()
+    rows = {line.split("|")[1].strip(" `"): line for line in readme.splitlines()
+            if line.startswith("| `observer_gym/")}  # fmt: skip
+    for env_id, row in rows.items():
+        for mode in ("rgb", "measurements"):
+            env = gym.make(env_id, obs_mode=mode)
+            try:
+                is_dict = isinstance(env.observation_space, gym.spaces.Dict)
+            finally:
+                env.close()
+            said = re.search(rf"`{mode}`: (\*\*Dict\*\*|Box)", row)
+            assert said is not None, (env_id, mode)
+            assert (said.group(1) == "**Dict**") == is_dict, (env_id, mode)

@@ -58,7 +58,7 @@ class RunResult(NamedTuple):
     episodes: list[dict[str, Any]]  # per episode: seed, the task's metrics, NEES/NIS
     consistency: dict[str, Any]  # NEES/dof over the episodes and its chi-square band
     files: list[str]  # written into out_dir
-    text: str  # what 'observer-gym run' prints
+    text: str  # what 'observer-gym run' (or 'evaluate') prints
     results: dict[str, Any]  # all of results.json
 
 
@@ -471,4 +471,4 @@ def evaluate(
             progress=progress,
             cli_args=cli_args,
         )
-    return _run_result(results, results_text(results))
+    return _run_result(results, results_text(results, "evaluate"))

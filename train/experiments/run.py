@@ -199,14 +199,15 @@ def _run_into(
     return results
 
 
-def results_text(results: Mapping[str, Any]) -> str:
-    """What ``observer-gym run`` and ``evaluate`` print of :func:`run_experiment`'s
-    results: what ran, the task's summary table and the output folder."""
+def results_text(results: Mapping[str, Any], command: str = "run") -> str:
+    """What ``observer-gym run`` (and ``evaluate``, ``command="evaluate"``) print of
+    :func:`run_experiment`'s results: what ran, the task's summary table and the output
+    folder."""
     config = results["config"]
     first, episodes = config["seed"], config["episodes"]
     last = first + episodes - 1
     lines = [
-        f"observer-gym run: {config['env_id']}, observer {config['observer']}, controller "
+        f"observer-gym {command}: {config['env_id']}, observer {config['observer']}, controller "
         f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
         f"{results['wall_time_s']:.1f} s",
         *entry_lines(config.get("entry"), config["controller_config"].get("entry")),
