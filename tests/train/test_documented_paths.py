@@ -222,3 +222,32 @@ def test_the_readme_names_each_modes_space():
             said = re.search(rf"`{mode}`: (\*\*Dict\*\*|Box)", row)
             assert said is not None, (env_id, mode)
             assert (said.group(1) == "**Dict**") == is_dict, (env_id, mode)
+
+
+# --- docs/your_method.md: its command and the published copy --------------------------------
+def test_your_methods_command_writes_outside_the_tracked_docs_and_the_page_quotes_its_table():
+    """The page's sweep writes an untracked folder (runs/, ignored), not the published
+    copy under docs/results/; every row the page quotes is a row of that copy's table
+    (short names for the example's entries)."""
+    page = (ROOT / "docs" / "your_method.md").read_text(encoding="utf-8")
+    command = page.split("observer-gym sweep", 1)[1].split("```", 1)[0]
+    out = shlex.split(command.replace("\\\n", " "))
+    out_dir = out[out.index("--out") + 1]
+    assert not out_dir.startswith("docs/"), out_dir
+    assert "runs/" in (ROOT / ".gitignore").read_text(encoding="utf-8").split()
+    published = (ROOT / "docs" / "results" / "your_method" / "table.md").read_text()
+    names = {
+        "alpha-beta": "mylab.filters:make_observer-measurements",
+        "PD": "mylab.control:make_controller",
+    }
+    table = {
+        tuple(cell.strip() for cell in line.strip("|").split("|"))
+        for line in published.splitlines()
+        if re.match(r"\| \d", line)
+    }
+    quoted = [line for line in page.splitlines() if re.match(r"\| 0\.\d \| ", line)]
+    assert len(quoted) >= 12
+    for line in quoted:
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        cells = [names.get(cell, cell) for cell in cells]
+        assert tuple(cells) in table, line
