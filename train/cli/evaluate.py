@@ -67,10 +67,6 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     multi_seed = is_multi_seed(args.model)
     runs = list(seed_run_dirs(args.model).values()) if multi_seed else [args.model]
     try:
-        if multi_seed:
-            from observer_gym.train.reports.aggregate import check_rliable
-
-            check_rliable()
         for run_dir in runs:
             config = read_config(run_dir)
             observer = args.observer or config["observer"]

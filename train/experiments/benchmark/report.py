@@ -34,7 +34,9 @@ SCORES_JSON = "scores.json"
 TABLE_MD = "table.md"
 SCORES_PNG = "scores.png"
 TIMING_JSON = "timing.json"
-PACKAGES = (*VERSIONED_PACKAGES, "scipy", "rliable")
+# rliable is no longer among them: its statistics are computed here, to the same bits
+# (observer_gym.train.reports.bootstrap); folders that recorded its version still check
+PACKAGES = (*VERSIONED_PACKAGES, "scipy")
 
 
 def versions() -> dict[str, str]:
@@ -185,7 +187,8 @@ def table_markdown(suite: SystemSuite, document: Mapping[str, Any]) -> str:
 
 
 def plot_scores(document: Mapping[str, Any], path: Path) -> None:
-    """Interval estimates of the level scores and the aggregate, as rliable draws them."""
+    """Interval estimates of the level scores and the aggregate, drawn as rliable's
+    interval-estimate plots draw them (matplotlib alone)."""
     import matplotlib
 
     matplotlib.use("Agg")
