@@ -85,7 +85,8 @@ def interval_estimates(
     results = np.zeros((reps, np.size(point)))
     for k in range(reps):
         indices = random.choice(runs, array.shape, replace=True)
-        results[k] = function(array[(indices, *strata)])
+        resampled = array[tuple([indices, *strata])]
+        results[k] = function(resampled)
     alpha = (1.0 - confidence) / 2
     percentiles = 100 * np.array([alpha, 1.0 - alpha])
     lower = np.zeros(results.shape[1])
