@@ -150,6 +150,40 @@ def test_a_second_run_reuses_the_finished_levels(folder, tmp_path):
     assert (copy / "scores.json").read_text() == before
 
 
+def test_a_resumed_runs_timing_holds_its_levels_times(folder, tmp_path):
+    """timing.json after a resume: this call's time plus each reused level's recorded wall
+    time (the levels of the first run's batch sum to no more than its wall time)."""
+    first = json.loads((folder / "timing.json").read_text())
+    levels_s = {
+        name: json.loads((folder / "levels" / f"{name}.json").read_text())["timing"]["wall_s"]
+        for name in ("ideal", "lab", "field")
+    }
+    assert 0 < sum(levels_s.values()) <= first["wall_s"]
+    assert first["reused_levels_s"] == {} and first["wall_s"] == first["this_run_s"]
+    copy = _copy(folder, tmp_path)
+    request = check_benchmark(ENV, OBSERVER, CONTROLLER, episodes=EPISODES)
+    run_benchmark(request, copy, progress=False)
+    resumed = json.loads((copy / "timing.json").read_text())
+    assert resumed["reused_levels_s"] == levels_s
+    assert resumed["wall_s"] == pytest.approx(resumed["this_run_s"] + sum(levels_s.values()))
+    assert resumed["wall_s"] >= sum(levels_s.values())
+
+
+def test_off_a_terminal_each_finished_level_is_one_line_on_stderr(tmp_path, capsys):
+    argv = [a for a in ARGV if a != "--no-progress"]
+    argv[argv.index("--episodes") + 1] = "1"
+    assert main([*argv, "--out", str(tmp_path / "lines")]) == 0  # stderr is no terminal here
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" finished")[0] for line in lines] == [
+        f"observer-gym benchmark: level {name!r}" for name in ("ideal", "lab", "field")
+    ]
+    assert lines[0].startswith("observer-gym benchmark: level 'ideal' finished (1/3): 1 episode,")
+    # --no-progress: none; the levels reused on a resume print none either
+    assert main([*argv, "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    assert main([*argv, "--out", str(tmp_path / "lines")]) == 0
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -108,6 +109,20 @@ def test_a_missing_root_is_one_line_and_exit_code_2(tmp_path, capsys):
     assert main(["generate", str(tmp_path / "nope"), "--out", "x.md", "--figures", "img"]) == 2
     err = capsys.readouterr().err.strip()
     assert "is not a folder" in err and "\n" not in err
+
+
+def test_generate_without_rliable_is_one_line_before_anything_is_written(
+    tmp_path, capsys, monkeypatch
+):
+    copy = _copy(_a_folder(), tmp_path)
+    monkeypatch.setitem(sys.modules, "rliable", None)  # import rliable now raises
+    out, figures = tmp_path / "page.md", tmp_path / "img"
+    assert (
+        main(["generate", str(copy.parents[1]), "--out", str(out), "--figures", str(figures)]) == 2
+    )
+    err = capsys.readouterr().err.strip()
+    assert "pip install 'observer-gym[rl]'" in err and "\n" not in err
+    assert not out.exists() and not figures.exists()
 
 
 @pytest.mark.slow

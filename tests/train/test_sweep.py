@@ -303,6 +303,21 @@ def test_a_killed_sweep_resumes_to_the_outputs_of_an_uninterrupted_one(swept, tm
         assert (out_dir / name).read_bytes() == (reference / name).read_bytes(), name
 
 
+def test_off_a_terminal_each_finished_cell_is_one_line_on_stderr(tmp_path, capsys):
+    argv = [a for a in ARGV if a != "--no-progress"]
+    argv[argv.index("--episodes") + 1] = "1"
+    argv[argv.index("--observers") + 1] = "oracle"
+    argv[argv.index("--controllers") + 1] = "lqr"
+    assert main([*argv, "--out", str(tmp_path / "lines")]) == 0  # stderr is no terminal here
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" (")[0] for line in lines] == [
+        f"observer-gym sweep: cell {k}/2 finished: {KEY}={value}, oracle + lqr, 1 episode"
+        for k, value in ((1, 0.0), (2, 2.0))
+    ]
+    assert main([*argv, "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_other_arguments_into_the_same_folder_are_refused(swept, capsys):
     out_dir, _ = swept
     before = {p: p.read_bytes() for p in out_dir.rglob("*") if p.is_file()}

@@ -16,7 +16,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import NamedTuple, NoReturn
 
 from observer_gym.train.rl.hyperparams import ALGOS
 
@@ -186,6 +186,28 @@ def add_output_arguments(parser: argparse.ArgumentParser, command: str) -> None:
         ),
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+class Progress(NamedTuple):
+    """How a long command shows its progress (:func:`progress_display`)."""
+
+    bar: bool  # a bar over the episodes (a terminal)
+    lines: Callable[[str], None] | None  # prints one line per finished part (no terminal)
+
+
+def progress_display(prog: str, no_progress: bool) -> Progress:
+    """On a terminal (stderr) a bar; off one, one line on stderr per finished part (a
+    sweep's cell, a benchmark's level: ``PROG: cell 2/6 finished: ...``), as the library
+    reports them; with ``--no-progress`` neither."""
+    if no_progress:
+        return Progress(False, None)
+    if sys.stderr.isatty():
+        return Progress(True, None)
+
+    def lines(line: str) -> None:
+        print(f"{prog}: {line}", file=sys.stderr, flush=True)
+
+    return Progress(False, lines)
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser) -> None:

@@ -26,6 +26,7 @@ from observer_gym.train.cli.args import (
     error_line,
     folder_path,
     positive_int,
+    progress_display,
     recorded_args,
 )
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
@@ -94,7 +95,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="re-derive a finished benchmark folder's scores from its per-episode records "
         "and the suite; exit 0 if they agree, 1 naming the first difference",
     )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    parser.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="show no progress (default: a bar on a terminal, else one line per finished "
+        "level on stderr)",
+    )
 
 
 def _error(message: object) -> int:
@@ -175,12 +181,14 @@ def run(args: argparse.Namespace) -> int:
             check_out_dir(args.out, request)
     except ValueError as exc:
         return _error(exc)
+    progress = progress_display(PROG, args.no_progress)
     try:
         result = run_benchmark(
             request,
             args.out,
-            progress=not args.no_progress and sys.stderr.isatty(),
+            progress=progress.bar,
             cli_args=recorded_args(args),
+            on_level=progress.lines,
         )
     except KeyboardInterrupt:
         print(

@@ -77,10 +77,6 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     multi_seed = is_multi_seed(model)
     runs = list(seed_run_dirs(model).values()) if multi_seed else [model]
     try:
-        if multi_seed:
-            from observer_gym.train.reports.aggregate import check_rliable
-
-            check_rliable()
         for run_dir in runs:
             config = read_config(run_dir)
             observer = args.observer or config["observer"]

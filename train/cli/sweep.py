@@ -29,6 +29,7 @@ from observer_gym.train.cli.args import (
     folder_path,
     nonnegative_int,
     positive_int,
+    progress_display,
     recorded_args,
 )
 from observer_gym.train.cli.compare import check_pairs, name_list
@@ -121,7 +122,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="METRIC",
         help="the metric beside the primary one in the table and plots (default: the env's second)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    parser.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="show no progress (default: a bar on a terminal, else one line per finished "
+        "cell on stderr)",
+    )
 
 
 def _error(message: object) -> int:
@@ -135,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
     also when that sweep wrote it after the first check), 75 for an ``--out`` another
     command holds (:mod:`observer_gym.train.reports.folder_lock`; nothing written), 1 for
     cells that cannot be summarised (no output written), 130 for Ctrl-C or SIGTERM (the
-    cells written are kept, each whole). The progress bar shows only on a terminal."""
+    cells written are kept, each whole). The progress bar shows only on a terminal; off
+    one, each finished cell is one line on stderr (neither with ``--no-progress``)."""
     from observer_gym.train.cli.checks import observer_mode
     from observer_gym.train.experiments.sweep_grid import check_grid
 
@@ -172,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         check_sweep(**options, out_dir=args.out)
     except ValueError as exc:
         return _error(exc)
+    progress = progress_display("observer-gym sweep", args.no_progress)
     try:
         result = api.sweep(
             options.pop("env_id"),
@@ -181,8 +189,9 @@ def run(args: argparse.Namespace) -> int:
             env_options=options.pop("env_kwargs"),
             **options,
             out_dir=args.out,
-            progress=not args.no_progress and sys.stderr.isatty(),
+            progress=progress.bar,
             cli_args=recorded_args(args),
+            on_cell=progress.lines,
         )
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (observer_gym.train.cli.main)
         print(

@@ -344,12 +344,10 @@ def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> N
 def _train_seeds_run(args: argparse.Namespace) -> int:
     """``train --seeds`` (a new multi-seed run) or ``--resume`` of one."""
     from observer_gym.train.cli.checks import check_backend, check_seeds_folder
-    from observer_gym.train.reports.aggregate import check_rliable
     from observer_gym.train.reports.outputs import default_out_dir
 
     backend = args.backend or "local"
     try:
-        check_rliable()
         check_backend(backend, args.workers, args.address)
         if args.resume is None:
             out_dir = args.out if args.out is not None else default_out_dir("train")
@@ -400,7 +398,7 @@ COMMAND = Command(
         "trains one agent per seed into OUT/seed_<s>/ (in parallel processes, or Ray "
         "tasks with --backend ray) and writes their aggregate into OUT: "
         "learning_curves.png, aggregate.json and aggregate.md (final evaluation return: "
-        "IQM with a stratified-bootstrap 95 % interval, by rliable)."
+        "IQM with a stratified-bootstrap 95 % interval, rliable's method)."
     ),
     add_arguments=_train_arguments,
     run=_train_run,

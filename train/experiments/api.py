@@ -41,7 +41,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -368,10 +368,13 @@ def sweep(
     second_metric: str | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    on_cell: Callable[[str], None] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
     resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`);
     ``episodes`` from ``seed``, or ``seeds`` (consecutive): the module docstring.
+    ``progress`` draws a bar over the episodes; ``on_cell`` is called with one line for
+    each cell as it finishes (the command prints it on stderr when no bar can be drawn).
 
     Example:
         >>> import tempfile
@@ -409,6 +412,7 @@ def sweep(
             cli_args=cli_args,
             observer_options=observer_options,
             controller_options=controller_options,
+            on_cell=on_cell,
         )
     text = sweep_text(
         result.results, result.out_dir, result.cells_run, result.cells_reused, result.wall_time_s

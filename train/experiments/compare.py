@@ -67,7 +67,7 @@ def check_comparison(
     A trained agent naming a multi-seed run (``ALGO:DIR`` with ``DIR/seed_<s>/``) stands
     for one agent per seed (the request's ``controllers``; ``named_controllers`` are the
     names as given and ``seed_groups`` each multi-seed name's agents; scores across seeds
-    need rliable).
+    are rliable's IQM and interval).
 
     The cheap checks come first and build no env
     (:func:`~observer_gym.train.experiments.request.resolve_request`); then each baseline controller

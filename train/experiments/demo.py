@@ -15,7 +15,6 @@ from typing import Any
 import cv2
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.controllers import make_controller
@@ -30,6 +29,7 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.plots import draw_table, new_figure, save_figure
+from observer_gym.train.reports.progress import progress_bar
 
 ENV_ID = "observer_gym/BallTable-v0"
 CONTROLLER = "lqr"
@@ -193,7 +193,7 @@ def _run_episode(
     terminated = truncated = False
     step_time_s = 0.0
     steps = 0
-    with tqdm(total=steps_wanted, unit="step", desc="demo", disable=not progress) as bar:
+    with progress_bar(total=steps_wanted, unit="step", desc="demo", disable=not progress) as bar:
         while steps < steps_wanted and not (terminated or truncated):
             tic_s = time.perf_counter()
             action, _ = controller.predict(obs)

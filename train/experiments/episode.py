@@ -19,7 +19,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from observer_gym.controllers import (
     controllers_for,
@@ -40,6 +39,7 @@ from observer_gym.train.reports.consistency import (
 from observer_gym.train.reports.outputs import (
     to_jsonable,
 )
+from observer_gym.train.reports.progress import progress_bar
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import parse_agent_spec
 
@@ -333,7 +333,7 @@ def run_episodes(
     records: list[Any] = [None] * len(specs)
     if not specs:
         return []
-    with tqdm(total=len(specs), unit="episode", desc=desc, disable=not progress) as bar:
+    with progress_bar(total=len(specs), unit="episode", desc=desc, disable=not progress) as bar:
         for index, record in iter_episodes(specs, workers):
             records[index] = record
             bar.update(1)

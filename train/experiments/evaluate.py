@@ -15,7 +15,7 @@ import numpy as np
 
 from observer_gym.train.experiments.run import run_experiment
 from observer_gym.train.experiments.tasks import task_for
-from observer_gym.train.reports.aggregate import METHOD, SeedStatistics, across_seeds, check_rliable
+from observer_gym.train.reports.aggregate import METHOD, SeedStatistics, across_seeds
 from observer_gym.train.reports.compare_stats import MetricSpec, compare_metrics
 from observer_gym.train.reports.outputs import (
     OutputFolderWarning,
@@ -151,15 +151,13 @@ def evaluate_seeds(
     """Score the agent of every seed of the multi-seed run in ``seeds_dir`` on the same
     ``episodes`` episodes (seeds ``seed``, ``seed + 1``, ...): :func:`evaluate_agent` of
     each into ``out_dir/seed_<s>/`` (its results.json and plots), then across seeds the
-    mean and the IQM with its 95 % interval (rliable) of each agent's mean of the task's
+    mean and the IQM with its 95 % interval (rliable's method) of each agent's mean of the task's
     primary metric, written to ``out_dir/across_seeds.json`` and ``across_seeds.md``.
 
     Raises:
         ValueError: no multi-seed run in ``seeds_dir``, or a seed's run that cannot be
             evaluated (as :func:`evaluate_agent`).
-        ImportError: rliable is not installed (the message names the pip command).
     """
-    check_rliable()
     runs = seed_run_dirs(seeds_dir)
     if not is_multi_seed(seeds_dir):
         raise ValueError(f"{seeds_dir} is not a multi-seed training run (no seed_<s>/ runs)")

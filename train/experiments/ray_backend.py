@@ -24,9 +24,8 @@ import tempfile
 from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
-from tqdm import tqdm
-
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
+from observer_gym.train.reports.progress import progress_bar
 
 INSTALL_HINT = "pip install 'observer-gym[distributed]'"
 CANCEL_WAIT_S = 60.0  # how long cancelled tasks get to end before Ray shuts down
@@ -172,7 +171,7 @@ def run_tasks_ray(
     tasks = contextlib.closing(iter_tasks_ray(function, arguments, address))
     with (
         tasks as finished,
-        tqdm(total=len(arguments), unit=unit, desc=desc, disable=not progress) as bar,
+        progress_bar(total=len(arguments), unit=unit, desc=desc, disable=not progress) as bar,
     ):
         for index, result in finished:
             results[index] = result

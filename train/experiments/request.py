@@ -48,7 +48,6 @@ from observer_gym.train.experiments.entries import (
 from observer_gym.train.experiments.observer_env import observer_env_options, observer_setup
 from observer_gym.train.experiments.systems import resolve_env_id
 from observer_gym.train.experiments.tasks import task_of
-from observer_gym.train.reports.aggregate import check_rliable
 from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
 
 
@@ -277,7 +276,7 @@ def resolve_request(
     """The :class:`Request` of these inputs, after the checks that build no env: the env,
     the observers (the task's ``OBSERVERS`` or outside entries that import), the
     controllers (:func:`check_controller` for every pair; a
-    multi-seed agent stands for its seeds' agents, which needs rliable), non-empty lists
+    multi-seed agent stands for its seeds' agents), non-empty lists
     without duplicates, seeds, ``workers``, ``steps``, ``backend``, ``address``, no
     ``obs_mode`` in ``env_kwargs``, and options only where an outside entry takes them.
 
@@ -300,11 +299,6 @@ def resolve_request(
     duplicates = sorted({c for c in expanded if expanded.count(c) > 1})
     if duplicates:
         raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
-    if seed_groups:
-        try:
-            check_rliable()
-        except ImportError as exc:
-            raise ValueError(str(exc)) from None
     for controller in expanded:
         for observer in observer_names:
             check_controller(controller, system.env_id, observer)

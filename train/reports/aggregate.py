@@ -1,7 +1,8 @@
-"""Scores across seeds, as benchmark papers report them, computed by the ``rliable``
-library (Agarwal et al., 2021): the interquartile mean (IQM, ``rliable.metrics.
-aggregate_iqm``: the mean of the middle 50 % of the scores) with a stratified-bootstrap
-95 % interval (``rliable.library.get_interval_estimates``, percentile method).
+"""Scores across seeds, as benchmark papers report them, with rliable's statistics
+(Agarwal et al., 2021) computed in NumPy and SciPy
+(:mod:`observer_gym.train.reports.bootstrap`, which reproduces rliable's numbers to the
+last bit): the interquartile mean (IQM: the mean of the middle 50 % of the scores) with a
+stratified-bootstrap 95 % interval (percentile method), seeded.
 
 - :func:`across_seeds`: one score per seed (an agent's final evaluation return, or its
   mean of a metric over the same episodes) -> :class:`SeedStatistics`;
@@ -12,22 +13,27 @@ aggregate_iqm``: the mean of the middle 50 % of the scores) with a stratified-bo
 
 With fewer than four seeds the 25 % trimming removes none, so the IQM equals the mean; the
 bootstrap of a handful of seeds gives a narrow interval, which says little: report many
-seeds. ``rliable`` is an optional dependency (``pip install 'observer-gym[rl]'``).
+seeds. Nothing here needs rliable.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
+from observer_gym.train.reports.bootstrap import (
+    BOOTSTRAP_SEED,
+    CONFIDENCE,
+    interval_estimates,
+    iqm,
+    mean_of_task_means,
+)
 from observer_gym.train.reports.outputs import (
     format_table,
     output_set,
@@ -36,56 +42,20 @@ from observer_gym.train.reports.outputs import (
 )
 from observer_gym.train.rl.run_dir import read_config, seed_run_dirs
 
-INSTALL_HINT = "pip install 'observer-gym[rl]'"
-CONFIDENCE = 0.95
 FINAL_REPS = 10_000  # bootstrap replications of a final score's interval
 CURVE_REPS = 2_000  # per evaluation point of the learning curve's band
-BOOTSTRAP_SEED = 0  # the bootstrap's random state: the same scores, the same interval
 METHOD = "IQM (25 % trimmed mean) with a stratified-bootstrap percentile interval (rliable)"
 AGGREGATE_JSON = "aggregate.json"
 AGGREGATE_MD = "aggregate.md"
 CURVES_PNG = "learning_curves.png"
 
 
-def check_rliable() -> None:
-    """ImportError naming the pip command unless ``rliable`` is installed; imports nothing."""
-    if importlib.util.find_spec("rliable") is None:
-        raise ImportError(
-            f"scores across seeds need rliable, which is not installed: {INSTALL_HINT}"
-        )
-
-
-def _rliable() -> tuple[ModuleType, ModuleType]:
-    """rliable's ``library`` and ``metrics`` modules (ImportError naming the pip command)."""
-    try:
-        from rliable import library, metrics
-    except ImportError as exc:
-        raise ImportError(
-            f"scores across seeds need rliable, which is not installed or broken ({exc}): "
-            f"{INSTALL_HINT}"
-        ) from exc
-    return library, metrics
-
-
 def _interval_estimates(scores: np.ndarray, function: Any, reps: int) -> tuple[Any, np.ndarray]:
-    """rliable's point estimate and (2, ...) interval of ``function`` over ``scores``
-    (runs x tasks [x points]), bootstrapped ``reps`` times.
-
-    rliable's stratified bootstrap draws its resamples from NumPy's global random state
-    (``np.random.choice``; the ``random_state`` it takes does not reach them), so that
-    state is seeded with :data:`BOOTSTRAP_SEED` for the call and restored after it: the
-    same scores give the same interval, and the caller's random state is left as it was.
-    """
-    library, _ = _rliable()
-    saved = np.random.get_state()  # noqa: NPY002  (the global state rliable draws from)
-    np.random.seed(BOOTSTRAP_SEED)  # noqa: NPY002
-    try:
-        points, intervals = library.get_interval_estimates(
-            {"scores": scores}, function, reps=reps, confidence_interval_size=CONFIDENCE
-        )
-    finally:
-        np.random.set_state(saved)  # noqa: NPY002
-    return points["scores"], intervals["scores"]
+    """The point estimate and (2, ...) interval of ``function`` over ``scores`` (runs x
+    tasks [x points]), bootstrapped ``reps`` times with seed :data:`BOOTSTRAP_SEED`
+    (:func:`~observer_gym.train.reports.bootstrap.interval_estimates`: rliable's numbers):
+    the same scores give the same interval; the caller's random state is not touched."""
+    return interval_estimates(scores, function, reps, CONFIDENCE, BOOTSTRAP_SEED)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,12 +78,11 @@ class SeedStatistics:
 
 
 def across_seeds(scores: Mapping[int, float], reps: int = FINAL_REPS) -> SeedStatistics:
-    """The mean and the IQM with its 95 % stratified-bootstrap interval (rliable) of
-    ``scores`` (seed -> score), by seed.
+    """The mean and the IQM with its 95 % stratified-bootstrap interval (rliable's
+    method and numbers) of ``scores`` (seed -> score), by seed.
 
     Raises:
         ValueError: no score, or one that is not a finite number.
-        ImportError: rliable is not installed (the message names the pip command).
     """
     if not scores:
         raise ValueError("scores across seeds need at least one seed's score, got none")
@@ -125,10 +94,7 @@ def across_seeds(scores: Mapping[int, float], reps: int = FINAL_REPS) -> SeedSta
         )
     if isinstance(reps, bool) or not isinstance(reps, int) or reps < 1:
         raise ValueError(f"reps must be an integer >= 1, got {reps!r}")
-    _, metrics = _rliable()
-    point, interval = _interval_estimates(
-        values[:, None], lambda x: np.array([metrics.aggregate_iqm(x)]), reps
-    )
+    point, interval = _interval_estimates(values[:, None], lambda x: np.array([iqm(x)]), reps)
     return SeedStatistics(
         seeds=seeds,
         scores=tuple(values.tolist()),
@@ -211,10 +177,9 @@ def curve_band(curves: Sequence[EvalCurve], reps: int = CURVE_REPS) -> CurveBand
         [[dict(zip(c.timesteps, c.return_mean, strict=True))[s] for s in common] for c in curves],
         dtype=float,
     )
-    _, metrics = _rliable()
 
     def means(x: np.ndarray) -> np.ndarray:  # x: seeds x 1 task x points
-        return np.array([metrics.aggregate_mean(x[..., j]) for j in range(x.shape[-1])])
+        return np.array([mean_of_task_means(x[..., j]) for j in range(x.shape[-1])])
 
     point, interval = _interval_estimates(table[:, None, :], means, reps)
     return CurveBand(
@@ -288,7 +253,7 @@ class Aggregate:
             "eval_episodes": {str(k): v for k, v in self.eval_episodes.items()},
             "curve": self.curve.as_dict(),
             "files": list(self.files),
-            "versions": package_versions(("observer-gym", "rliable", "stable-baselines3")),
+            "versions": package_versions(("observer-gym", "numpy", "scipy", "stable-baselines3")),
         }
 
 
@@ -303,7 +268,6 @@ def aggregate_runs(
     Raises:
         ValueError: no seed runs in ``out_dir``, runs of different envs, algorithms or
             observations, or a run that has not evaluated yet.
-        ImportError: rliable is not installed (the message names the pip command).
     """
     out_dir = Path(out_dir)
     runs = seed_run_dirs(out_dir)

@@ -44,7 +44,6 @@ from observer_gym.train.cli.checks import check_backend, check_seeds, check_seed
 from observer_gym.train.reports.aggregate import (
     Aggregate,
     aggregate_runs,
-    check_rliable,
     statistics_text,
 )
 from observer_gym.train.reports.folder_lock import check_not_busy, folder_lock
@@ -171,7 +170,7 @@ def train_seeds(
             must see ``out_dir`` at the same path (a shared file system).
         progress: show a progress bar over the seeds' env steps (their checkpoints').
         cli_args: the command line, recorded in seeds.json and each config.json.
-        reps: bootstrap replications of the final scores' interval (None: rliable's
+        reps: bootstrap replications of the final scores' interval (None:
             :data:`~observer_gym.train.reports.aggregate.FINAL_REPS`).
         options: the other keywords of ``train_agent`` (timesteps, estimate_from,
             observer, n_envs, vec_env, hyperparams, env_kwargs, tensorboard).
@@ -185,10 +184,8 @@ def train_seeds(
             (also one written there by another command since the first check), before
             anything is written.
         FolderBusyError: another command holds ``out_dir``; nothing was written.
-        ImportError: rliable, which the aggregate needs, is not installed (checked first).
         RuntimeError: a seed's training raised (the others run to their end first).
     """
-    check_rliable()
     seeds = check_seeds(seeds)
     check_backend(backend, workers, address)
     out_dir = Path(out_dir)
@@ -239,9 +236,7 @@ def resume_seeds(
     Raises:
         ValueError: no multi-seed run there, a seed still running, or a bad argument.
         FolderBusyError: another command holds ``out_dir`` or a seed's folder.
-        ImportError: rliable is not installed.
     """
-    check_rliable()
     check_backend(backend, workers, address)
     if timesteps is not None and (int(timesteps) != timesteps or timesteps < 1):
         raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")

@@ -18,7 +18,10 @@ kf-measurements--lqr/``. Two commands::
 check_folder`), except that a row's package versions may differ from this installation's
 (rows span releases: the table shows the observer-gym version each was measured with),
 and refuses an unofficial folder. The page ranks each system's entries by their IQM over
-the levels; the figure draws the intervals with rliable's ``plot_interval_estimates``.
+the levels; the figure draws the intervals with rliable's ``plot_interval_estimates``,
+the one use of rliable left (optional: ``pip install 'observer-gym[rl]'``; without it
+``generate`` stops with one line before it reads or writes anything; ``publish`` and the
+scores need none).
 Mistakes are one line on stderr and exit code 2; a folder that does not check out is one
 line and exit code 1.
 """
@@ -245,6 +248,22 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
     return "\n".join(lines)
 
 
+FIGURES_INSTALL_HINT = "pip install 'observer-gym[rl]'"
+
+
+def figures_problem() -> str | None:
+    """Why the figures cannot be drawn here (rliable's plotting cannot be imported), in
+    one line naming the pip command; None if they can."""
+    try:
+        from rliable import plot_utils  # noqa: F401  (arch, pandas < 3, seaborn)
+    except ImportError as exc:
+        return (
+            f"the leaderboard's figures are drawn with rliable, which is not installed or "
+            f"broken ({exc}): {FIGURES_INSTALL_HINT}"
+        )
+    return None
+
+
 def draw_figures(rows: Sequence[Row], figures_dir: Path) -> list[Path]:
     """One PNG per system: each entry's level scores and IQM with their intervals
     (rliable's ``plot_interval_estimates``); the files written."""
@@ -322,6 +341,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         root = Path(args.root)
         if not root.is_dir():
             print(error_line(PROG, f"{root} is not a folder"), file=sys.stderr)
+            return 2
+        problem = figures_problem()
+        if problem:  # before anything is read or written
+            print(error_line(PROG, problem), file=sys.stderr)
             return 2
         out = Path(args.out)
         figures = Path(args.figures)

@@ -45,8 +45,12 @@ def level_file(
     seeds: Sequence[int],
     values: Sequence[float],
     episode_s: Sequence[float],
+    wall_s: float | None = None,
 ) -> dict[str, Any]:
-    """What ``levels/<level>.json`` holds for a finished level."""
+    """What ``levels/<level>.json`` holds for a finished level; ``timing`` (outside the
+    hash): each episode's time and the level's wall time ``wall_s`` (the levels run in one
+    batch: the time from the batch's start, or the previous level's end, to its end, so
+    the levels of a batch sum to the batch's wall time)."""
     data: dict[str, Any] = {
         "format": LEVEL_FORMAT,
         "run": digest,
@@ -56,7 +60,23 @@ def level_file(
     }
     data["sha256"] = canonical_sha256({key: data[key] for key in HASHED})
     data["timing"] = {"episode_s": [float(t) for t in episode_s]}
+    if wall_s is not None:
+        data["timing"]["wall_s"] = float(wall_s)
     return data
+
+
+def level_wall_s(data: Mapping[str, Any]) -> float:
+    """A finished level file's wall time: its ``timing.wall_s``, or for a file written
+    before levels recorded it, the sum of its episodes' times (one worker's wall time)."""
+    timing = data.get("timing")
+    timing = timing if isinstance(timing, dict) else {}
+    wall_s = timing.get("wall_s")
+    if isinstance(wall_s, int | float) and not isinstance(wall_s, bool):
+        return float(wall_s)
+    episode_s = timing.get("episode_s")
+    if isinstance(episode_s, list):
+        return float(sum(t for t in episode_s if isinstance(t, int | float)))
+    return 0.0
 
 
 def level_problem(data: Any, digest: str, level: str, seeds: Sequence[int]) -> str | None:

@@ -34,7 +34,9 @@ SCORES_JSON = "scores.json"
 TABLE_MD = "table.md"
 SCORES_PNG = "scores.png"
 TIMING_JSON = "timing.json"
-PACKAGES = (*VERSIONED_PACKAGES, "scipy", "rliable")
+# rliable is no longer among them: its statistics are computed here, to the same bits
+# (observer_gym.train.reports.bootstrap); folders that recorded its version still check
+PACKAGES = (*VERSIONED_PACKAGES, "scipy")
 
 
 def versions() -> dict[str, str]:
@@ -185,7 +187,8 @@ def table_markdown(suite: SystemSuite, document: Mapping[str, Any]) -> str:
 
 
 def plot_scores(document: Mapping[str, Any], path: Path) -> None:
-    """Interval estimates of the level scores and the aggregate, as rliable draws them."""
+    """Interval estimates of the level scores and the aggregate, drawn as rliable's
+    interval-estimate plots draw them (matplotlib alone)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -220,8 +223,11 @@ def write_outputs(
     request: BenchmarkRequest,
     records: Sequence[EpisodeRecord],
     wall_s: float,
+    reused_s: Mapping[str, float] | None = None,
 ) -> tuple[Scores, str]:
-    """Write the run's outputs into ``out_dir``; its scores and table text."""
+    """Write the run's outputs into ``out_dir``; its scores and table text. ``wall_s``:
+    this call's wall time; ``reused_s``: the recorded wall times of the levels it reused
+    (:func:`timing_document`)."""
     suite = request.suite
     entry = {
         "observer": request.observer,
@@ -240,8 +246,22 @@ def write_outputs(
         (staging / TABLE_MD).write_text(text, encoding="utf-8")
         plot_scores(document, staging / SCORES_PNG)
         write_json_atomic(staging / SCORES_JSON, document)
-    write_json_atomic(
-        out_dir / TIMING_JSON,
-        {"wall_s": wall_s, "workers": request.workers, "backend": request.backend},
-    )
+    write_json_atomic(out_dir / TIMING_JSON, timing_document(request, wall_s, reused_s or {}))
     return scores, text
+
+
+def timing_document(
+    request: BenchmarkRequest, this_run_s: float, reused_s: Mapping[str, float]
+) -> dict[str, Any]:
+    """What ``timing.json`` holds: ``wall_s``, the run's wall time: this call's
+    (``this_run_s``) plus the recorded wall times of the levels it reused from the folder
+    (``reused_s``, by level: each level's own, as its file records it), so a resumed run
+    reports the time its levels took, not only the resume's; ``this_run_s`` and
+    ``reused_levels_s`` apart; the workers and the backend (of this call)."""
+    return {
+        "wall_s": this_run_s + sum(reused_s.values()),
+        "this_run_s": this_run_s,
+        "reused_levels_s": {name: float(s) for name, s in reused_s.items()},
+        "workers": request.workers,
+        "backend": request.backend,
+    }

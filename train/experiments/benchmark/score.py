@@ -13,6 +13,8 @@ interquartile mean (``rliable.metrics.aggregate_iqm``) of the level scores, with
 stratified-bootstrap 95 % interval: the episodes are resampled within each level (the
 strata), the level means recomputed, their IQM taken. With three levels the 25 % trim
 removes none, so the IQM equals the mean of the level scores (docs/benchmark.md).
+Both are computed in NumPy and SciPy (:mod:`observer_gym.train.reports.bootstrap`, which
+draws rliable's random numbers: rliable's results to the last bit, without rliable).
 The bootstrap is seeded (:func:`observer_gym.train.reports.aggregate._interval_estimates`):
 the same episodes give the same intervals, which is what ``benchmark --check`` re-derives.
 """
@@ -26,6 +28,7 @@ import numpy as np
 
 from observer_gym.train.experiments.benchmark.suite import References
 from observer_gym.train.reports.aggregate import _interval_estimates
+from observer_gym.train.reports.bootstrap import iqm
 
 BOOTSTRAP_REPS = 2_000
 METHOD = (
@@ -70,9 +73,7 @@ def normalised(values: Sequence[float], refs: References, better: str) -> np.nda
 
 def _iqm_of_level_means(matrix: np.ndarray) -> float:
     """rliable's IQM of the column (level) means of ``matrix`` (episodes x levels)."""
-    from rliable import metrics
-
-    return float(metrics.aggregate_iqm(np.mean(matrix, axis=0, keepdims=True)))
+    return iqm(np.mean(matrix, axis=0, keepdims=True))
 
 
 def _mean(matrix: np.ndarray) -> float:
@@ -80,7 +81,7 @@ def _mean(matrix: np.ndarray) -> float:
 
 
 def _interval(matrix: np.ndarray, function: Callable[[np.ndarray], float], reps: int) -> Interval:
-    """``function(matrix)`` with its rliable bootstrap 95 % interval (seeded)."""
+    """``function(matrix)`` with its (rliable's) bootstrap 95 % interval, seeded."""
     point, interval = _interval_estimates(matrix, function, reps)
     low, high = np.ravel(interval)
     return Interval(float(point), float(low), float(high))
