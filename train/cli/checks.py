@@ -25,6 +25,7 @@ import numpy as np
 
 from observer_gym.envs import SYSTEMS, system_for_id
 from observer_gym.envs.config import check_render_mode
+from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.rl.hyperparams import ALGOS, resolve_hyperparams
@@ -66,6 +67,10 @@ def check_observer(env_id: str, observer: str) -> str:
     env_id = system_for_id(env_id).env_id
     if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
+    else:
+        from observer_gym.train.experiments.observer_env import require_observer_modules
+
+        require_observer_modules(env_id, observer)  # the learned ones: PyTorch
     return env_id
 
 
@@ -145,6 +150,7 @@ def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str)
     ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``."""
     spec = parse_agent_spec(controller)
     assert spec is not None, f"{controller!r} is not ALGO:DIR"  # the callers' check
+    require_rl(f"agent {controller!r}")  # stable-baselines3 and PyTorch load it
     algo, run_dir = spec
     agent = read_config(run_dir, algo=algo)
     model_files(run_dir)
