@@ -10,8 +10,8 @@ every observation mode, ``observer-gym list`` (the [rl] entries marked), a class
 ``compare``, a short ``demo``; ``train``, ``evaluate``, a learned observer, a trained
 agent, a stable-baselines3 zip each give one line on stderr and exit code 2 before any
 env; the Python API raises :class:`observer_gym.extras.ExtraNotInstalled` (an
-ImportError) naming the install line. CI's plain-install step (.ci/run) checks the built
-wheel in a venv where torch is really absent.
+ImportError) naming the install line, and so does importing the training module. CI's
+plain-install step (.ci/run) checks the built wheel in a venv where torch is absent.
 """
 
 from __future__ import annotations
@@ -146,6 +146,12 @@ CHILD = textwrap.dedent(
         except ExtraNotInstalled as exc:
             api[name] = [isinstance(exc, ImportError), str(exc)]
     env.close()
+    try:
+        import observer_gym.train.rl.training  # noqa: F401  (stable-baselines3 at import)
+
+        api["import training"] = None
+    except ExtraNotInstalled as exc:
+        api["import training"] = [isinstance(exc, ImportError), str(exc)]
     report["api"] = api
     report["attempts"] = ATTEMPTS
     report["loaded"] = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
@@ -226,6 +232,11 @@ def test_python_api_raises_an_import_error_naming_the_install_line(light):
     assert api["compare"] == [
         True,
         f"observer 'learned-measurements' needs PyTorch, which is not installed: {RL_INSTALL}",
+    ]
+    assert api["import training"] == [
+        True,
+        "training an agent (observer_gym.train.rl) needs stable-baselines3 and PyTorch, which "
+        f"are not installed: {RL_INSTALL}",
     ]
     assert api["agent"] == [
         True,
