@@ -227,6 +227,9 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         terminated = truncated = False
         try:
             obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
+            # The ground truth as the env gave it, copied before any entry sees the step
+            # (outside entries are shown read-only copies: entry_guard).
+            states = [np.array(info["state"], dtype=float)]
             observe_info(info)
             samples = [info]
             while not (terminated or truncated) and (
@@ -234,6 +237,7 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
             ):
                 action, _ = controller.predict(obs)
                 obs, reward, terminated, truncated, info = env.step(action)
+                states.append(np.array(info["state"], dtype=float))
                 observe_info(info)
                 actions.append(np.asarray(action, dtype=float))
                 rewards.append(float(reward))
@@ -245,7 +249,7 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         record: dict[str, Any] = {
             # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
             "time_s": np.round([s["time_s"] for s in samples], 9),
-            "state": np.array([s["state"] for s in samples], dtype=float),
+            "state": np.array(states),
             "estimate": None,
             "estimate_std": None,
             "actions": np.array(actions).reshape(len(actions), *env.action_space.shape),

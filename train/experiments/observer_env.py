@@ -19,6 +19,7 @@ from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.observer import env_options_of, modules_needed
 from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.entry_guard import CheckedPipeline
 from observer_gym.train.experiments.tasks import task_for
 
 
@@ -111,7 +112,10 @@ def wrap_observer(
         _, pipeline_options, plugin = observer_setup(env_id, observer)
         if plugin is not None:
             pipeline = entries.build(plugin, env.unwrapped, observer_options)
-            return VisionObserver(env, pipeline=pipeline, name=observer)
+            base: Any = env.unwrapped  # an observer-gym env: it has the state layout
+            state_dim = base.state_space.shape[0]
+            checked = CheckedPipeline(pipeline, plugin, state_dim)
+            return VisionObserver(env, pipeline=checked, name=observer)
         if observer == "oracle" or pipeline_options is None:
             if observer_options:
                 raise ValueError(

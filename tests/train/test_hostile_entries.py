@@ -1,0 +1,201 @@
+"""Outside entries that misbehave (issue 43): they cannot change what an episode records,
+and every way they fail is one line naming the entry, the episode's seed and its step."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from hostile_package import forget_hostile, write_hostile
+
+import observer_gym
+from observer_gym.train.cli import main
+
+ENV = "BallTable-v0"
+STEPS = 12
+COMMON = ["--env", ENV, "--episodes", "1", "--seed", "3", "--steps", str(STEPS), "--no-progress"]
+
+
+@pytest.fixture
+def hostile(tmp_path, monkeypatch):
+    """The module ``hostile`` on sys.path (this process and the workers it spawns)."""
+    root = write_hostile(tmp_path / "site")
+    monkeypatch.syspath_prepend(str(root))
+    forget_hostile()
+    yield root
+    forget_hostile()
+
+
+def _run(observer, controller, out, **kwargs):
+    return observer_gym.run(ENV, observer, controller, episodes=1, seed=3, steps=STEPS,
+                            out_dir=out, **kwargs)  # fmt: skip
+
+
+# --- 4: the ground truth no entry can reach ----------------------------------------------------
+def test_an_observer_writing_into_the_ground_truth_is_refused_in_one_line(hostile, tmp_path):
+    with pytest.raises(ValueError, match=r"observer 'hostile:forger-measurements'.*read-only") as e:
+        _run("hostile:forger-measurements", "lqr", tmp_path / "forged")
+    assert "tried before any episode" in str(e.value) and "\n" not in str(e.value)
+    assert not (tmp_path / "forged").exists()
+
+
+def test_an_observer_that_unlocks_its_view_changes_only_its_copy(hostile, tmp_path):
+    honest = _run("kf-measurements", "lqr", tmp_path / "kf")
+    forged = _run("hostile:unlocking_forger-measurements", "lqr", tmp_path / "forged")
+    assert honest.summary["position_rmse_m"] > 0.0
+    assert forged.summary["position_rmse_m"] == honest.summary["position_rmse_m"]
+    assert forged.summary == honest.summary
+
+
+@pytest.mark.parametrize("mode", ["forge", "forge_estimate"])
+def test_a_controller_writing_into_observe_info_is_refused(hostile, tmp_path, mode):
+    with pytest.raises(ValueError, match=r"controller 'hostile:controller'.*observe_info"):
+        _run("kf-measurements", "hostile:controller", tmp_path / mode,
+             controller_options={"mode": mode})  # fmt: skip
+    assert not (tmp_path / mode).exists()
+
+
+# --- 10: a covariance the NEES cannot use --------------------------------------------------------
+@pytest.mark.parametrize(
+    ("kind", "what"),
+    [
+        ("negative", "variance"),
+        ("zero", "variance"),
+        ("asymmetric", "not symmetric"),
+        ("indefinite", "not positive definite"),
+    ],
+)
+def test_a_covariance_the_nees_cannot_use_is_refused(hostile, tmp_path, kind, what):
+    with pytest.raises(ValueError, match=what) as e:
+        _run("hostile:covariance-measurements", "lqr", tmp_path / kind,
+             observer_options={"kind": kind})  # fmt: skip
+    message = str(e.value)
+    assert "observer 'hostile:covariance-measurements'" in message
+    assert "episode seed 3, after 2 steps" in message  # observe #4 follows step 3's action
+    assert not (tmp_path / kind).exists()
+
+
+# --- 17 and 11: an exception, or sys.exit, part-way ----------------------------------------------
+@pytest.mark.parametrize("workers", ["1", "2"])
+@pytest.mark.parametrize(
+    ("observer", "controller", "said"),
+    [
+        ("hostile:raises_late-measurements", "lqr", "RuntimeError: the filter diverged"),
+        ("kf-measurements", "hostile:controller", "KeyError"),
+        ("hostile:exits_in_observe-measurements", "lqr", "SystemExit"),
+        ("hostile:exits_in_factory-measurements", "lqr", "SystemExit"),
+        ("hostile_exit:make-measurements", "lqr", "SystemExit"),
+    ],
+)
+def test_a_fault_part_way_is_one_line_and_exits_non_zero(
+    hostile, tmp_path, capsys, observer, controller, said, workers
+):
+    out = tmp_path / "out"
+    options = ["--controller-option", "mode=raise"] if controller.startswith("hostile") else []
+    argv = ["run", "--observer", observer, "--controller", controller, *options, *COMMON,
+            "--workers", workers, "--out", str(out)]  # fmt: skip
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code != 0
+    assert err.count("\n") == 1, err
+    assert said in err
+    assert repr(observer if "hostile" in observer else controller) in err
+    assert not (out / "results.json").exists()
+
+
+def test_sys_exit_in_predict_is_one_line(hostile, tmp_path, capsys):
+    argv = ["run", "--observer", "kf-measurements", "--controller", "hostile:controller",
+            "--controller-option", "mode=exit", *COMMON,
+            "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "SystemExit" in err and "hostile:controller" in err
+
+
+# --- 23: an absurd action, options that cannot be recorded ---------------------------------------
+def test_a_huge_finite_action_is_clipped_as_the_env_clips_it(hostile, tmp_path):
+    import gymnasium as gym
+
+    bound = float(np.max(gym.make(f"observer_gym/{ENV}").action_space.high))
+    result = _run("oracle", "hostile:controller", tmp_path / "huge",
+                  controller_options={"scale": 1e300})  # fmt: skip
+    assert (tmp_path / "huge" / "results.json").is_file()
+    effort = result.summary["effort_rms_rad"]
+    # saturated at the bound it is applied as, on both tilt axes: sqrt(2) * bound
+    assert effort == pytest.approx(np.sqrt(2) * bound, rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [({"scale": float("inf")}, "scale"), ({"scale": {1, 2}}, "scale"),
+     ({"scale": float("nan")}, "scale")],
+)  # fmt: skip
+def test_options_that_cannot_be_recorded_are_refused_up_front(hostile, tmp_path, options, named):
+    with pytest.raises(ValueError, match=f"controller option {named!r}"):
+        _run("oracle", "hostile:controller", tmp_path / "bad", controller_options=options)
+    assert not (tmp_path / "bad").exists()
+
+
+# --- 6 and 7: closures of the same qualname ------------------------------------------------------
+def _scaled(scale, built=None, barrier=None):
+    def factory(env):
+        from observer_gym.controllers import make_controller
+
+        if built is not None:
+            built.append((threading.current_thread().name, scale))
+        if barrier is not None:
+            barrier.wait(timeout=20)
+        lqr = make_controller("lqr", env)
+
+        class Scaled:
+            def predict(self, obs, state=None, episode_start=None, deterministic=True):
+                return scale * np.asarray(lqr.predict(obs)[0]), state
+
+        return Scaled()
+
+    return factory
+
+
+def test_two_threads_with_same_qualname_closures_run_their_own(tmp_path):
+    built: list = []
+    barrier = threading.Barrier(2)
+    results = {}
+
+    def go(name, scale):
+        factory = _scaled(scale, built, barrier)
+        results[name] = _run("oracle", factory, tmp_path / name)
+
+    threads = [
+        threading.Thread(target=go, args=(n, s), name=n) for n, s in (("a", 1.0), ("b", 0.25))
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert {(name, scale) for name, scale in built} == {("a", 1.0), ("b", 0.25)}
+    assert results["a"].summary != results["b"].summary
+    assert (
+        results["a"].results["config"]["controller"] != results["b"].results["config"]["controller"]
+    )
+
+
+def test_a_resumed_sweep_does_not_reuse_another_closures_cells(tmp_path):
+    out = tmp_path / "sweep"
+
+    def sweep(scale):
+        return observer_gym.sweep(ENV, {"latency_s": [0.0]}, "oracle", _scaled(scale),
+                                  out_dir=out, seeds=[0], steps=STEPS)  # fmt: skip
+
+    first = sweep(1.0)
+    fresh = observer_gym.sweep(ENV, {"latency_s": [0.0]}, "oracle", _scaled(0.25),
+                               out_dir=tmp_path / "fresh", seeds=[0], steps=STEPS)  # fmt: skip
+    try:
+        second = sweep(0.25)
+    except ValueError as exc:  # refused: the folder holds another sweep
+        assert "another" in str(exc) or "sweep" in str(exc)
+        return
+    assert second.results["cells"] != first.results["cells"] or second.results == fresh.results
+    assert [c["summary"] for c in second.results["cells"]] == [
+        c["summary"] for c in fresh.results["cells"]
+    ]
