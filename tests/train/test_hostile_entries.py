@@ -199,3 +199,49 @@ def test_a_resumed_sweep_does_not_reuse_another_closures_cells(tmp_path):
     assert [c["summary"] for c in second.results["cells"]] == [
         c["summary"] for c in fresh.results["cells"]
     ]
+
+
+# --- 19 and the names shown: installed entry points named badly ---------------------------------
+@pytest.fixture
+def badly_named(tmp_path, monkeypatch):
+    """A distribution ``badnames`` whose entry points are named ``kf2-measurements``, with
+    an escape code, and ``fine``."""
+    from observer_gym.train.experiments import entries
+
+    root = write_hostile(tmp_path / "site")
+    info = root / "badnames-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: badnames\nVersion: 1.0\n")
+    (info / "top_level.txt").write_text("hostile\n")
+    (info / "entry_points.txt").write_text(
+        "[observer_gym.observers]\n"
+        "kf2-measurements = hostile:forger\n"
+        "red\x1b[31mname = hostile:forger\n"
+        "fine = hostile:unlocking_forger\n"
+    )
+    monkeypatch.syspath_prepend(str(root))
+    forget_hostile()
+    entries.refresh()
+    yield root
+    forget_hostile()
+    monkeypatch.undo()
+    entries.refresh()
+
+
+def test_an_entry_point_named_measurements_is_refused_by_name_and_list_works(badly_named, capsys):
+    assert main(["list"]) == 0
+    out, err = capsys.readouterr()
+    assert "fine" in out
+    assert "kf2-measurements" not in out
+    assert "entry point 'kf2-measurements' of badnames is ignored" in err
+    assert "may not end in '-measurements'" in err
+    assert "\x1b" not in out + err  # the escape code is shown escaped, never raw
+    assert "red\\x1b[31mname" in err
+
+
+def test_an_objects_unprintable_qualname_is_escaped_in_its_name(tmp_path):
+    factory = _scaled(1.0)
+    factory.__qualname__ = "evil\x1b[2J"
+    result = _run("oracle", factory, tmp_path / "escaped")
+    name = result.results["config"]["controller"]
+    assert "\x1b" not in name and "evil\\x1b[2J@" in name

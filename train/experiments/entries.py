@@ -52,6 +52,7 @@ import math
 import pickle
 import reprlib
 import types
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from importlib import metadata
 from typing import Any, NamedTuple
@@ -102,8 +103,44 @@ def is_import_path(text: str) -> bool:
 
 @functools.cache
 def entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
-    """The installed entry points of ``kind`` ("observer" or "controller"), by name."""
-    return {ep.name: ep for ep in metadata.entry_points(group=GROUPS[kind])}
+    """The installed entry points of ``kind`` ("observer" or "controller"), by name,
+    without those refused with a warning naming them (:func:`entry_point_problem`)."""
+    found = {}
+    for ep in metadata.entry_points(group=GROUPS[kind]):
+        problem = entry_point_problem(kind, ep.name)
+        if problem is None:
+            found[ep.name] = ep
+            continue
+        from observer_gym.train.reports.outputs import OneLineWarning  # deferred: light import
+
+        distribution = ep.dist.name if ep.dist is not None else "an unknown distribution"
+        warnings.warn(
+            f"the {kind} entry point '{printable(ep.name)}' of {distribution} is ignored: "
+            f"{problem}",
+            OneLineWarning,
+            stacklevel=2,
+        )
+    return found
+
+
+def entry_point_problem(kind: str, name: str) -> str | None:
+    """Why an installed entry point's ``name`` cannot name an entry, or None: an
+    observer's name ending in ``-measurements`` (that suffix picks the env mode of the
+    name before it), or a name of characters other than printable ones."""
+    if not name or not all(character.isprintable() for character in name):
+        return "its name must be printable characters"
+    if kind == "observer" and name.endswith(MEASUREMENTS_SUFFIX):
+        return (
+            f"an observer's name may not end in {MEASUREMENTS_SUFFIX!r}: that suffix on a "
+            "name asks for the measurements of the observer named before it"
+        )
+    return None
+
+
+def printable(text: str) -> str:
+    """``text`` with every character that is not printable (a terminal's escape codes,
+    newlines) written as its Python escape, for names shown on a terminal or a page."""
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode() for c in text)
 
 
 def refresh() -> None:
@@ -309,8 +346,8 @@ def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[tup
             f"{kind} {entry!r}: expected a name, an import path package.module:factory, a "
             f"factory (env, **options) or an object with {', '.join(m + '()' for m in needed)}"
         )
-    module = getattr(entry, "__module__", "object")
-    qualname = getattr(entry, "__qualname__", type(entry).__name__)
+    module = printable(str(getattr(entry, "__module__", "object")))
+    qualname = printable(str(getattr(entry, "__qualname__", type(entry).__name__)))
     name = f"{OBJECT_PREFIX}{module}:{qualname}@{object_identity(factory)}"
     return name + suffix, {(kind, name): factory}
 
