@@ -3,6 +3,9 @@ and every way they fail is one line naming the entry, the episode's seed and its
 
 from __future__ import annotations
 
+import importlib
+import json
+import sys
 import threading
 
 import numpy as np
@@ -245,3 +248,89 @@ def test_an_objects_unprintable_qualname_is_escaped_in_its_name(tmp_path):
     result = _run("oracle", factory, tmp_path / "escaped")
     name = result.results["config"]["controller"]
     assert "\x1b" not in name and "evil\\x1b[2J@" in name
+
+
+# --- 8: an entry point's package upgraded --------------------------------------------------------
+def _install_upg(root, version: str, body: str) -> None:
+    """The distribution ``upg`` at ``version``: controller entry points ``upg-lqr`` (BallTable)
+    and ``upg-catch`` (BallCatcher), their module ending in ``body``."""
+    from observer_gym.train.experiments import entries
+
+    package = root / "upg"
+    package.mkdir(parents=True, exist_ok=True)
+    (package / "__init__.py").write_text("")
+    (package / "control.py").write_text(
+        "from observer_gym.controllers import make_controller\n\n"
+        f"SCALE = {body}\n\n"
+        "class Scaled:\n"
+        "    def __init__(self, env):\n"
+        "        self.lqr = make_controller('lqr', env)\n\n"
+        "    def predict(self, obs, state=None, episode_start=None, deterministic=True):\n"
+        "        return SCALE * self.lqr.predict(obs)[0], state\n\n"
+        "def make_lqr(env):\n    return Scaled(env)\n\n"
+        "def make_catch(env):\n    return make_controller('intercept', env)\n"
+    )
+    for old in root.glob("upg-*.dist-info"):
+        for item in old.iterdir():
+            item.unlink()
+        old.rmdir()
+    info = root / f"upg-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: upg\nVersion: {version}\n")
+    (info / "top_level.txt").write_text("upg\n")
+    (info / "entry_points.txt").write_text(
+        "[observer_gym.controllers]\nupg-lqr = upg.control:make_lqr\n"
+        "upg-catch = upg.control:make_catch\n"
+    )
+    for name in ("upg", "upg.control"):
+        sys.modules.pop(name, None)
+    importlib.invalidate_caches()
+    entries.refresh()
+
+
+@pytest.fixture
+def upg(tmp_path, monkeypatch):
+    from observer_gym.train.experiments import entries
+
+    root = tmp_path / "site"
+    root.mkdir()
+    monkeypatch.syspath_prepend(str(root))
+    yield root
+    for name in ("upg", "upg.control"):
+        sys.modules.pop(name, None)
+    monkeypatch.undo()
+    entries.refresh()
+
+
+def test_an_upgraded_entry_point_does_not_reuse_a_sweeps_cells(upg, tmp_path):
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--env", ENV, "--vary", "latency_s=0", "--observers", "oracle",
+            "--controllers", "upg-lqr", "--episodes", "1", "--steps", str(STEPS),
+            "--out", str(out), "--no-progress"]  # fmt: skip
+    _install_upg(upg, "1.0", "1.0")
+    assert main(argv) == 0
+    recorded = json.loads((out / "sweep.json").read_text())
+    identity = json.dumps(recorded)
+    assert '"version": "1.0"' in identity and "code_sha256" in identity
+    _install_upg(upg, "2.0", "0.25")
+    assert main(argv) != 0  # not the first sweep's cells: refused as another sweep
+
+
+def test_an_upgraded_entry_point_does_not_reuse_benchmark_levels(upg, tmp_path, capsys):
+    from observer_gym.train.experiments.benchmark.check import check_folder
+
+    out = tmp_path / "bench"
+    argv = ["benchmark", "--env", "BallCatcher-v1", "--observer", "kf-measurements",
+            "--controller", "upg-catch", "--episodes", "1", "--no-progress",
+            "--out", str(out)]  # fmt: skip
+    _install_upg(upg, "1.0", "1.0")
+    assert main(argv) == 0
+    scores = json.loads((out / "scores.json").read_text())
+    entry = scores["entries"]["controller"]
+    assert entry["package"] == "upg" and entry["version"] == "1.0"
+    assert entry["import_path"] == "upg.control:make_catch" and len(entry["code_sha256"]) == 16
+    assert "OK" in check_folder(out)
+    _install_upg(upg, "2.0", "0.5")
+    capsys.readouterr()
+    assert main(argv) != 0
+    assert "holds another benchmark run" in capsys.readouterr().err

@@ -51,6 +51,7 @@ import marshal
 import math
 import pickle
 import reprlib
+import sys
 import types
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -388,6 +389,30 @@ def _content(obj: Any, depth: int = 0) -> bytes | None:
             parts.append(part)
         return b"\0".join(hashlib.sha256(part).digest() for part in parts)
     return None
+
+
+def entry_identity(plugin: Plugin) -> dict[str, Any]:
+    """Where an outside entry comes from, as results record it and as sweeps and
+    benchmarks key their cells and levels by: its import path, source, distribution and
+    version (:meth:`Plugin.describe` without options), and ``code_sha256``: the sha256
+    (16 hex digits) of the source file of the module that defines its factory, or, for an
+    entry given as an object, its :func:`object_identity`. An upgrade of the package that
+    changes the factory's module, or another object of the same qualname, is another
+    entry. ValueError as :func:`load_factory`."""
+    factory = load_factory(plugin)
+    record = plugin.describe()
+    del record["options"]
+    if (plugin.kind, plugin.target) in _OBJECTS:
+        record["code_sha256"] = object_identity(factory)
+        return record
+    module = sys.modules.get(getattr(factory, "__module__", "") or "")
+    path = getattr(module, "__file__", None)
+    try:
+        with open(path, "rb") as source:  # type: ignore[arg-type]  # None: TypeError
+            record["code_sha256"] = hashlib.sha256(source.read()).hexdigest()[:16]
+    except (OSError, TypeError):  # a module without a source file (built in, frozen)
+        record["code_sha256"] = object_identity(factory)
+    return record
 
 
 def check_picklable(objects: Mapping[tuple[str, str], Any]) -> None:

@@ -115,6 +115,23 @@ def is_outside(env_id: str, observer: str, controller: str) -> bool:
     return observer_setup(env_id, observer)[2] is not None or outside_controller
 
 
+def entry_identities(env_id: str, observer: str, controller: str) -> dict[str, dict[str, Any]]:
+    """Where the pair's outside observer and controller come from, by kind
+    (:func:`~observer_gym.train.experiments.entries.entry_identity`: import path,
+    distribution, version, the sha256 of the factory's module or the object's hash); {}
+    for the package's own entries and agents. Sweeps and benchmarks key their cells and
+    levels by it, so an upgraded package's entry does not reuse another's."""
+    found: dict[str, dict[str, Any]] = {}
+    plugin = observer_setup(env_id, observer)[2]
+    if plugin is not None:
+        found["observer"] = entries.entry_identity(plugin)
+    if parse_agent_spec(controller) is None and controller not in controllers_for(env_id):
+        controller_plugin = entries.find_plugin("controller", controller)
+        if controller_plugin is not None:
+            found["controller"] = entries.entry_identity(controller_plugin)
+    return found
+
+
 def check_entries(
     env_id: str,
     observer: str,
