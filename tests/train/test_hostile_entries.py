@@ -334,3 +334,18 @@ def test_an_upgraded_entry_point_does_not_reuse_benchmark_levels(upg, tmp_path, 
     capsys.readouterr()
     assert main(argv) != 0
     assert "holds another benchmark run" in capsys.readouterr().err
+
+
+# --- minor: gym.make's own keywords ---------------------------------------------------------------
+@pytest.mark.parametrize("steps", [1.5, 0, True, "10"])
+def test_max_episode_steps_not_an_integer_is_refused_naming_it(tmp_path, capsys, steps):
+    with pytest.raises(ValueError, match=r"max_episode_steps must be an integer >= 1"):
+        _run("oracle", "lqr", tmp_path / "api", env_options={"max_episode_steps": steps})
+    assert not (tmp_path / "api").exists()
+    if isinstance(steps, float):
+        option = ["--env-option", f"max_episode_steps={steps}"]
+        argv = ["run", "--observer", "oracle", "--controller", "lqr", *COMMON, *option,
+                "--out", str(tmp_path / "cli")]  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "max_episode_steps must be an integer >= 1" in err
