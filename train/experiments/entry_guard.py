@@ -61,7 +61,8 @@ def entry_fault(where: str, call: str, exc: BaseException) -> ValueError:
         "read-only" in text or "does not support item assignment" in text
     ):
         text = f"{text}: an entry is shown read-only copies of the observation and info"
-    return ValueError(f"{where}: {call} raised {type(exc).__name__}: {text}")
+    # one line, escapes shown as text: an entry's message reaches a terminal
+    return ValueError(f"{where}: {call} raised {type(exc).__name__}: {entries.printable(text)}")
 
 
 def checked_covariance(covariance: np.ndarray, who: str, time_s: float) -> None:
