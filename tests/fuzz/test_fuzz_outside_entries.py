@@ -55,7 +55,7 @@ def _fault():
         st.tuples(st.just("exit"), st.one_of(st.none(), st.integers(-3, 3), messages)),
         st.tuples(st.just("return"), junk()),
         st.tuples(st.just("covariance"), numpy_arrays(shape=(8, 8))),
-        st.tuples(st.just("covariance"), st.floats(-1.0, 1.0).map(lambda r: r)),
+        st.tuples(st.just("covariance"), st.floats(-1.0, 1.0)),
         st.tuples(st.just("write"), st.sampled_from(["state", "obs", "sensor", "unlock"])),
     )
 
@@ -91,7 +91,7 @@ def _behave(kind, payload, obs, info, good: Estimate):
 @settings(max_examples=60)
 @given(fault=_fault())
 def test_an_observer_failing_any_way_is_one_line_and_changes_nothing(world, fault):
-    env, obs, info, good = world
+    _, obs, info, good = world
     before_info, before_obs = copy.deepcopy(info), copy.deepcopy(obs)
 
     class Entry:
@@ -130,7 +130,7 @@ def test_an_observer_failing_any_way_is_one_line_and_changes_nothing(world, faul
     fault=st.sampled_from(["none", "raise", "exit", "write"]),
 )
 def test_a_controller_failing_any_way_is_one_line_and_acts_inside_the_space(world, action, fault):
-    env, obs, info, _ = world
+    env, _, info, _ = world
     state = np.asarray(info["state"], dtype=float)
     before = state.copy()
 
