@@ -79,16 +79,21 @@ def checked_covariance(covariance: np.ndarray, who: str, time_s: float) -> None:
             f"{where} has the variance {variances[bad[0]]!r} at [{bad[0]}, {bad[0]}]; "
             "every variance must be > 0"
         )
-    scale = np.sqrt(np.outer(variances, variances))
-    asymmetry = np.abs(P - P.T) / scale
-    if asymmetry.max() > SYMMETRY_RTOL:
+    deviations = np.sqrt(variances)
+    scale = np.outer(deviations, deviations)  # the square roots first: no overflow
+    with np.errstate(over="ignore", under="ignore"):  # an inf here is refused just below
+        asymmetry = np.abs(P / scale - P.T / scale)
+    if not asymmetry.max() <= SYMMETRY_RTOL:
         i, j = np.unravel_index(int(np.argmax(asymmetry)), P.shape)
         raise ValueError(
             f"{where} is not symmetric: P[{i}, {j}] = {P[i, j]!r}, P[{j}, {i}] = {P[j, i]!r} "
             f"(allowed: |P_ij - P_ji| <= {SYMMETRY_RTOL} sqrt(P_ii P_jj))"
         )
-    correlation = 0.5 * (P + P.T) / scale
-    smallest = float(np.linalg.eigvalsh(correlation).min())
+    correlation = 0.5 * (P / scale + P.T / scale)
+    try:
+        smallest = float(np.linalg.eigvalsh(correlation).min())
+    except np.linalg.LinAlgError:  # no eigenvalues found: not a usable covariance either
+        smallest = float("nan")
     if not smallest > CORRELATION_MIN_EIGENVALUE:
         raise ValueError(
             f"{where} is not positive definite: its correlation matrix has the eigenvalue "
