@@ -349,3 +349,49 @@ def test_max_episode_steps_not_an_integer_is_refused_naming_it(tmp_path, capsys,
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "max_episode_steps must be an integer >= 1" in err
+
+
+# --- 5: an agent trained on another task --------------------------------------------------------
+def _agent_with(tmp_path, options):
+    """A copy of the shipped ``ball_catcher-estimate`` agent whose config says it was
+    trained with ``options`` too (the config's hash recomputed, as training writes it)."""
+    import shutil
+    from pathlib import Path
+
+    from observer_gym.train.rl import run_dir
+
+    shipped = Path(run_dir.__file__).parent / "agents" / "ball_catcher-estimate"
+    copy = tmp_path / "agent"
+    shutil.copytree(shipped, copy)
+    config = json.loads((copy / "config.json").read_text())
+    config.pop(run_dir.CONFIG_SHA256, None)
+    config["env_kwargs"] = {**config["env_kwargs"], **options}
+    run_dir.write_config(copy, config)
+    return f"ppo:{copy}"
+
+
+def test_an_agent_trained_on_another_task_is_refused_by_the_benchmark(tmp_path, capsys):
+    from observer_gym.train.experiments.benchmark.run import check_benchmark
+
+    agent = _agent_with(tmp_path, {"hole_diameter_m": 0.15, "launch_spread_m": 0.0})
+    changed = "change the task: hole_diameter_m=0.15, launch_spread_m=0.0"
+    with pytest.raises(ValueError, match=changed):
+        check_benchmark("BallCatcher-v1", "kf-measurements", agent, episodes=1)
+    out = tmp_path / "bench"
+    argv = ["benchmark", "--env", "BallCatcher-v1", "--observer", "kf-measurements",
+            "--controller", agent, "--episodes", "1", "--no-progress",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "change the task" in err
+    assert not (out / "scores.json").exists()
+
+
+def test_an_agents_view_and_reward_options_still_travel(tmp_path):
+    from observer_gym.train.experiments.benchmark.run import check_benchmark
+
+    agent = _agent_with(tmp_path, {"shaping_weight": 2.0})
+    request = check_benchmark("BallCatcher-v1", "kf-measurements", agent, episodes=1)
+    assert request.agent_env_options == {"shaping_weight": 2.0}
+    shipped = check_benchmark("TargetFollower-v0", "pixels", "ppo:target_follower-rgb", episodes=1)
+    assert shipped.agent_env_options["desired_width_px"] == pytest.approx(9.1875)
