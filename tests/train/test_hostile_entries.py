@@ -191,17 +191,30 @@ def test_a_resumed_sweep_does_not_reuse_another_closures_cells(tmp_path):
                                   out_dir=out, seeds=[0], steps=STEPS)  # fmt: skip
 
     first = sweep(1.0)
-    fresh = observer_gym.sweep(ENV, {"latency_s": [0.0]}, "oracle", _scaled(0.25),
-                               out_dir=tmp_path / "fresh", seeds=[0], steps=STEPS)  # fmt: skip
-    try:
-        second = sweep(0.25)
-    except ValueError as exc:  # refused: the folder holds another sweep
-        assert "another" in str(exc) or "sweep" in str(exc)
-        return
-    assert second.results["cells"] != first.results["cells"] or second.results == fresh.results
-    assert [c["summary"] for c in second.results["cells"]] == [
-        c["summary"] for c in fresh.results["cells"]
-    ]
+    with pytest.raises(ValueError, match="holds a sweep with other arguments"):
+        sweep(0.25)  # another closure of the same qualname: not the first one's cells
+    again = sweep(1.0)  # a closure of the same code and captures: the same entry, resumed
+    assert again.results["cells"] == first.results["cells"]
+
+
+def test_an_objects_identity_is_its_content_in_every_process():
+    import subprocess
+    from pathlib import Path
+
+    from observer_gym.train.experiments import entries
+
+    here = entries.object_identity(_scaled(1.0))
+    assert here == entries.object_identity(_scaled(1.0))
+    assert here != entries.object_identity(_scaled(0.25))
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]); from test_hostile_entries import _scaled;"
+        "from observer_gym.train.experiments import entries;"
+        "print(entries.object_identity(_scaled(1.0)))"
+    )
+    folder = str(Path(__file__).parent)
+    there = subprocess.run([sys.executable, "-c", code, folder], capture_output=True,
+                           text=True, check=True).stdout.strip()  # fmt: skip
+    assert there == here
 
 
 # --- 19 and the names shown: installed entry points named badly ---------------------------------

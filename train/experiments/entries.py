@@ -47,7 +47,6 @@ import copy
 import functools
 import hashlib
 import importlib
-import marshal
 import math
 import pickle
 import reprlib
@@ -365,6 +364,18 @@ def object_identity(obj: Any) -> str:
     return hashlib.sha256(content).hexdigest()[:12]
 
 
+def _code_bytes(code: types.CodeType) -> bytes:
+    """A code object's bytecode, names and constants (nested code objects likewise), as
+    bytes: not ``marshal.dumps``, whose output depends on reference counts."""
+    consts = tuple(
+        _code_bytes(const) if isinstance(const, types.CodeType) else repr(const)
+        for const in code.co_consts
+    )
+    fields = (code.co_name, code.co_code, consts, code.co_names, code.co_varnames,
+              code.co_freevars, code.co_cellvars)  # fmt: skip
+    return repr(fields).encode()
+
+
 def _content(obj: Any, depth: int = 0) -> bytes | None:
     """Bytes that stand for ``obj``'s content, or None. Hand-written: pickle refuses
     closures, and no standard-library function hashes a function's code and captures."""
@@ -377,7 +388,7 @@ def _content(obj: Any, depth: int = 0) -> bytes | None:
     if isinstance(obj, _Copies):
         return _content(obj.prototype, depth + 1)
     if isinstance(obj, types.FunctionType):
-        parts = [marshal.dumps(obj.__code__)]
+        parts = [_code_bytes(obj.__code__)]
         try:
             captured = [cell.cell_contents for cell in obj.__closure__ or ()]
         except ValueError:  # an empty cell
