@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from observer_gym.envs.json_file import read_json
+
 __all__ = [
     "GaussianMLP",
     "checked_report",
@@ -166,7 +168,7 @@ def checked_report(path: Path) -> dict[str, Any]:
             f"learned observer weights {path} (and their report {report_path.name}) not "
             "found; train them with python -m observer_gym.estimation.learned.train"
         )
-    report: dict[str, Any] = json.loads(report_path.read_text(encoding="utf-8"))
+    report: dict[str, Any] = read_json(report_path, allow_nan=True)
     found = file_sha256(path)
     if found != report.get("sha256"):
         raise ValueError(

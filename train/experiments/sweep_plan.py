@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.compare import check_designs, check_pairs_once, option_text
 from observer_gym.train.experiments.episode import EpisodeSpec
 from observer_gym.train.experiments.request import Request, resolve_request
@@ -298,7 +299,7 @@ def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
     path = out_dir / ARGUMENTS_FILE
     if path.exists():
         try:
-            stored = json.loads(path.read_text(encoding="utf-8"))["arguments"]
+            stored = read_json(path)["arguments"]
             if not isinstance(stored, dict):
                 raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
