@@ -94,13 +94,24 @@ def agent_folder(model: str | Path) -> Path:
 
 def seed_run_dirs(folder: str | Path) -> dict[int, Path]:
     """The runs of a multi-seed folder: seed -> ``folder/seed_<seed>``, for every such
-    subfolder, by seed; empty for any other folder."""
+    subfolder, by seed; empty for any other folder.
+
+    Raises:
+        OutputFolderError: (a ValueError) two subfolders name the same seed (``seed_0``
+            and ``seed_00``), naming both.
+    """
     folder = Path(folder)
-    runs = {}
-    for path in folder.glob(f"{SEED_PREFIX}*") if folder.is_dir() else []:
+    runs: dict[int, Path] = {}
+    for path in sorted(folder.glob(f"{SEED_PREFIX}*")) if folder.is_dir() else []:
         number = path.name.removeprefix(SEED_PREFIX)
-        if path.is_dir() and number.isdigit():
-            runs[int(number)] = path
+        if path.is_dir() and number.isascii() and number.isdigit():
+            seed = int(number)
+            if seed in runs:
+                raise OutputFolderError(
+                    f"{runs[seed]} and {path} are both seed {seed}: one multi-seed folder "
+                    f"holds one run per seed ({SEED_PREFIX}{seed}); keep one of them"
+                )
+            runs[seed] = path
     return dict(sorted(runs.items()))
 
 

@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from observer_gym.envs.json_file import read_bytes_limited, read_json
+from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -106,6 +106,8 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
         doc = read_json(path)
         version, env, episodes = doc["suite"], doc["env"], doc["episodes_per_level"]
         levels = doc["levels"]
+    except JSONFileError as exc:  # a key twice, too deep, too large, not JSON: named
+        raise FolderCheckError(f"{exc}; not a benchmark's scores") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FolderCheckError(f"{path} cannot be read as a benchmark's scores: {exc!r}") from None
     try:

@@ -164,16 +164,22 @@ def publish(run_dir: str | Path, root: str | Path, *, same_packages: bool = True
     ``same_packages``: as :func:`~observer_gym.train.experiments.benchmark.check.
     check_folder` takes it (publish what this installation ran).
 
+    The files are copied into a staging folder beside the copy they replace and renamed
+    over it (:func:`~observer_gym.train.reports.outputs.output_set`): a full disk leaves
+    the earlier copy whole.
+
     Raises:
+        EntryNameError: its observer or controller is no entry name (:data:`ENTRY_NAME`).
         FolderCheckError: the folder does not check out (see ``benchmark --check``), or
             is unofficial.
+        WriteError: the copy cannot be written (a full disk); the earlier copy is kept.
     """
     run_dir = Path(run_dir)
+    check_entry_names(_read(run_dir), run_dir / SCORES_JSON)  # before the names are used
     check_folder(run_dir, same_packages=same_packages)
     doc = _read(run_dir)
     if not doc.get("official"):
         raise FolderCheckError(f"{run_dir} is an unofficial run (--episodes): not published")
-    check_entry_names(doc, run_dir / SCORES_JSON)
     suite = _suite_of(doc, run_dir)
     dest = Path(root) / suite.system.name / slug(doc["observer"], doc["controller"])
     try:

@@ -165,11 +165,15 @@ def _finished_levels(out_dir: Path, request: BenchmarkRequest) -> dict[str, dict
         path = out_dir / LEVELS_DIR / f"{level.name}.json"
         if not path.exists():
             continue
-        try:
+        problem: str | None
+        try:  # NaN, a key twice, deep nesting: refused by the reader, so it runs again
             data = read_json(path)
-        except (OSError, ValueError):
-            data = None
-        problem = level_problem(data, request.digest(), level.name, level.seeds(request.episodes))
+        except (OSError, ValueError) as exc:
+            problem = f"it cannot be read ({' '.join(str(exc).split())})"
+        else:
+            problem = level_problem(
+                data, request.digest(), level.name, level.seeds(request.episodes)
+            )
         if problem is None:
             finished[level.name] = data
         else:
