@@ -20,6 +20,7 @@ from observer_gym.train.experiments.request import check_pair
 from observer_gym.train.experiments.systems import controller_choices, observer_choices
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
+from observer_gym.train.rl.normalizer_file import record_final_files
 from observer_gym.train.rl.run_dir import write_config
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
@@ -43,6 +44,7 @@ def _fake_run(folder: Path, obs: str = "state", model: bool = True) -> Path:
     write_config(folder, config)
     if model:
         (folder / "model.zip").write_bytes(b"")
+        record_final_files(folder)  # as a finished run records it
     return folder
 
 
