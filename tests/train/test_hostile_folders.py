@@ -223,6 +223,28 @@ def test_a_run_without_final_json_is_refused_before_anything_is_unpickled(
     run_dir.model_files(folder)  # checks out now
 
 
+def test_checkpoint_records_without_hashes_are_untrusted(run, capsys):
+    """A checkpoint record whose sha256 was removed vouches for nothing: the checkpoint
+    is passed over like a damaged one (none left: one line), nothing is loaded; vouched
+    for with the conversion command, it resumes."""
+    records = [*sorted((run / "checkpoints").glob("checkpoint_*.json"))]
+    records.append(run / "checkpoints" / "latest.json")
+    for record in records:
+        entry = json.loads(record.read_text())
+        del entry["sha256"]
+        record.write_text(json.dumps(entry))
+    with pytest.raises(ValueError, match=r"no intact checkpoint to resume from: .*untrusted"):
+        run_dir.check_resumable(run)
+    assert main([*RESUME, str(run)]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "has no sha256 recorded in its checkpoint record: untrusted" in line
+    from observer_gym.train.rl.normalizer_file import main as convert
+
+    assert convert(["--trust-pickle", str(run)]) == 0
+    run_dir.check_resumable(run)
+    assert "sha256" in json.loads(records[-1].read_text())
+
+
 def test_a_shipped_config_carries_its_hash():
     from observer_gym.train.rl.shipped import shipped_names
 

@@ -423,8 +423,9 @@ def _unpickle(path: Path) -> NormalizerStats:
 
 
 def _convert_checkpoints(directory: Path) -> list[Path]:
-    """Convert the pickled statistics named by the checkpoint records in ``directory``;
-    returns the pickles converted (to remove)."""
+    """Convert the pickled statistics named by the checkpoint records in ``directory``,
+    and record the sha256 of the files of a record that has none (vouching for them as
+    they are now); returns the pickles converted (to remove)."""
     from observer_gym.train.reports.outputs import write_json_atomic
 
     converted: dict[str, str] = {}  # pickle name -> npz name
@@ -434,26 +435,34 @@ def _convert_checkpoints(directory: Path) -> list[Path]:
             entry = read_json(record)
         except (OSError, ValueError):
             continue  # no record, or a damaged one: resume passes it over as before
-        old = entry.get("vecnormalize") if isinstance(entry, dict) else None
-        if not isinstance(old, str) or not old.endswith(".pkl"):
+        if not isinstance(entry, dict):
             continue
-        new = old.removesuffix(".pkl") + ".npz"
-        if old not in converted and (directory / old).is_file():
-            digest = (entry.get("sha256") or {}).get(old)
-            if digest is not None and sha256_of(directory / old) != digest:
-                raise ValueError(
-                    f"{directory / old} is damaged (its sha256 differs from the one in "
-                    f"{record}); not converted"
-                )
-            write_stats(_unpickle(directory / old), directory / new)
-            converted[old] = new
-        if old not in converted:
-            continue  # its pickle is gone: the checkpoint stays as it is (incomplete)
-        entry["vecnormalize"] = new
-        if isinstance(entry.get("sha256"), dict):
-            entry["sha256"].pop(old, None)
-            entry["sha256"][new] = sha256_of(directory / new)
-        write_json_atomic(record, entry)
+        changed = False
+        old = entry.get("vecnormalize")
+        if isinstance(old, str) and old.endswith(".pkl"):
+            new = old.removesuffix(".pkl") + ".npz"
+            if old not in converted and (directory / old).is_file():
+                digest = (entry.get("sha256") or {}).get(old)
+                if digest is not None and sha256_of(directory / old) != digest:
+                    raise ValueError(
+                        f"{directory / old} is damaged (its sha256 differs from the one in "
+                        f"{record}); not converted"
+                    )
+                write_stats(_unpickle(directory / old), directory / new)
+                converted[old] = new
+            if old in converted:  # (else its pickle is gone: the checkpoint stays as it is)
+                entry["vecnormalize"] = new
+                if isinstance(entry.get("sha256"), dict):
+                    entry["sha256"].pop(old, None)
+                    entry["sha256"][new] = sha256_of(directory / new)
+                changed = True
+        if "sha256" not in entry:
+            names = [v for k, v in entry.items() if k != "timesteps" and isinstance(v, str)]
+            if all((directory / name).is_file() for name in names):
+                entry["sha256"] = {name: sha256_of(directory / name) for name in names}
+                changed = True
+        if changed:
+            write_json_atomic(record, entry)
     return [directory / old for old in converted]
 
 

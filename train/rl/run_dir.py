@@ -12,7 +12,6 @@ Reading these imports neither PyTorch nor stable-baselines3, so ``observer-gym r
 from __future__ import annotations
 
 import hashlib
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -358,25 +357,24 @@ def file_sha256(path: Path) -> str:
 
 
 def _problem(directory: Path, entry: Mapping[str, Any]) -> str | None:
-    """What is wrong with the checkpoint ``entry``: a file missing, or one that is not
-    as saved (its sha256 differs from the one recorded then; for a checkpoint saved
-    before hashes were recorded, a model that is no intact zip file); None if nothing."""
+    """What is wrong with the checkpoint ``entry``: a file missing, one that is not as
+    saved (its sha256 differs from the one recorded then), or no sha256 recorded (the
+    record is untrusted: nothing is loaded from it); None if nothing."""
     names = [v for k, v in entry.items() if k not in ("timesteps", "sha256")]
     for name in names:
         if not (directory / name).is_file():
             return f"{directory / name} is missing"
     recorded = entry.get("sha256")
-    if isinstance(recorded, dict):
-        for name in names:
-            if recorded.get(name) != file_sha256(directory / name):
-                return f"{directory / name} is damaged (not the file that was saved)"
-        return None
-    try:
-        with zipfile.ZipFile(directory / entry["model"]) as archive:
-            bad = archive.testzip()
-    except (OSError, zipfile.BadZipFile) as exc:
-        return f"{directory / entry['model']} is damaged ({exc})"
-    return None if bad is None else f"{directory / entry['model']} is damaged ({bad})"
+    if not isinstance(recorded, dict):  # removed, or written before 0.2: nothing vouches
+        return (
+            f"{directory / entry['model']} has no sha256 recorded in its checkpoint record: "
+            "untrusted, not loaded (loading a model unpickles part of it); if the folder "
+            f"comes from a source you trust, record it with {VOUCH_COMMAND} DIR"
+        )
+    for name in names:
+        if recorded.get(name) != file_sha256(directory / name):
+            return f"{directory / name} is damaged (not the file that was saved)"
+    return None
 
 
 def intact_checkpoint(directory: Path) -> tuple[dict[str, Any] | None, list[str]]:
