@@ -533,7 +533,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "Convert run folders written by an earlier observer-gym, whose VecNormalize "
             "statistics are pickles (vecnormalize.pkl), to plain-array .npz files that load "
             "without running code; writes final.json (the sha256 of model.zip and the "
-            "statistics) and removes the pickles. Unpickling runs whatever code the files "
+            "statistics) and removes the pickles; records the hashes a folder lacks (final.json, "
+            "config_sha256, the checkpoints' sha256). Unpickling runs whatever code the files "
             "hold: convert only folders from a source you trust, which --trust-pickle says."
         ),
     )
