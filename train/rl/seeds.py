@@ -95,7 +95,9 @@ class SeedsConfig:
                 f"{out_dir} is not a multi-seed training run (no {SEEDS_FILE}); make one with "
                 "'observer-gym train --seeds'"
             )
-        data = read_json(path)
+        data = read_json(path)  # JSONFileError (a ValueError) naming it
+        if not isinstance(data, dict):
+            raise ValueError(f"{path} is not a multi-seed run's record (a JSON object)")
         fields = {f.name for f in dataclasses.fields(cls)}
         # the file's JSON values, of the types the fields say (as_dict wrote them)
         values: dict[str, Any] = {k: v for k, v in data.items() if k in fields}
