@@ -136,7 +136,7 @@ class BallCatcherConfig(SensorConfig):
                 f"flight_time_max_s={self.flight_time_max_s}"
             )
         lowest_m = self.launch_height_m - self.launch_spread_m
-        if lowest_m < geo.MISS_HEIGHT_M:
+        if lowest_m < geo.MISS_HEIGHT_M - 1e-9:  # 1e-9: 1.15 - 1.0 is 0.1499...
             raise ValueError(
                 f"launch_height_m={self.launch_height_m} with launch_spread_m="
                 f"{self.launch_spread_m} launches as low as {lowest_m:.4g} m, below the "
@@ -145,7 +145,7 @@ class BallCatcherConfig(SensorConfig):
             )
         nearest_m = self.launch_x_m - self.launch_spread_m
         front_m = float(geo.WORKSPACE_HIGH_WORLD[0]) + LAUNCH_CLEARANCE_M
-        if nearest_m < front_m:
+        if nearest_m < front_m - 1e-9:
             raise ValueError(
                 f"launch_x_m={self.launch_x_m} with launch_spread_m={self.launch_spread_m} "
                 f"launches as near as x = {nearest_m:.4g} m, at or behind the box's reach; "

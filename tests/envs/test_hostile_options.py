@@ -45,13 +45,20 @@ def test_default_episode_length_is_200_steps():
     env = gym.make(CATCHER, obs_mode="state")
     env.reset(seed=0)
     zero = np.zeros(3, np.float32)
-    # the box held far up: the ball passes below it and falls; steps until it ends
-    for steps in range(1, 1000):
+    # the box held still: the ball misses and the episode ends before the limit
+    terminated = truncated = False
+    steps = 0
+    while not (terminated or truncated):
         _, _, terminated, truncated, info = env.step(zero)
-        if terminated or truncated:
-            break
+        steps += 1
     env.close()
     assert steps < 200 and terminated and info["outcome"] == "missed"
+    # thrown straight up from 2 m out, the ball flies for 4 s: cut at 200 steps, 2 s
+    env = gym.make(CATCHER, obs_mode="state")
+    env.reset(seed=0, options={"throw": ([2.0, 0.0, 1.0], [0.0, 0.0, 20.0])})
+    ends = [env.step(zero)[2:4] for _ in range(200)]
+    env.close()
+    assert ends == [(False, False)] * 199 + [(False, True)]
 
 
 def test_a_fine_control_period_still_catches():
@@ -89,16 +96,12 @@ def test_the_env_truncates_itself_without_gym_make():
 
     env = BallCatcherEnv(obs_mode="state", control_dt_s=0.05, physics_dt_s=0.001)
     assert env.max_episode_steps == 40
-    # a throw straight up from beside the box: it never reaches the box's plane
-    env.reset(seed=0, options={"throw": ([2.0, 0.0, 1.0], [0.0, 0.0, 0.0])})
-    ends = []
-    for _ in range(40):
-        _, _, terminated, truncated, info = env.step(np.zeros(3, np.float32))
-        ends.append((terminated, truncated))
-        if terminated:
-            break
+    # thrown straight up from 2 m out, the ball flies for 4 s: cut at 40 steps, 2 s
+    env.reset(seed=0, options={"throw": ([2.0, 0.0, 1.0], [0.0, 0.0, 20.0])})
+    ends = [env.step(np.zeros(3, np.float32))[2:4] for _ in range(41)]
     env.close()
-    assert ends[-1] == (True, False) or ends[-1] == (False, True)
+    assert ends[:40] == [(False, False)] * 39 + [(False, True)]
+    assert ends[40] == (False, True)  # stepped on past it: still truncated
 
 
 @pytest.mark.parametrize(
@@ -130,7 +133,7 @@ def test_the_lowest_allowed_launch_is_taken_and_flies():
 
 
 def test_a_target_starting_inside_the_stop_distance_is_refused():
-    with pytest.raises(ValueError, match="start_distance_min_m.*min_distance_m") as refused:
+    with pytest.raises(ValueError, match=r"start_distance_min_m.*min_distance_m") as refused:
         TargetFollowerConfig(start_distance_min_m=0.5, min_distance_m=1.0)
     assert "allowed" in str(refused.value)
     with pytest.raises(ValueError, match="start_bearing_max_rad"):  # 1.1 cos 0.6 = 0.91
