@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.config import config_field
@@ -121,6 +122,13 @@ class BallCatcherConfig(SensorConfig):
     physics_dt_s: float = config_field(
         0.001, "physics step; a divisor of control_dt_s", low=0.0002, high=0.005
     )
+
+    # Options whose allowed values, the others fixed, are no interval but a lattice: a
+    # domain randomisation draws them from choices, never from a range (train/rl/randomize.py).
+    discrete_options: ClassVar[dict[str, str]] = {
+        "control_dt_s": "a whole multiple of physics_dt_s",
+        "physics_dt_s": "a divisor of control_dt_s",
+    }
 
     def __post_init__(self) -> None:
         super().__post_init__()
