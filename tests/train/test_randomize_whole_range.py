@@ -50,7 +50,7 @@ def test_overlapping_flight_time_ranges_are_refused_though_their_ends_pass_toget
     # every LOW together and every HIGH together build; a draw of 0.49 and 0.46 does not
     BallCatcherConfig(flight_time_min_s=0.3, flight_time_max_s=0.45)
     BallCatcherConfig(flight_time_min_s=0.5, flight_time_max_s=0.6)
-    with pytest.raises(ValueError, match="flight_time_min_s=0.5.*flight_time_max_s=0.45"):
+    with pytest.raises(ValueError, match=r"flight_time_min_s=0\.5.*flight_time_max_s=0\.45"):
         check(randomize)
 
 
@@ -59,7 +59,7 @@ def test_a_launch_range_that_reaches_under_the_floor_is_refused():
         "launch_height_m": {"low": 0.3, "high": 1.0},
         "launch_spread_m": {"low": 0.1, "high": 0.3},
     }
-    with pytest.raises(ValueError, match="launch_height_m=0.3.*launch_spread_m=0.3"):
+    with pytest.raises(ValueError, match=r"launch_height_m=0\.3.*launch_spread_m=0\.3"):
         check(randomize)
     # with a fixed option beside it
     with pytest.raises(ValueError, match="launch_spread_m"):
