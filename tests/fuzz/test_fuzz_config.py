@@ -170,8 +170,9 @@ def _box(draw, config_class) -> dict:
         if isinstance(f.default, int):
             ends = sorted(draw(st.lists(st.integers(low, high), min_size=2, max_size=2)))
         else:  # anywhere in the field's range, or near its default (where rules bind)
-            near = st.floats(-0.3, 0.3).map(lambda r, f=f: f.default + r * abs(f.default))
-            value = st.one_of(st.floats(low, high), near.map(lambda v: min(max(v, low), high)))
+            default = f.default
+            near = st.floats(default - 0.3 * abs(default), default + 0.3 * abs(default))
+            value = st.one_of(st.floats(low, high), near.filter(lambda v: low <= v <= high))  # noqa: B023
             ends = sorted(draw(st.lists(value, min_size=2, max_size=2)))
         box[f.name] = {"low": ends[0], "high": ends[1]}
     return box
