@@ -10,7 +10,13 @@ import pytest
 
 from observer_gym.envs.ball_catcher import BallCatcherConfig
 from observer_gym.train.cli import main
-from observer_gym.train.rl.randomize import check_randomize, draw_options, integer_options
+from observer_gym.train.rl.agent_env import make_agent_env
+from observer_gym.train.rl.randomize import (
+    check_randomize,
+    check_spaces,
+    draw_options,
+    integer_options,
+)
 from observer_gym.train.rl.run_dir import read_config, write_config
 from observer_gym.train.rl.training import train_agent
 
@@ -127,3 +133,26 @@ def test_resume_of_a_run_recorded_with_an_unsafe_range_is_refused_up_front(tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "control_dt_s" in err[0] and "choices" in err[0], err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_a_randomisation_that_changes_the_agents_spaces_is_refused_before_training(
+    capsys, tmp_path
+):
+    # one camera or two: two images or one for a pixel agent; the check of the options
+    # alone takes it, the first draw of the other count stopped training
+    check_randomize(ENV, "rgb", {}, {"num_cameras": {"low": 1, "high": 2}})
+    code = main(
+        [
+            "train", "--env", "BallCatcher-v1", "--algo", "ppo", "--obs", "rgb",
+            "--env-option", "image_width_px=64", "--env-option", "image_height_px=48",
+            "--randomize", "num_cameras=1:2", "--timesteps", "256",
+            "--out", str(tmp_path / "run"), "--no-progress",
+        ]
+    )  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "num_cameras=2 changes the agent's spaces" in err[0]
+    assert not (tmp_path / "run").exists()
+    # options that keep the spaces pass: the estimate has the state's layout
+    checked = check_randomize(ENV, "measurements", {}, {"num_cameras": {"low": 1, "high": 2}})
+    check_spaces(lambda drawn: make_agent_env(ENV, "estimate", "measurements", drawn), checked)

@@ -30,7 +30,9 @@ shortest below a longest): it holds over the whole box if it holds at its corner
 rule that is not, a whole multiple (BallCatcher's ``control_dt_s`` of ``physics_dt_s``,
 named by the configuration's ``discrete_options``), is refused as a range of width above
 zero (almost every draw of it fails): draw such an option from choices. Above
-:data:`MAX_CORNERS` corners a randomisation is refused.
+:data:`MAX_CORNERS` corners a randomisation is refused. Training also builds the agent's
+env once per choice and range end (:func:`check_spaces`), since :class:`RandomizedEnv`
+needs every draw to keep its spaces (a camera count, for pixels).
 """
 
 from __future__ import annotations
@@ -216,6 +218,41 @@ def check_randomize(
         named = ", ".join(f"{k}={v!r}" for k, v in options.items())
         build(options, named if len(options) == 1 else f"with {named} together")
     return checked
+
+
+def check_spaces(
+    make_inner: Callable[[Mapping[str, Any]], gym.Env],
+    randomize: Mapping[str, Mapping[str, Any]],
+) -> None:
+    """ValueError naming the option unless every choice and range end of ``randomize``
+    (a checked randomisation) gives the agent's env the spaces it has with every option
+    at its first value (each varied alone), as :class:`RandomizedEnv` requires of every
+    draw. Builds one world per value (``make_inner``: the agent's env for the options it
+    is given over the run's fixed ones); an option whose values differ only in number
+    cannot change the spaces between its ends (image sizes and camera counts are
+    integers, each end a value a draw takes)."""
+    first = {k: s["choices"][0] if "choices" in s else s["low"] for k, s in randomize.items()}
+
+    def spaces_of(options: Mapping[str, Any]) -> tuple[Any, Any]:
+        env = make_inner(options)
+        try:
+            return env.observation_space, env.action_space
+        finally:
+            env.close()
+
+    expected = spaces_of(first)
+    for key, spec in randomize.items():
+        others = spec["choices"][1:] if "choices" in spec else [spec["high"]]
+        for value in others:
+            if value == first[key]:
+                continue
+            found = spaces_of({**first, key: value})
+            if found != expected:
+                raise ValueError(
+                    f"randomize {key}: {key}={value!r} changes the agent's spaces "
+                    f"({found[0]} / {found[1]}; with {key}={first[key]!r}: {expected[0]} / "
+                    f"{expected[1]}); randomise only options that keep them, or fix {key}"
+                )
 
 
 def draw_options(

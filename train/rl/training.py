@@ -192,6 +192,21 @@ def run_config(
         probe.close()
     if not isinstance(action_space, spaces.Box):
         raise TypeError(f"{env_id}: the action space must be a Box, not {action_space}")
+    if randomize:  # every draw must keep the agent's spaces (RandomizedEnv requires it)
+        from observer_gym.train.rl.randomize import check_spaces
+
+        check_spaces(
+            lambda drawn: make_agent_env(
+                env_id,
+                obs,
+                estimate_from,
+                {**env_kwargs, **drawn},
+                params["image"],
+                observer,
+                params["features"],
+            ),
+            randomize,
+        )
     encoder = params["image"].get("encoder") if obs == "rgb" else None
     recorded = {}  # the frame encoder's file, which a loaded agent checks
     if encoder is not None:
