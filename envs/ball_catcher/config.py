@@ -93,7 +93,11 @@ class BallCatcherConfig(SensorConfig):
     )
     launch_height_m: float = config_field(0.55, "launch point's mean height", low=0.0, high=3.0)
     launch_spread_m: float = config_field(
-        0.1, "launch point uniform within +- this of its mean, per axis", low=0.0, high=1.0
+        0.1,
+        "launch point uniform within +- this of its mean, per axis (the lowest launch at "
+        "least 0.15 m high, the nearest at least 1.25 m out)",
+        low=0.0,
+        high=1.0,
     )
     flight_time_min_s: float = config_field(
         0.40, "shortest time of flight to the box's plane", low=0.1, high=3.0
