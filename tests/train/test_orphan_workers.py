@@ -20,7 +20,7 @@ from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.rl.run_dir import latest_checkpoint
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
-GONE_WITHIN_S = 15.0  # the workers' end after the parent's: measured under 2 s
+GONE_WITHIN_S = 15.0  # bound on the workers' end after the parent's
 
 
 def children(pid: int) -> list[int]:
