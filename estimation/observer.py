@@ -108,6 +108,15 @@ def observers_of(env: gym.Env) -> Mapping[str, PipelineFactory]:
     return observers_of_system(system_of(env))
 
 
+def modules_needed(system: System, observer: str | None) -> tuple[str, ...]:
+    """The modules beyond the core install that ``system``'s observer ``observer`` (None:
+    its first) needs: its pipeline's ``NEEDS_MODULES`` (the learned observers': PyTorch,
+    the ``[rl]`` extra, :mod:`observer_gym.extras`); () for the others and unknown names."""
+    observers = observers_of_system(system)
+    name = next(iter(observers)) if observer is None else observer
+    return tuple(getattr(observers.get(name), "NEEDS_MODULES", ()))
+
+
 def default_pipeline(env: gym.Env, observer: str | None = None, **options: Any) -> ObserverPipeline:
     """The pipeline of the observer ``observer`` of ``env``'s system (default: its
     first), built on the unwrapped env with ``options``. ValueError for an env of no known

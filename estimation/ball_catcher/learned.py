@@ -79,6 +79,7 @@ from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
+from observer_gym.extras import TORCH_MODULES, require_rl
 
 __all__ = [
     "CAMERAS",
@@ -209,12 +210,16 @@ class LearnedObserver:
             refused if changed).
     """
 
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
+
     def __init__(
         self,
         env: BallCatcherEnv,
         weights: str | Path | None = None,
         detector_weights: str | Path | None = None,
     ) -> None:
+        require_rl("the learned observer of BallCatcher-v1", TORCH_MODULES)
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)

@@ -43,6 +43,7 @@ from observer_gym.estimation.ball_catcher.learned import LearnedObserver, checke
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.observer import Estimate
+from observer_gym.extras import TORCH_MODULES
 
 __all__ = ["LearnedKFObserver"]
 
@@ -62,6 +63,9 @@ class LearnedKFObserver(BallCatcherObserver):
         **options: the filter's options as for ``kf`` (``gate_p``, ``accel_noise_std``,
             ``reacquire_after``); its pixel noise is not used.
     """
+
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
 
     def __init__(
         self,

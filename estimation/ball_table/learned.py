@@ -62,6 +62,7 @@ from observer_gym.estimation.observer import (
     checked_measurement,
     checked_rgb_frame,
 )
+from observer_gym.extras import TORCH_MODULES, require_rl
 
 __all__ = [
     "HISTORY_FRAMES",
@@ -155,12 +156,16 @@ class LearnedObserver:
             shipped :data:`~observer_gym.estimation.ball_table.learned_detector.WEIGHTS`).
     """
 
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
+
     def __init__(
         self,
         env: BallTableEnv,
         weights: str | Path | None = None,
         detector_weights: str | Path | None = None,
     ) -> None:
+        require_rl("the learned observer of BallTable-v0", TORCH_MODULES)
         owner = "the learned observer of BallTable-v0"
         from_frames = require_frames_or_measurements(env, owner) == "rgb"
         from observer_gym.estimation.learned.frame_detector import LearnedDetector

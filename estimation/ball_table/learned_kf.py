@@ -34,6 +34,7 @@ from observer_gym.estimation.ball_table.learned import LearnedObserver
 from observer_gym.estimation.ball_table.observer import BallTableObserver, TiltBallDetection
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
+from observer_gym.extras import TORCH_MODULES
 
 __all__ = ["LearnedKFObserver"]
 
@@ -51,6 +52,9 @@ class LearnedKFObserver(BallTableObserver):
         detector_weights: the learned detector's weight file, from frames (default: the
             shipped one; refused if changed).
     """
+
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
 
     def __init__(
         self,

@@ -89,6 +89,7 @@ from observer_gym.estimation.target_follower.state_layout import (
     lost_estimate,
     state_estimate,
 )
+from observer_gym.extras import TORCH_MODULES, require_rl
 
 __all__ = [
     "HISTORY_FRAMES",
@@ -227,12 +228,16 @@ class LearnedObserver:
             shipped one; refused if changed).
     """
 
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
+
     def __init__(
         self,
         env: TargetFollowerEnv,
         weights: str | Path | None = None,
         detector_weights: str | Path | None = None,
     ) -> None:
+        require_rl("the learned observer of TargetFollower-v0", TORCH_MODULES)
         owner = "the learned observer of TargetFollower-v0"
         from_frames = require_frames_or_measurements(env, owner) == "rgb"
         from observer_gym.estimation.learned.network import load_network  # imports torch

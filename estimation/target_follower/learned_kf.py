@@ -41,6 +41,7 @@ from observer_gym.estimation.target_follower.learned import LearnedObserver
 from observer_gym.estimation.target_follower.noise import NoiseRule
 from observer_gym.estimation.target_follower.observer import TargetFollowerObserver
 from observer_gym.estimation.target_follower.state_layout import RobotStep
+from observer_gym.extras import TORCH_MODULES
 
 __all__ = ["LearnedKFObserver", "LearnedNoise"]
 
@@ -70,6 +71,9 @@ class LearnedKFObserver(TargetFollowerObserver):
         detector_weights: the learned detector's weight file, from frames (default: the
             shipped one; refused if changed).
     """
+
+    # PyTorch runs the network: the [rl] extra (observer_gym.extras)
+    NEEDS_MODULES = TORCH_MODULES
 
     def __init__(
         self,

@@ -19,6 +19,7 @@ import warnings
 from collections.abc import Sequence
 from importlib import metadata
 
+from observer_gym.extras import ExtraNotInstalled, require_rl
 from observer_gym.train.cli import (
     benchmark,
     compare,
@@ -95,9 +96,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     :class:`~observer_gym.train.reports.outputs.OutputFolderWarning`), and any other
     :class:`~observer_gym.train.reports.outputs.OneLineWarning`, is one line on stderr,
     ``observer-gym COMMAND: warning: ...``; other warnings show as Python shows them.
+    A command, observer or agent that needs the ``[rl]`` extra (PyTorch,
+    stable-baselines3) where it is not installed is one line naming the install line,
+    ``observer-gym COMMAND: error: ... needs PyTorch ...: pip install 'observer-gym[rl]'``,
+    and exit code 2, before any env is built (:mod:`observer_gym.extras`).
     """
     args = build_parser().parse_args(argv)
     prog = f"observer-gym {args.command}"
+    try:
+        if COMMANDS[args.command].needs_rl:
+            require_rl("this command")
+        return _run(args, prog)
+    except ExtraNotInstalled as exc:  # the command, an observer or an agent needs [rl]
+        print(error_line(prog, exc), file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace, prog: str) -> int:
+    """``args.run(args)`` with the warnings, interrupts and file errors of :func:`main`."""
     with warnings.catch_warnings():
         shown = warnings.showwarning
 

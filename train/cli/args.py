@@ -381,6 +381,9 @@ class Command:
     description: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
     run: Callable[[argparse.Namespace], int]
+    # True: the command needs the [rl] extra (stable-baselines3, PyTorch) whatever its
+    # options; observer_gym.train.cli.main refuses it in one line without them
+    needs_rl: bool = False
 
 
 def command_error(command: str, message: object) -> int:

@@ -25,6 +25,7 @@ import numpy as np
 
 from observer_gym.envs import SYSTEMS, system_for_id
 from observer_gym.envs.config import check_render_mode
+from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.rl.hyperparams import ALGOS, resolve_hyperparams
@@ -62,10 +63,16 @@ def names_for(env_id: str) -> SystemEntry:
 def check_observer(env_id: str, observer: str) -> str:
     """The registered id of ``env_id`` after checking that ``observer`` is one of its
     task's observers, or an outside observer (:mod:`observer_gym.train.experiments.entries`) whose
-    factory imports; ValueError naming what is allowed otherwise."""
+    factory imports; ValueError naming what is allowed otherwise. A learned observer
+    without PyTorch: :class:`~observer_gym.extras.ExtraNotInstalled` (an ImportError)
+    naming ``pip install 'observer-gym[rl]'``."""
     env_id = system_for_id(env_id).env_id
     if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
+    else:  # deferred: observer_env imports the estimation layer
+        from observer_gym.train.experiments.observer_env import require_observer_modules
+
+        require_observer_modules(env_id, observer)  # the learned ones: PyTorch
     return env_id
 
 
@@ -142,9 +149,12 @@ def frames_message(controller: str, observer: str) -> str:
 
 def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str) -> None:
     """ValueError unless the trained agent ``controller`` (``ALGO:DIR``) is a run of
-    ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``."""
+    ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``;
+    first, :class:`~observer_gym.extras.ExtraNotInstalled` without stable-baselines3 and
+    PyTorch to load it."""
     spec = parse_agent_spec(controller)
     assert spec is not None, f"{controller!r} is not ALGO:DIR"  # the callers' check
+    require_rl(f"agent {controller!r}")  # stable-baselines3 and PyTorch load it
     algo, run_dir = spec
     agent = read_config(run_dir, algo=algo)
     model_files(run_dir)

@@ -127,4 +127,5 @@ COMMAND = Command(
     + TRUST_HELP,
     add_arguments=_evaluate_arguments,
     run=_evaluate_run,
+    needs_rl=True,
 )

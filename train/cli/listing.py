@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 
+from observer_gym.extras import AGENT_MODULES, RL_INSTALL, missing_modules
 from observer_gym.train.cli.args import (
     Command,
 )
 
 LIST_KINDS = ("system", "observer", "controller", "agent")
+RL_MARK = "[rl]"  # after an entry that needs the [rl] extra (observer_gym.extras)
 
 
 def _list_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +37,11 @@ def _list_run(args: argparse.Namespace) -> int:
             where = ", ".join(env_id.split("/", 1)[-1] for env_id in item.systems)
             where = "" if kind == "system" else f" ({where})"
             source = "" if item.source == "observer-gym" else f" [{item.source}]"
-            print(f"  {item.name:<{width}}  {item.summary}{where}{source}")
+            rl = f" {RL_MARK}" if item.needs_rl else ""
+            print(f"  {item.name:<{width}}  {item.summary}{where}{rl}{source}")
+    if any(item.needs_rl for item in items):
+        installed = "installed" if not missing_modules(AGENT_MODULES) else "not installed"
+        print(f"{RL_MARK}: needs PyTorch and stable-baselines3 ({installed}): {RL_INSTALL}")
     return 0
 
 
@@ -46,7 +52,9 @@ COMMAND = Command(
         "and shipped agent, with one line each and the envs it applies to, and the "
         "observers and controllers that installed packages add through the entry-point "
         "groups observer_gym.observers and observer_gym.controllers. Any other observer "
-        "or controller is named by import path, package.module:factory."
+        "or controller is named by import path, package.module:factory. Entries marked "
+        "[rl] need the rl extra (PyTorch, stable-baselines3): pip install "
+        "'observer-gym[rl]'."
     ),
     add_arguments=_list_arguments,
     run=_list_run,

@@ -406,4 +406,5 @@ COMMAND = Command(
     ),
     add_arguments=_train_arguments,
     run=_train_run,
+    needs_rl=True,
 )

@@ -10,9 +10,9 @@ from typing import NamedTuple
 from observer_gym.controllers import controllers_of
 from observer_gym.envs import SYSTEMS
 from observer_gym.envs.json_file import read_json
-from observer_gym.estimation.observer import OBSERVER_ROLES
+from observer_gym.estimation.observer import OBSERVER_ROLES, modules_needed
 from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.systems import system_entries
+from observer_gym.train.experiments.systems import SystemEntry, system_entries
 from observer_gym.train.rl.shipped import README_FILE, shipped_names, shipped_path
 
 # the observers of a task that are no pipeline
@@ -31,6 +31,9 @@ class Listed(NamedTuple):
     systems: tuple[str, ...]  # the env ids it fits (an outside entry: entry_systems)
     summary: str  # one line
     source: str  # "observer-gym", or "entry point of <distribution>"
+    # needs the [rl] extra (PyTorch, stable-baselines3: observer_gym.extras): the
+    # learned observers and the agents
+    needs_rl: bool = False
 
 
 def observer_summary(name: str) -> str:
@@ -59,6 +62,15 @@ def _agent_summary(name: str) -> tuple[str, str]:
     return config["env_id"], title or f"{config['algo']} on --obs {config['obs']}"
 
 
+def _observer_needs_rl(entry: SystemEntry, name: str) -> bool:
+    """Whether the task observer ``name`` of ``entry`` runs a pipeline that needs the
+    ``[rl]`` extra (:func:`~observer_gym.estimation.observer.modules_needed`)."""
+    setup = entry.task.OBSERVERS.get(name)
+    if setup is None or setup[1] is None:
+        return False
+    return bool(modules_needed(entry.system, setup[1].get("observer")))
+
+
 def catalogue() -> list[Listed]:
     """Every system, observer, controller and shipped agent of the package, then the
     installed entry points' observers and controllers."""
@@ -78,22 +90,29 @@ def catalogue() -> list[Listed]:
         )
     for kind, field in (("observer", "observers"), ("controller", "controllers")):
         names: dict[str, list[str]] = {}
+        needs_rl: set[str] = set()
         for entry in system_list:
             for name in getattr(entry, field):
                 names.setdefault(name, []).append(entry.env_id)
+                if kind == "observer" and _observer_needs_rl(entry, name):
+                    needs_rl.add(name)
         for name, env_ids in names.items():
             if kind == "observer":
                 summary = observer_summary(name)
             else:
                 first = next(e for e in system_list if name in e.controllers)
                 summary = controllers_of(first.system)[name].summary
-            items.append(Listed(kind, name, tuple(env_ids), summary, "observer-gym"))
+            items.append(
+                Listed(kind, name, tuple(env_ids), summary, "observer-gym", name in needs_rl)
+            )
     for name in shipped_names():
         env_id, summary = _agent_summary(name)
         folder = shipped_path(name)
         assert folder is not None  # one of shipped_names()
         algo = read_json(folder / "config.json")["algo"]
-        items.append(Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym"))
+        items.append(
+            Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym", needs_rl=True)
+        )
     for kind in ("observer", "controller"):
         for name, entry_point in entries.entry_points(kind).items():
             plugin = entries.find_plugin(kind, name)

@@ -22,6 +22,7 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
+from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
 
 
@@ -89,7 +90,9 @@ def is_policy_file(path: Path) -> bool:
 
 def check_policy_file(name: str, path: Path) -> None:
     """ValueError unless ``path`` is a stable-baselines3 zip (``data`` and
-    ``policy.pth`` inside); reads the archive's listing only."""
+    ``policy.pth`` inside); reads the archive's listing only. First, ExtraNotInstalled
+    (:mod:`observer_gym.extras`) without stable-baselines3 and PyTorch to load it."""
+    require_rl(f"policy {name!r}")  # stable-baselines3 and PyTorch load it
     if not path.is_file():
         raise ValueError(f"policy {name!r}: no file {path}")
     try:

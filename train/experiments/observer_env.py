@@ -16,7 +16,8 @@ import gymnasium as gym
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.registration import system_for_id
 from observer_gym.estimation import VisionObserver
-from observer_gym.estimation.observer import env_options_of
+from observer_gym.estimation.observer import env_options_of, modules_needed
+from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.tasks import task_for
 
@@ -36,6 +37,20 @@ def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] |
         raise ValueError(entries.unknown_message("observer", observer, env_id, list(observers)))
     assert plugin.obs_mode is not None  # an observer plugin's is "rgb" or "measurements"
     return plugin.obs_mode, None, plugin
+
+
+def require_observer_modules(env_id: str, observer: str) -> None:
+    """:class:`~observer_gym.extras.ExtraNotInstalled` naming the install line if the task
+    observer ``observer`` runs a pipeline that needs what this installation lacks (the
+    learned observers need PyTorch: ``pip install 'observer-gym[rl]'``); nothing for the
+    others, outside observers and unknown names (which :func:`observer_setup` refuses).
+    Imports nothing it checks for."""
+    setup = task_for(env_id).OBSERVERS.get(observer)
+    if setup is None or setup[1] is None:
+        return
+    needed = modules_needed(system_for_id(env_id), setup[1].get("observer"))
+    if needed:
+        require_rl(f"observer {observer!r}", needed)
 
 
 def observer_env_options(env_id: str, observer: str) -> dict[str, Any]:

@@ -45,7 +45,11 @@ from observer_gym.train.experiments.entries import (
     find_plugin,
     load_factory,
 )
-from observer_gym.train.experiments.observer_env import observer_env_options, observer_setup
+from observer_gym.train.experiments.observer_env import (
+    observer_env_options,
+    observer_setup,
+    require_observer_modules,
+)
 from observer_gym.train.experiments.systems import resolve_env_id
 from observer_gym.train.experiments.tasks import task_of
 from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
@@ -227,6 +231,7 @@ def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
 def _observer_entry(system: System, name: str, options: dict) -> ObserverEntry:
     obs_mode, pipeline_options, plugin = observer_setup(system.env_id, name)
     if plugin is None:
+        require_observer_modules(system.env_id, name)  # the learned ones: PyTorch
         return ObserverEntry(name, obs_mode, pipeline_options, None, {})
     load_factory(plugin)  # ValueError naming the entry if it does not import
     return ObserverEntry(name, obs_mode, None, plugin, options)

@@ -49,6 +49,8 @@ from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.signals import signals_deferred
 
 # The distributions that decide what an experiment computes.
+# what package_versions records for a distribution that is not installed
+NOT_INSTALLED = "not installed"
 VERSIONED_PACKAGES = (
     "observer-gym",
     "gymnasium",
@@ -76,7 +78,7 @@ def package_versions(names: Iterable[str] = VERSIONED_PACKAGES) -> dict[str, str
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
+            versions[name] = NOT_INSTALLED
     return versions
 
 

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from stable_baselines3.common.callbacks import BaseCallback
+from observer_gym.extras import require_rl
+
+# training imports this first: without the [rl] extra, the error names its install line
+require_rl("training an agent (observer_gym.train.rl)")
+from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
 
 class EveryStepsCallback(BaseCallback):

@@ -21,9 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-
+from observer_gym.extras import require_rl
 from observer_gym.train.reports.outputs import replace_atomically, write_json_atomic
 from observer_gym.train.reports.signals import signals_deferred
 from observer_gym.train.rl.callbacks import EveryStepsCallback
@@ -34,6 +32,11 @@ from observer_gym.train.rl.run_dir import (  # noqa: F401  (latest_checkpoint: r
     file_sha256,
     latest_checkpoint,
 )
+
+# without the [rl] extra, the error names its install line
+require_rl("training an agent (observer_gym.train.rl)")
+from stable_baselines3.common.base_class import BaseAlgorithm  # noqa: E402
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm  # noqa: E402
 
 
 def save_checkpoint(

@@ -54,6 +54,7 @@ from observer_gym.train.reports.outputs import (
     to_jsonable,
     write_json_atomic,
 )
+from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
     SEEDS_FILE,
@@ -351,9 +352,12 @@ def _start_steps(run_dir: Path) -> int:
 # --- the local backend: one spawned process per running seed ------------------------------------
 def _worker(run_dir: str, timesteps: int | None, connection: Connection) -> None:
     """A worker process: its own process group (a terminal's Ctrl-C reaches only the
-    parent, which passes a SIGTERM on), then :func:`continue_run`; sends ``None`` or the
-    traceback of what it raised."""
+    parent, which passes a SIGTERM on) and a SIGTERM of its own when the parent ends
+    (:func:`~observer_gym.train.reports.parent_watch.end_with_parent`: a killed command
+    leaves no seed training), then :func:`continue_run`; sends ``None`` or the traceback
+    of what it raised."""
     os.setpgrp()
+    end_with_parent()
     try:
         continue_run(run_dir, timesteps)
     except BaseException as exc:  # reported by the parent, with the seed

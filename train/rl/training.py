@@ -192,6 +192,21 @@ def run_config(
         probe.close()
     if not isinstance(action_space, spaces.Box):
         raise TypeError(f"{env_id}: the action space must be a Box, not {action_space}")
+    if randomize:  # every draw must keep the agent's spaces (RandomizedEnv requires it)
+        from observer_gym.train.rl.randomize import check_spaces
+
+        check_spaces(
+            lambda drawn: make_agent_env(
+                env_id,
+                obs,
+                estimate_from,
+                {**env_kwargs, **drawn},
+                params["image"],
+                observer,
+                params["features"],
+            ),
+            randomize,
+        )
     encoder = params["image"].get("encoder") if obs == "rgb" else None
     recorded = {}  # the frame encoder's file, which a loaded agent checks
     if encoder is not None:
@@ -364,6 +379,7 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
     """:func:`resume_training`'s work, under the folder's lock."""
     state = check_resumable(run_dir)
     config = read_config(run_dir)
+    check_recorded_randomize(config)
     checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
     assert checkpoint is not None  # check_resumable found it
     for problem in problems:
@@ -401,6 +417,31 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
     return learn(run_dir, config, progress=progress, checkpoint=checkpoint)
 
 
+def check_recorded_randomize(config: Mapping[str, Any]) -> None:
+    """ValueError, before anything is written, if the randomisation a run recorded
+    (config.json ``randomize``) could draw a world the env refuses: a run started before
+    the whole range was checked (:func:`~observer_gym.train.rl.randomize.check_randomize`)
+    would otherwise die at that draw again."""
+    if not config.get("randomize"):
+        return
+    from observer_gym.train.cli.checks import observer_mode
+    from observer_gym.train.rl.randomize import check_randomize
+
+    env_id, obs = config["env_id"], config["obs"]
+    feeding = observer_for(
+        env_id,
+        obs,
+        config["estimate_from"] or "measurements",
+        config.get("observer") if obs == "estimate" else None,
+    )
+    try:
+        check_randomize(
+            env_id, observer_mode(env_id, feeding), config["env_kwargs"], config["randomize"]
+        )
+    except ValueError as error:
+        raise ValueError(f"the run's recorded {error}; start a new run with another") from None
+
+
 def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str, Any]:
     """Train the run in ``run_dir`` on, without a progress bar: from its latest checkpoint
     (:func:`resume_training`, ``timesteps`` a new total), or, if it has none yet, from its
@@ -425,6 +466,7 @@ def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str,
 def _continue(run_dir: Path, timesteps: int | None) -> dict[str, Any]:
     """:func:`continue_run`'s work, under the folder's lock."""
     config = read_config(run_dir)
+    check_recorded_randomize(config)
     state = read_state(run_dir)
     if state is not None and state["status"] == "finished" and timesteps is None:
         return state
