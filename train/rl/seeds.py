@@ -25,7 +25,6 @@ its checkpoint, or from its start if it saved none.
 from __future__ import annotations
 
 import dataclasses
-import json
 import multiprocessing
 import os
 import signal
@@ -40,6 +39,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.cli.checks import check_backend, check_seeds, check_seeds_folder
 from observer_gym.train.reports.aggregate import (
     Aggregate,
@@ -96,7 +96,9 @@ class SeedsConfig:
                 f"{out_dir} is not a multi-seed training run (no {SEEDS_FILE}); make one with "
                 "'observer-gym train --seeds'"
             )
-        data = json.loads(path.read_text())
+        data = read_json(path)  # JSONFileError (a ValueError) naming it
+        if not isinstance(data, dict):
+            raise ValueError(f"{path} is not a multi-seed run's record (a JSON object)")
         fields = {f.name for f in dataclasses.fields(cls)}
         # the file's JSON values, of the types the fields say (as_dict wrote them)
         values: dict[str, Any] = {k: v for k, v in data.items() if k in fields}

@@ -46,7 +46,7 @@ from observer_gym.train.reports.outputs import (
     to_jsonable,
 )
 from observer_gym.train.rl.agent_env import ImageOptions, make_agent_env, observer_for
-from observer_gym.train.rl.learning import learn
+from observer_gym.train.rl.learning import eval_csv_problem, learn
 from observer_gym.train.rl.run_dir import (
     CHECKPOINTS,
     LATEST,
@@ -386,6 +386,19 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
         warnings.warn(
             f"{problem}; resuming from the checkpoint at {checkpoint['timesteps']} steps",
             CheckpointWarning,
+            stacklevel=2,
+        )
+    curve_problem = eval_csv_problem(run_dir / "eval.csv")
+    if curve_problem is not None:
+        raise ValueError(
+            f"{run_dir / 'eval.csv'} is not a training run's evaluation curve ({curve_problem}); "
+            "restore it, or remove it to start the curve afresh"
+        )
+    if state is None and (run_dir / STATE_FILE).exists():
+        warnings.warn(
+            f"{run_dir / STATE_FILE} is not readable as a run's state; resuming from the "
+            f"checkpoint at {checkpoint['timesteps']} steps and writing a new one",
+            OutputFolderWarning,
             stacklevel=2,
         )
     if state is not None and state["status"] == "killed":

@@ -21,8 +21,9 @@ from typing import Any
 
 from observer_gym.controllers.registry import controllers_of
 from observer_gym.envs import system_for_id
+from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
 from observer_gym.estimation.observer import modules_needed
-from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, read_csv
+from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
     TABLE_MD,
@@ -143,9 +144,11 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if not path.is_file():
         raise FolderCheckError(f"{folder} has no {SCORES_JSON}: not a finished benchmark folder")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = read_json(path)
         version, env, episodes = doc["suite"], doc["env"], doc["episodes_per_level"]
         levels = doc["levels"]
+    except JSONFileError as exc:  # a key twice, too deep, too large, not JSON: named
+        raise FolderCheckError(f"{exc}; not a benchmark's scores") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FolderCheckError(f"{path} cannot be read as a benchmark's scores: {exc!r}") from None
     try:
@@ -227,7 +230,11 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if difference:
         raise FolderCheckError(f"{folder}: {difference}")
     table = folder / TABLE_MD
-    if not table.is_file() or table.read_text(encoding="utf-8") != table_markdown(suite, derived):
+    try:
+        table_text = read_bytes_limited(table, MAX_CSV_BYTES).decode("utf-8", errors="replace")
+    except (OSError, ValueError):
+        table_text = None
+    if table_text != table_markdown(suite, derived):
         raise FolderCheckError(f"{table} is missing or not the table of {SCORES_JSON}")
     status = "official" if derived["official"] else "unofficial"
     return (
