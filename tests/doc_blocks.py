@@ -9,8 +9,11 @@ before a block (blank lines between are allowed) says more:
   (installs packages, needs a cluster, writes tracked files, ...), and why;
 - ``<!-- doc-test: replace: OLD => NEW -->`` (one comment each): the test runs the
   block with OLD replaced by NEW, for a command that would take minutes as written;
+- ``<!-- doc-test: fails: CODE -->`` before a ``bash`` block of commands that each
+  show a refusal: each command runs on its own and must exit with status CODE;
 - ``<!-- doc-test: output -->`` before a ``text`` block: its non-blank lines are printed,
-  in this order, by the nearest runnable block before it, which must run unshortened.
+  in this order, by the nearest runnable block before it, which must run unshortened;
+  ``...`` in a quoted line stands for any text (as in doctest's ELLIPSIS).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ GENERATED = {
     "leaderboard.md": "the page's own generating command, which rewrites the tracked page; "
     "tests/train/test_benchmark_leaderboard.py holds the page to that command's output"
 }
-MARKER = re.compile(r"^<!-- doc-test: (skip|replace|output)(?:: (.*?))? -->$")
+MARKER = re.compile(r"^<!-- doc-test: (skip|replace|fails|output)(?:: (.*?))? -->$")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,6 +45,7 @@ class Block:
     skip: str | None = None  # the reason
     replacements: tuple[tuple[str, str], ...] = ()
     output: bool = False  # a quoted output of the runnable block before it
+    fails: int | None = None  # each command's expected exit status
 
     @property
     def name(self) -> str:
@@ -52,6 +56,16 @@ class Block:
         for old, new in self.replacements:
             code = code.replace(old, new)
         return code
+
+    def commands(self) -> list[str]:
+        """The shell commands of the block, continuation lines joined."""
+        return [c for c in self.to_run().replace("\\\n", " ").splitlines() if c.strip()]
+
+
+def quotes(printed: str, quoted: str) -> bool:
+    """Whether ``printed`` has the line ``quoted``, ``...`` in it standing for any text."""
+    pattern = ".*".join(map(re.escape, quoted.strip().split("...")))
+    return any(re.fullmatch(pattern, line.strip()) for line in printed.splitlines())
 
 
 def read_blocks(path: Path) -> tuple[list[Block], list[str]]:
@@ -85,6 +99,9 @@ def read_blocks(path: Path) -> tuple[list[Block], list[str]]:
                     replacements.append((old, new))
                     if not sep or not old:
                         problems.append(f"{where}: a replace marker is 'OLD => NEW'")
+            fails = next((arg for kind, arg in markers if kind == "fails"), None)
+            if fails is not None and not fails.isdigit():
+                problems.append(f"{where}: a fails marker names the exit status, got {fails!r}")
             block = Block(
                 path,
                 i + 1,
@@ -93,7 +110,10 @@ def read_blocks(path: Path) -> tuple[list[Block], list[str]]:
                 skip,
                 tuple(replacements),
                 "output" in kinds,
+                int(fails) if fails and fails.isdigit() else None,
             )
+            if fails is not None and language != "bash":
+                problems.append(f"{where}: a fails marker is for a bash block")
             if language not in RUNNABLE + DATA:
                 problems.append(
                     f"{where}: the block's language must be one of "

@@ -10,19 +10,21 @@ import sys
 from pathlib import Path
 
 import pytest
-from doc_blocks import DOCS, ROOT, RUNNABLE, all_blocks, quoted_by, read_blocks
+from doc_blocks import DOCS, ROOT, RUNNABLE, all_blocks, quoted_by, quotes, read_blocks
 
 BLOCKS = all_blocks()
+OUTPUTS = [b for b in BLOCKS if b.output]
+QUOTED = {quoted_by(read_blocks(o.path)[0], o) for o in OUTPUTS}
 # README.md's python blocks run in tests/test_readme_examples.py (which also checks that
-# every printed line is labelled); every other runnable block that no marker skips:
+# every printed line is labelled), and here too those whose output the README quotes;
+# every other runnable block that no marker skips runs here:
 TO_RUN = [
     b
     for b in BLOCKS
     if b.language in RUNNABLE
     and b.skip is None
-    and not (b.path.name == "README.md" and b.language == "python")
+    and (b.path.name != "README.md" or b.language != "python" or b in QUOTED)
 ]
-OUTPUTS = [b for b in BLOCKS if b.output]
 LINKED = ("examples", "benchmarks", "docs")
 
 
@@ -39,20 +41,29 @@ def test_every_block_says_how_it_runs(path):
 
 
 def run_block(block, tmp_path: Path) -> str:
-    """What ``block`` prints (stdout and stderr), run in ``tmp_path``; fails on an error."""
+    """What ``block`` prints (stdout and stderr), run in ``tmp_path``; fails on an error
+    (on any exit status but the expected one, for a block of refusals)."""
     for name in LINKED:
         (tmp_path / name).symlink_to(ROOT / name)
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     env["MPLBACKEND"] = "Agg"
     if block.language == "python":
-        command = [sys.executable, "-c", block.to_run()]
+        runs = [([sys.executable, "-c", block.to_run()], 0)]
+    elif block.fails is not None:
+        runs = [(["bash", "-c", command], block.fails) for command in block.commands()]
     else:
-        command = ["bash", "-e", "-o", "pipefail", "-c", block.to_run()]
-    result = subprocess.run(
-        command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900
-    )
-    printed = result.stdout + result.stderr
-    assert result.returncode == 0, f"{block.name} exited {result.returncode}:\n{printed[-3000:]}"
+        runs = [(["bash", "-e", "-o", "pipefail", "-c", block.to_run()], 0)]
+    printed = ""
+    for command, status in runs:
+        result = subprocess.run(
+            command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900
+        )
+        out = result.stdout + result.stderr
+        assert result.returncode == status, (
+            f"{block.name}: {command[-1][:200]!r} exited {result.returncode}, "
+            f"not {status}:\n{out[-3000:]}"
+        )
+        printed += out
     return printed
 
 
@@ -61,15 +72,16 @@ def run_block(block, tmp_path: Path) -> str:
 def test_block_runs_and_prints_what_the_doc_quotes(block, tmp_path):
     printed = run_block(block, tmp_path)
     quoted = [o for o in OUTPUTS if o.path == block.path and quoted_by(all_in(o.path), o) == block]
+    lines = printed.splitlines()
     for output in quoted:
-        lines = [line.rstrip() for line in printed.splitlines()]
         position = 0
         for expected in filter(str.strip, output.code.splitlines()):
-            assert expected.rstrip() in lines[position:], (
+            found = [i for i in range(position, len(lines)) if quotes(lines[i], expected)]
+            assert found, (
                 f"{output.name} quotes {expected!r}, which {block.name} does not print "
                 f"(after the lines matched so far); it printed:\n{printed[-3000:]}"
             )
-            position = lines.index(expected.rstrip(), position) + 1
+            position = found[0] + 1
 
 
 def all_in(path: Path):
