@@ -11,9 +11,10 @@ before a block (blank lines between are allowed) says more:
   block with OLD replaced by NEW, for a command that would take minutes as written;
 - ``<!-- doc-test: fails: CODE -->`` before a ``bash`` block of commands that each
   show a refusal: each command runs on its own and must exit with status CODE;
-- ``<!-- doc-test: output -->`` before a ``text`` block: its non-blank lines are printed,
-  in this order, by the nearest runnable block before it, which must run unshortened;
-  ``...`` in a quoted line stands for any text (as in doctest's ELLIPSIS).
+- ``<!-- doc-test: output -->`` before a ``text`` block or a Markdown table: its
+  non-blank lines are printed, in this order, by the nearest runnable block before it,
+  which must run unshortened; ``...`` in a quoted line stands for any text (as in
+  doctest's ELLIPSIS). A quoted table is kept as a block of language ``table``.
 """
 
 from __future__ import annotations
@@ -124,13 +125,21 @@ def read_blocks(path: Path) -> tuple[list[Block], list[str]]:
             if (skip or replacements) and language not in RUNNABLE:
                 problems.append(f"{where}: skip and replace markers are for runnable blocks")
             if block.output and language != "text":
-                problems.append(f"{where}: an output marker is for a text block")
+                problems.append(f"{where}: an output marker is for a text block or a table")
             for old, _ in replacements:
                 if old and old not in block.code:
                     problems.append(f"{where}: {old!r} (to replace) is not in the block")
             blocks.append(block)
             markers = []
             i = end
+        elif text.startswith("|") and ("output", None) in markers:
+            end = i
+            while end < len(lines) and lines[end].strip().startswith("|"):
+                end += 1
+            table = "\n".join(lines[i:end]) + "\n"
+            blocks.append(Block(path, i + 1, "table", table, output=True))
+            markers = []
+            i = end - 1
         elif text:
             if markers:
                 problems.append(f"{path.relative_to(ROOT)}:{i + 1}: a marker not before a block")

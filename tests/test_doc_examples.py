@@ -79,9 +79,14 @@ def test_block_runs_and_prints_what_the_doc_quotes(block, tmp_path):
             found = [i for i in range(position, len(lines)) if quotes(lines[i], expected)]
             assert found, (
                 f"{output.name} quotes {expected!r}, which {block.name} does not print "
-                f"(after the lines matched so far); it printed:\n{printed[-3000:]}"
+                f"(after the lines matched so far); it printed:\n{shown(lines)}"
             )
             position = found[0] + 1
+
+
+def shown(lines: list[str]) -> str:
+    """The printed lines without the progress bars' (on stderr, a line per update)."""
+    return "\n".join(line for line in lines if "it/s]" not in line and "/s]" not in line)[-4000:]
 
 
 def all_in(path: Path):
