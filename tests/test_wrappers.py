@@ -321,3 +321,24 @@ def test_normalized_action_refuses_a_space_it_cannot_rescale():
     with pytest.raises(ValueError, match="finite bounds, low < high; got Box"):
         NormalizedAction(unbounded)
     unbounded.close()
+
+
+@pytest.mark.parametrize(
+    ("wrap", "obs_mode"),
+    [
+        (lambda env: GrayFrameStack(env, size_px=64, stack_size=2), "rgb"),
+        (lambda env: FrameImages(env, size_px=32, grayscale=False), "rgb"),
+        (FlatObservation, "measurements"),
+        (NormalizedAction, "state"),
+    ],
+)
+def test_gym_make_rebuilds_a_wrapped_env_from_its_spec(wrap, obs_mode):
+    env = wrap(gym.make("observer_gym/BallTable-v0", obs_mode=obs_mode))
+    again = gym.make(env.spec)
+    try:
+        assert type(again) is type(env)
+        assert again.observation_space == env.observation_space
+        assert again.action_space == env.action_space
+    finally:
+        env.close()
+        again.close()

@@ -52,4 +52,5 @@ class NormalizedAction(RescaleAction):
                 "NormalizedAction needs a float Box action space with finite bounds, "
                 f"low < high; got {space}"
             )
+        gym.utils.RecordConstructorArgs.__init__(self)  # first: RescaleAction's are fixed
         super().__init__(env, np.float32(-1.0), np.float32(1.0))
