@@ -10,7 +10,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.envs.registration import EnvSpec, WrapperSpec
+from gymnasium.envs.registration import WrapperSpec
 from gymnasium.wrappers import FrameStackObservation
 
 SIZE_PX_RANGE = (8, 512)
@@ -148,21 +148,16 @@ class GrayFrameStack(FrameStackObservation):
         stack_size = _check_int("GrayFrameStack stack_size", stack_size, STACK_SIZE_RANGE)
         _check_int("GrayFrameStack size_px", size_px, SIZE_PX_RANGE)
         super().__init__(FrameImages(env, size_px=size_px, grayscale=True), stack_size)
-
-    @property
-    def spec(self) -> EnvSpec | None:
-        """The given env's spec with this wrapper added (not the :class:`FrameImages` it
-        made: ``gym.make(env.spec)`` builds this wrapper again, which makes that)."""
-        if self._cached_spec is None:
-            given = self.env.env.spec  # below the FrameImages made in __init__
-            if given is not None:
-                spec = deepcopy(given)
-                spec.additional_wrappers += (
-                    WrapperSpec(
-                        name=self.class_name(),
-                        entry_point=f"{self.__module__}:{type(self).__name__}",
-                        kwargs=dict(self._saved_kwargs),
-                    ),
-                )
-                self._cached_spec = spec
-        return self._cached_spec
+        # The spec: the given env's with this wrapper, not with the FrameImages made here
+        # too (gym.make(env.spec) builds this wrapper again, which makes that).
+        given = env.spec
+        if given is not None:
+            spec = deepcopy(given)
+            spec.additional_wrappers += (
+                WrapperSpec(
+                    name=self.class_name(),
+                    entry_point=f"{type(self).__module__}:{type(self).__name__}",
+                    kwargs=dict(self._saved_kwargs),
+                ),
+            )
+            self._cached_spec = spec
