@@ -35,7 +35,9 @@ class System(NamedTuple):
     name: str  # package name in every layer, "ball_table"
     env_id: str  # registered id, "observer_gym/BallTable-v0"
     entry_point: str  # "module:EnvClass"
-    max_episode_steps: int
+    # Gymnasium's step limit; None: the env truncates itself (BallCatcher's limit is in
+    # seconds, so its steps follow its options)
+    max_episode_steps: int | None
     # (layer, module) pairs for a system kept outside the package: e.g.
     # (("estimation", "mylab.toy.estimation"), ...); a layer not named is looked up under
     # the package (LAYERS)
@@ -70,7 +72,7 @@ SYSTEMS: list[System] = [
         "ball_catcher",
         f"{NAMESPACE}/BallCatcher-v1",
         "observer_gym.envs.ball_catcher:BallCatcherEnv",
-        200,
+        None,
     ),
     System(
         "target_follower",

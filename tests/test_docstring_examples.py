@@ -2,7 +2,7 @@
 
 Every example in the package's modules is collected (a new one runs without an edit here),
 and the public entry points named in ``REQUIRED`` must each have one: the envs,
-``VisionObserver``, ``make_controller`` and the Python API.
+``VisionObserver``, ``make_controller``, the Python API and the public wrappers.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pkgutil
 
 import pytest
 
-PACKAGES = ("envs", "estimation", "controllers", "train")
+PACKAGES = ("envs", "estimation", "controllers", "train", "wrappers")
 
 REQUIRED = (
     "observer_gym.envs.ball_table.env.BallTableEnv",
@@ -25,6 +25,10 @@ REQUIRED = (
     "observer_gym.train.experiments.api.compare",
     "observer_gym.train.experiments.api.sweep",
     "observer_gym.train.experiments.api.evaluate",
+    "observer_gym.wrappers.frames.FrameImages",
+    "observer_gym.wrappers.frames.GrayFrameStack",
+    "observer_gym.wrappers.flat.FlatObservation",
+    "observer_gym.wrappers.actions.NormalizedAction",
 )
 
 FLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.config import config_field
@@ -32,6 +34,16 @@ ROBOT_PROFILES: dict[str, RobotProfile] = {
 #   [latency_s, latency_s + 1 / rate), drawn at every reset, so frames arrive out of order;
 # - single: one camera (rig camera 0).
 CAMERA_PRESETS = ("synchronised", "alternating", "random_offsets", "single")
+
+# The episode's time limit: the longest flight and then AFTER_FLIGHT_S for the ball to end
+# (through the hole, off the box, below MISS_HEIGHT_M or past the box), and never under
+# MIN_TIME_LIMIT_S: at the default flights (at most 0.48 s) and step (10 ms) that is the
+# 2 s (200 steps) every published figure was measured over.
+MIN_TIME_LIMIT_S = 2.0
+AFTER_FLIGHT_S = 1.52
+# The lowest launch point must be this far in front of the box's reach (the workspace's
+# front face, x = 0.75 m), so a throw starts in front of the box and flies toward it.
+LAUNCH_CLEARANCE_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -81,7 +93,11 @@ class BallCatcherConfig(SensorConfig):
     )
     launch_height_m: float = config_field(0.55, "launch point's mean height", low=0.0, high=3.0)
     launch_spread_m: float = config_field(
-        0.1, "launch point uniform within +- this of its mean, per axis", low=0.0, high=1.0
+        0.1,
+        "launch point uniform within +- this of its mean, per axis (the lowest launch at "
+        "least 0.15 m high, the nearest at least 1.25 m out)",
+        low=0.0,
+        high=1.0,
     )
     flight_time_min_s: float = config_field(
         0.40, "shortest time of flight to the box's plane", low=0.1, high=3.0
@@ -111,6 +127,13 @@ class BallCatcherConfig(SensorConfig):
         0.001, "physics step; a divisor of control_dt_s", low=0.0002, high=0.005
     )
 
+    # Options whose allowed values, the others fixed, are no interval but a lattice: a
+    # domain randomisation draws them from choices, never from a range (train/rl/randomize.py).
+    discrete_options: ClassVar[dict[str, str]] = {
+        "control_dt_s": "a whole multiple of physics_dt_s",
+        "physics_dt_s": "a divisor of control_dt_s",
+    }
+
     def __post_init__(self) -> None:
         super().__post_init__()
         ratio = self.control_dt_s / self.physics_dt_s
@@ -124,6 +147,22 @@ class BallCatcherConfig(SensorConfig):
                 f"flight_time_min_s={self.flight_time_min_s} must be <= "
                 f"flight_time_max_s={self.flight_time_max_s}"
             )
+        lowest_m = self.launch_height_m - self.launch_spread_m
+        if lowest_m < geo.MISS_HEIGHT_M - 1e-9:  # 1e-9: 1.15 - 1.0 is 0.1499...
+            raise ValueError(
+                f"launch_height_m={self.launch_height_m} with launch_spread_m="
+                f"{self.launch_spread_m} launches as low as {lowest_m:.4g} m, below the "
+                f"{geo.MISS_HEIGHT_M} m where a ball counts as missed (or under the floor); "
+                f"allowed: launch_height_m - launch_spread_m >= {geo.MISS_HEIGHT_M}"
+            )
+        nearest_m = self.launch_x_m - self.launch_spread_m
+        front_m = float(geo.WORKSPACE_HIGH_WORLD[0]) + LAUNCH_CLEARANCE_M
+        if nearest_m < front_m - 1e-9:
+            raise ValueError(
+                f"launch_x_m={self.launch_x_m} with launch_spread_m={self.launch_spread_m} "
+                f"launches as near as x = {nearest_m:.4g} m, at or behind the box's reach; "
+                f"allowed: launch_x_m - launch_spread_m >= {front_m:g}"
+            )
         if self.camera_preset == "single" and self.num_cameras > 1:
             raise ValueError(
                 f"num_cameras={self.num_cameras} contradicts camera_preset='single'; "
@@ -136,6 +175,17 @@ class BallCatcherConfig(SensorConfig):
         if self.num_cameras:
             return self.num_cameras
         return 1 if self.camera_preset == "single" else 2
+
+    @property
+    def time_limit_s(self) -> float:
+        """The episode's time limit (s): the longest flight and AFTER_FLIGHT_S after it,
+        at least MIN_TIME_LIMIT_S (2 s at the defaults)."""
+        return max(MIN_TIME_LIMIT_S, self.flight_time_max_s + AFTER_FLIGHT_S)
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The time limit in env steps of control_dt_s, rounded up (200 at the defaults)."""
+        return math.ceil(round(self.time_limit_s / self.control_dt_s, 9))
 
     @property
     def physics_substeps(self) -> int:

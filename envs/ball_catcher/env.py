@@ -150,8 +150,14 @@ class BallCatcherEnv(CameraEnv):
     otherwise (a rim hit that still rattles in, or a ball through the plate, is no catch).
     A ball deflected by a touch that does not enter flies on.
     Terminated on a catch or on such a miss, and on a miss by the ball's centre falling
-    below 0.15 m or getting 0.2 m behind the box's back plane. Truncated by the registered
-    time limit of 200 steps (2 s).
+    below 0.15 m or getting 0.2 m behind the box's back plane. Truncated by the env's own
+    time limit, in seconds (``config.time_limit_s``): the longest flight
+    (``flight_time_max_s``) and 1.52 s after it, at least 2 s; in steps
+    (``env.max_episode_steps``, rounded up) 200 at the defaults, 1000 at
+    ``control_dt_s=0.002``, 452 for flights of up to 3 s. The env truncates itself (it is
+    registered without Gymnasium's step limit), also when built without ``gym.make``;
+    ``gym.make(..., max_episode_steps=N)`` adds Gymnasium's ``TimeLimit`` of N steps, and
+    the shorter limit ends the episode.
 
     On the step that ends an episode with a miss, ``info["miss_reason"]`` says which part
     of the rule made it one (``MISS_REASONS``; None on every other step and on a catch):
@@ -207,8 +213,12 @@ class BallCatcherEnv(CameraEnv):
       ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
       data. Since 2026-11-28 the option ``hole_measurements`` (off by default: the
       default observation space is unchanged) reports the hole's pixels, and the step
-      that ends a miss says why (``info["miss_reason"]``). (docs/envs.md, "Env
-      versions".)
+      that ends a miss says why (``info["miss_reason"]``). Since 2026-11-28 the time
+      limit is in seconds and follows the flight times (Episode End): it was 200 steps
+      whatever ``control_dt_s``, so at 2 ms steps or flights over 2 s every episode was
+      cut before the ball arrived; at the defaults it is the same 200 steps. Launch
+      options that put the lowest launch below 0.15 m or the nearest within 0.5 m of
+      the box's reach raise ``ValueError``. (docs/envs.md, "Env versions".)
     - v0: initial version (0.1.0); no longer registered: ``gym.make`` raises Gymnasium's
       ``DeprecatedEnv`` naming v1. The git tag ``v0.1.0`` reproduces its results.
     """
@@ -225,6 +235,7 @@ class BallCatcherEnv(CameraEnv):
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         cfg = BallCatcherConfig.from_kwargs(**options)
+        self.max_episode_steps = cfg.max_episode_steps  # the time limit (Episode End)
         self.tick_s = cfg.physics_dt_s
         self.ticks_per_step = cfg.physics_substeps
         self.metadata = {**self.metadata, "render_fps": round(1.0 / cfg.control_dt_s)}
@@ -247,6 +258,14 @@ class BallCatcherEnv(CameraEnv):
         self._entered_after_touch = False
         self._hole_noise_rng: np.random.Generator | None = None  # hole_measurements' noise
         super().__init__(render_mode, **options)
+
+    def step(self, action):
+        """One env step (Gymnasium's), truncated at the env's time limit (Episode End)."""
+        observation, reward, terminated, truncated, info = super().step(action)
+        assert self._history is not None  # made by every reset
+        if not terminated and self._history.steps >= self.max_episode_steps:
+            truncated = True
+        return observation, reward, terminated, truncated, info
 
     # --- the system's hooks -------------------------------------------------------------
     def _sensor_spec(self) -> SensorSpec:

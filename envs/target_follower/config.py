@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from observer_gym.envs.config import config_field
@@ -135,6 +136,17 @@ class TargetFollowerConfig(SensorConfig):
             low, high = getattr(self, low_name), getattr(self, high_name)
             if low > high:
                 raise ValueError(f"{low_name}={low!r} must not exceed {high_name}={high!r}")
+        # The nearest start's depth ahead of the level camera (at the widest bearing) must
+        # be beyond the stop distance, else an episode can end at its first step.
+        nearest_depth_m = self.start_distance_min_m * math.cos(self.start_bearing_max_rad)
+        if nearest_depth_m <= self.min_distance_m:
+            raise ValueError(
+                f"start_distance_min_m={self.start_distance_min_m!r} at "
+                f"start_bearing_max_rad={self.start_bearing_max_rad!r} starts the target "
+                f"{nearest_depth_m:.4g} m ahead of the camera, within min_distance_m="
+                f"{self.min_distance_m!r} where an episode ends; allowed: "
+                "start_distance_min_m * cos(start_bearing_max_rad) > min_distance_m"
+            )
 
     @property
     def dt_s(self) -> float:

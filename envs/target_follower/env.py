@@ -155,7 +155,9 @@ class TargetFollowerEnv(CameraEnv):
       ``copy_history_max_steps`` actions, a copy right after ``reset`` no longer delivers
       the reset's frames again at its first step, and a closed env raises
       ``EnvClosedError`` instead of PyBullet's "Not connected to physics server" or stale
-      data.
+      data. Since 2026-11-28 options whose nearest start lies within ``min_distance_m``
+      (``start_distance_min_m * cos(start_bearing_max_rad) <= min_distance_m``: an
+      episode could end at its first step) raise ``ValueError``.
     """
 
     world_shaping_sensor_options = ("frame_rate_hz",)  # one step per frame

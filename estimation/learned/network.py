@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from observer_gym.envs.json_file import read_json
+
 __all__ = [
     "GaussianMLP",
     "checked_report",
@@ -166,7 +168,11 @@ def checked_report(path: Path) -> dict[str, Any]:
             f"learned observer weights {path} (and their report {report_path.name}) not "
             "found; train them with python -m observer_gym.estimation.learned.train"
         )
-    report: dict[str, Any] = json.loads(report_path.read_text(encoding="utf-8"))
+    report = read_json(report_path, allow_nan=True)  # JSONFileError (a ValueError) names it
+    if not isinstance(report, dict):
+        raise ValueError(
+            f"{report_path} is not the report of learned observer weights (a JSON object)"
+        )
     found = file_sha256(path)
     if found != report.get("sha256"):
         raise ValueError(
@@ -188,14 +194,22 @@ def load_weights(
     report's.
 
     Raises:
-        ValueError: no weight file or report there, or the file's sha256 is not the
-            report's (a changed or other file).
+        ValueError: no weight file or report there, the file's sha256 is not the
+            report's (a changed or other file), or a file that is not such weights (a
+            damaged file, no architecture, tensors of other shapes), naming the file.
     """
     path = Path(path)
     report = checked_report(path)
-    saved = torch.load(path, weights_only=True)
-    net = network_class(**saved["architecture"])
-    net.load_state_dict(saved["state_dict"])
+    try:  # tensors and plain data only (weights_only); anything else is refused
+        saved = torch.load(path, weights_only=True)
+        net = network_class(**saved["architecture"])
+        net.load_state_dict(saved["state_dict"])
+    except Exception as exc:  # a damaged zip, no architecture, other shapes: any of them
+        reason = " ".join(str(exc).split())[:300]
+        raise ValueError(
+            f"learned observer weights {path} cannot be loaded as a {network_class.__name__}: "
+            f"{type(exc).__name__}: {reason}; train them again or restore the shipped file"
+        ) from None
     net.eval()
     return net, saved, report
 

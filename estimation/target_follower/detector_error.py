@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_json
+
 __all__ = ["DetectorErrorModel", "load_detector_error", "measure_detector_error"]
 
 ENV_ID = "observer_gym/TargetFollower-v0"
@@ -104,7 +106,7 @@ def _triple(values: list, what: str) -> tuple[float, float, float]:
 @lru_cache(maxsize=4)
 def load_detector_error(path: str | Path = DEFAULT_PATH) -> DetectorErrorModel:
     """The stored model (``detector_error.json`` by default)."""
-    data = json.loads(Path(path).read_text())
+    data = read_json(path, allow_nan=True)
     levels = data["levels"]
     return DetectorErrorModel(
         tuple(float(level["image_noise_std"]) for level in levels),

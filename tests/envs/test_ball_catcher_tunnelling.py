@@ -37,17 +37,20 @@ PLATE = {"plate 10 cm": (0.0707, 0.0707)}  # 10 cm off the axis, wholly on the p
 
 
 def fastest_allowed_mps() -> float:
-    """The fastest throw any configuration allows (at the ranges' extremes)."""
+    """The fastest throw any configuration allows (at the ranges' extremes; the lowest
+    launch allowed keeps the whole launch cube at or above MISS_HEIGHT_M)."""
+    spread_m = BOUNDS["launch_spread_m"]["high"]
+    lowest_m = max(BOUNDS["launch_height_m"]["low"], geo.MISS_HEIGHT_M + spread_m)
     extremes = [
         BallCatcherConfig(
             launch_x_m=BOUNDS["launch_x_m"]["high"],
             launch_height_m=height,
-            launch_spread_m=BOUNDS["launch_spread_m"]["high"],
+            launch_spread_m=spread_m,
             flight_time_min_s=BOUNDS["flight_time_min_s"]["low"],
             flight_time_max_s=flight_max_s,
             target_radius_m=BOUNDS["target_radius_m"]["high"],
         )
-        for height in (BOUNDS["launch_height_m"]["low"], BOUNDS["launch_height_m"]["high"])
+        for height in (lowest_m, BOUNDS["launch_height_m"]["high"])
         for flight_max_s in (
             BOUNDS["flight_time_min_s"]["low"],
             BOUNDS["flight_time_max_s"]["high"],

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 
 import gymnasium as gym
@@ -133,3 +134,76 @@ def test_real_envs_from_valid_configs(system, data):
     finally:
         env.close()
     assert math.isfinite(config.frame_rate_hz)
+
+
+def _numeric_fields(config_class) -> list[dataclasses.Field]:
+    return [
+        f
+        for f in dataclasses.fields(config_class)
+        if isinstance(f.default, int | float)
+        and not isinstance(f.default, bool)
+        and f.metadata["low"] is not None
+        and f.metadata["high"] is not None
+        and f.name not in getattr(config_class, "discrete_options", {})
+    ]
+
+
+@st.composite
+def _box(draw, config_class) -> dict:
+    """A randomisation of 1-4 numeric options: a range inside each field's bounds; the
+    fields either any of the config's or those sharing a word (flight_time_min_s and
+    flight_time_max_s, launch_*, start_*), which the rules between options tie."""
+    fields = _numeric_fields(config_class)
+    groups: dict[str, list] = {}
+    for f in fields:
+        groups.setdefault(f.name.split("_")[0], []).append(f)
+    tied = [group for group in groups.values() if len(group) > 1]
+    if tied and draw(st.booleans()):
+        pool = draw(st.sampled_from(tied))
+        size = st.integers(2, min(4, len(pool)))
+        chosen = draw(size.flatmap(lambda n: st.permutations(pool).map(lambda p: p[:n])))
+    else:
+        chosen = draw(st.lists(st.sampled_from(fields), min_size=1, max_size=4, unique_by=id))
+    box = {}
+    for f in chosen:
+        low, high = f.metadata["low"], f.metadata["high"]
+        if isinstance(f.default, int):
+            ends = sorted(draw(st.lists(st.integers(low, high), min_size=2, max_size=2)))
+        else:  # anywhere in the field's range, or near its default (where rules bind)
+            default = f.default
+            near = st.floats(default - 0.3 * abs(default), default + 0.3 * abs(default))
+            value = st.one_of(st.floats(low, high), near.filter(lambda v: low <= v <= high))  # noqa: B023
+            ends = sorted(draw(st.lists(value, min_size=2, max_size=2)))
+        box[f.name] = {"low": ends[0], "high": ends[1]}
+    return box
+
+
+@pytest.mark.parametrize("system", SYSTEMS, ids=[s.short_id for s in SYSTEMS])
+@given(data=st.data())
+def test_every_draw_of_a_checked_randomisation_builds(system, data):
+    """``train --randomize``'s check (every corner of the box) covers every draw inside
+    it: a randomisation it takes never draws options the env refuses (each rule between
+    options is monotone in each, see train/rl/randomize.py)."""
+    from observer_gym.train.rl.randomize import check_randomize, draw_options, integer_options
+
+    config_class = CONFIGS[system.short_id]
+    box = data.draw(_box(config_class), label="randomize")
+    try:
+        checked = check_randomize(system.env_id, "state", {}, box)
+    except ValueError as error:
+        assert any(name in str(error) for name in box), str(error)
+        record(f"randomize: {system.short_id}", accepted=False)
+        return
+    record(f"randomize: {system.short_id}", accepted=True)
+    # the grid of each range's ends and middle (a draw can take each), then random draws
+    integers = integer_options(system.env_id)
+    grid = [
+        [s["low"], s["high"], (s["low"] + s["high"]) // 2 if k in integers else
+         (s["low"] + s["high"]) / 2]
+        for k, s in checked.items()
+    ]  # fmt: skip
+    points = [dict(zip(checked, p, strict=True)) for p in itertools.product(*grid)]
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1), label="seed"))
+    for drawn in points + [draw_options(checked, rng, integers) for _ in range(200)]:
+        note(f"drawn {drawn}")
+        config_class.from_kwargs(obs_mode="state", **drawn)

@@ -305,3 +305,27 @@ def test_a_policy_enters_with_its_observer_and_its_env_options(tmp_path, capsys)
 def test_a_classical_entry_records_no_agent_env_options(folder):
     assert "agent_env_options" not in json.loads((folder / "scores.json").read_text())
     assert "agent_env_options" not in check_benchmark(ENV, OBSERVER, CONTROLLER, 1).identity()
+
+
+def test_a_core_install_checks_a_classical_folder_made_with_pytorch(folder, tmp_path, monkeypatch):
+    """torch and stable-baselines3 decide none of a classical entry's numbers: a core
+    install (neither installed) checks the folder; an agent's or a learned observer's
+    folder, or a torch that is installed in another version, is still refused."""
+    from observer_gym.train.experiments.benchmark import check
+
+    recorded = json.loads((folder / "scores.json").read_text())["packages"]
+    assert recorded["torch"] != "not installed"  # made on this full install
+    core = {**check.versions(), "torch": "not installed", "stable-baselines3": "not installed"}
+    monkeypatch.setattr(check, "versions", lambda: core)
+    assert "OK" in check_folder(folder)
+    for observer, controller in [("learned-kf-measurements", "intercept"),
+                                 ("kf-measurements", "ppo:ball_catcher-estimate")]:  # fmt: skip
+        copy = _copy(folder, tmp_path / observer)
+        scores = json.loads((copy / "scores.json").read_text())
+        scores.update(observer=observer, controller=controller)
+        (copy / "scores.json").write_text(json.dumps(scores))
+        with pytest.raises(FolderCheckError, match=r"package stable-baselines3 is '[0-9.]+' in"):
+            check_folder(copy)
+    monkeypatch.setattr(check, "versions", lambda: {**core, "torch": "0.0"})
+    with pytest.raises(FolderCheckError, match=r"package torch is '[^']+' in the folder, '0\.0'"):
+        check_folder(folder)

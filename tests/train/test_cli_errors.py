@@ -7,7 +7,6 @@ before the heavy imports. The command's light copy of the systems' names
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import subprocess
 import sys
@@ -21,6 +20,8 @@ from observer_gym.train.experiments.request import check_pair
 from observer_gym.train.experiments.systems import controller_choices, observer_choices
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
+from observer_gym.train.rl.normalizer_file import record_final_files
+from observer_gym.train.rl.run_dir import write_config
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
 # never imported to parse a command line or to find a mistake in it
@@ -40,9 +41,10 @@ def _fake_run(folder: Path, obs: str = "state", model: bool = True) -> Path:
         "observer": {"state": "oracle", "rgb": "pixels"}.get(obs, "kf-measurements"),
         "env_kwargs": {},
     }
-    (folder / "config.json").write_text(json.dumps(config))
+    write_config(folder, config)
     if model:
         (folder / "model.zip").write_bytes(b"")
+        record_final_files(folder)  # as a finished run records it
     return folder
 
 

@@ -29,6 +29,7 @@ from observer_gym.train.rl.pixel_encoder import (
     load_encoder,
 )
 from observer_gym.train.rl.pretrain_encoder import _without_option, fit_encoder, main
+from observer_gym.train.rl.run_dir import write_config
 from observer_gym.train.rl.shipped import shipped_path
 
 
@@ -253,6 +254,6 @@ def test_an_agent_refuses_an_encoder_that_changed(tmp_path):
     shutil.copytree(shipped, copy)
     config = json.loads((copy / "config.json").read_text())
     config["encoder_sha256"] = "0" * 64
-    (copy / "config.json").write_text(json.dumps(config))
+    write_config(copy, config)  # a consistent config.json that names another encoder
     with pytest.raises(ValueError, match="trained with another image encoder 'ball_table'"):
         Agent.load(copy)

@@ -8,6 +8,7 @@ import argparse
 from observer_gym.train.cli.args import (
     Command,
     add_output_arguments,
+    command_error,
     positive_float,
     positive_int,
 )
@@ -32,18 +33,30 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _demo_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.experiments import demo  # deferred: imports PyBullet and OpenCV
-    from observer_gym.train.reports.outputs import default_out_dir
+    from observer_gym.train.reports.outputs import (
+        OutputFolderError,
+        check_folder_kind,
+        default_out_dir,
+    )
 
     out_dir = args.out if args.out is not None else default_out_dir("demo")
+    try:
+        check_folder_kind(out_dir, "demo")  # another command's results: refused up front
+    except OutputFolderError as exc:
+        return command_error("demo", exc)
+    from observer_gym.train.experiments import demo  # deferred: imports PyBullet and OpenCV
+
     print(demo.INTRODUCTION)
-    summary = demo.run_demo(
-        out_dir=out_dir,
-        seconds=args.seconds,
-        seed=args.seed,
-        frame_every=args.frame_every,
-        progress=not args.no_progress,
-    )
+    try:
+        summary = demo.run_demo(
+            out_dir=out_dir,
+            seconds=args.seconds,
+            seed=args.seed,
+            frame_every=args.frame_every,
+            progress=not args.no_progress,
+        )
+    except OutputFolderError as exc:  # filled by another command since the check above
+        return command_error("demo", exc)
     print(demo.summary_text(summary))
     print(f"output: {out_dir}")
     return 0

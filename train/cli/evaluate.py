@@ -74,9 +74,9 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         model = agent_folder(args.model)  # a shipped agent by name too
     except ValueError as exc:
         return command_error("evaluate", exc)
-    multi_seed = is_multi_seed(model)
-    runs = list(seed_run_dirs(model).values()) if multi_seed else [model]
     try:
+        multi_seed = is_multi_seed(model)  # seed_0 and seed_00 both there: refused
+        runs = list(seed_run_dirs(model).values()) if multi_seed else [model]
         for run_dir in runs:
             config = read_config(run_dir)
             observer = args.observer or config["observer"]

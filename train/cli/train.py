@@ -226,7 +226,11 @@ def _train_run(args: argparse.Namespace) -> int:
             )
             print(line, file=sys.stderr)
             raise UsageError(line)
-        if is_multi_seed(args.resume):
+        try:
+            multi_seed = is_multi_seed(args.resume)  # seed_0 and seed_00: refused
+        except ValueError as exc:
+            return command_error("train", exc)
+        if multi_seed:
             return _train_seeds_run(args)
         if seeds_options:
             return command_error(

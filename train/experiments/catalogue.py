@@ -5,11 +5,11 @@ through entry points (:mod:`observer_gym.train.experiments.entries`).
 
 from __future__ import annotations
 
-import json
 from typing import NamedTuple
 
 from observer_gym.controllers import controllers_of
 from observer_gym.envs import SYSTEMS
+from observer_gym.envs.json_file import read_json
 from observer_gym.estimation.observer import OBSERVER_ROLES, modules_needed
 from observer_gym.train.experiments import entries
 from observer_gym.train.experiments.systems import SystemEntry, system_entries
@@ -53,7 +53,7 @@ def _agent_summary(name: str) -> tuple[str, str]:
     """(env id, one line) of the shipped agent ``name``: from its config and README title."""
     folder = shipped_path(name)
     assert folder is not None  # one of shipped_names()
-    config = json.loads((folder / "config.json").read_text(encoding="utf-8"))
+    config = read_json(folder / "config.json")
     readme = folder / README_FILE
     title = ""
     if readme.is_file():
@@ -109,7 +109,7 @@ def catalogue() -> list[Listed]:
         env_id, summary = _agent_summary(name)
         folder = shipped_path(name)
         assert folder is not None  # one of shipped_names()
-        algo = json.loads((folder / "config.json").read_text(encoding="utf-8"))["algo"]
+        algo = read_json(folder / "config.json")["algo"]
         items.append(
             Listed("agent", f"{algo}:{name}", (env_id,), summary, "observer-gym", needs_rl=True)
         )

@@ -23,6 +23,7 @@ from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
 from observer_gym.train.reports.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
 from observer_gym.train.reports.outputs import (
+    check_folder_kind,
     default_out_dir,
     output_folder,
     package_versions,
@@ -77,14 +78,16 @@ def run_demo(
         every step.
 
     Raises:
-        ValueError: ``seconds`` is not positive and finite, or ``frame_every`` < 1.
+        ValueError: ``seconds`` is not positive and finite, or ``frame_every`` < 1;
+            :class:`~observer_gym.train.reports.outputs.OutputFolderError` if ``out_dir``
+            holds another command's results (a training run's, a sweep's).
     """
     if not (np.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be a positive, finite number, got {seconds!r}")
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every!r}")
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir("demo")
-    with output_folder(out_dir, "demo"):
+    with output_folder(out_dir, "demo", check=lambda folder: check_folder_kind(folder, "demo")):
         frames_dir = out_dir / "frames"
         frames_dir.mkdir(parents=True, exist_ok=True)
 

@@ -39,6 +39,7 @@ from observer_gym.train.reports.consistency import (
 from observer_gym.train.reports.outputs import (
     to_jsonable,
 )
+from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.reports.progress import progress_bar
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import parse_agent_spec
@@ -328,7 +329,7 @@ def iter_episodes(
         return
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(
-        max_workers=min(workers, len(specs)), mp_context=context
+        max_workers=min(workers, len(specs)), mp_context=context, initializer=end_with_parent
     ) as pool:
         futures = {pool.submit(run, spec): index for index, spec in enumerate(specs)}
         try:

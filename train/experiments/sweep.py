@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
 from observer_gym.train.experiments.sweep_grid import VaryInput, point_text, world_draw_notes
@@ -365,7 +366,7 @@ def run_sweep(
     with output_folder(out_dir, "sweep", check=lambda folder: check_out_dir(folder, plan)):
         arguments_path = out_dir / ARGUMENTS_FILE
         if arguments_path.exists():
-            stored = json.loads(arguments_path.read_text(encoding="utf-8")).get("versions")
+            stored = read_json(arguments_path).get("versions")
             if stored != versions:
                 warnings.warn(
                     f"the cells in {out_dir} were computed with other package versions "

@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.sweep_plan import CELLS_DIR, Cell, SweepPlan
 from observer_gym.train.reports.compare_stats import compare_metrics, metrics_statistics
 from observer_gym.train.reports.outputs import OneLineWarning, json_text
@@ -163,7 +164,7 @@ def finished_cells(out_dir: Path, plan: SweepPlan) -> dict[str, dict]:
             continue
         problem: str | None
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            data = read_json(path)
         except (OSError, ValueError) as exc:
             problem = f"it is not readable as JSON ({' '.join(str(exc).split())})"
         else:

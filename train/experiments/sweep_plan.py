@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.compare import check_designs, check_pairs_once, option_text
 from observer_gym.train.experiments.entries import entry_identity
 from observer_gym.train.experiments.episode import EpisodeSpec
@@ -27,7 +28,7 @@ from observer_gym.train.experiments.request import Request, resolve_request
 from observer_gym.train.experiments.sweep_grid import Grid, VaryInput, check_grid, value_text
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import compare_metrics
-from observer_gym.train.reports.outputs import OutputFolderError, to_jsonable
+from observer_gym.train.reports.outputs import OutputFolderError, check_folder_kind, to_jsonable
 from observer_gym.train.reports.sweep_report import ROW_COLUMNS
 
 # The output folder: the arguments (written once), a file per finished cell.
@@ -313,7 +314,7 @@ def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
     path = out_dir / ARGUMENTS_FILE
     if path.exists():
         try:
-            stored = json.loads(path.read_text(encoding="utf-8"))["arguments"]
+            stored = read_json(path)["arguments"]
             if not isinstance(stored, dict):
                 raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
@@ -335,3 +336,5 @@ def check_out_dir(out_dir: str | Path, plan: SweepPlan) -> None:
             f"{out_dir} holds results but no {ARGUMENTS_FILE}: not a sweep's folder; use "
             "another output folder"
         )
+    else:  # a training run's, a benchmark's, a demo's folder: as run and compare refuse it
+        check_folder_kind(out_dir, "sweep")

@@ -19,7 +19,6 @@ seeds. Nothing here needs rliable.
 from __future__ import annotations
 
 import dataclasses
-import json
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.reports.bootstrap import (
     BOOTSTRAP_SEED,
     CONFIDENCE,
@@ -348,4 +348,4 @@ def aggregate_markdown(aggregate: Aggregate) -> str:
 def read_aggregate(out_dir: str | Path) -> dict[str, Any] | None:
     """The ``aggregate.json`` of a multi-seed folder, None if it has none yet."""
     path = Path(out_dir) / AGGREGATE_JSON
-    return json.loads(path.read_text()) if path.is_file() else None
+    return read_json(path) if path.is_file() else None

@@ -24,6 +24,9 @@ locked, until it exits; the file is opened close-on-exec, so ``spawn`` and
 a command's checks call it first, so a folder in use is refused with this error even when
 what the other command wrote would fail a check.
 
+A lock file that is a symbolic link is refused (``O_NOFOLLOW``), never followed: the
+command stops with an ``OSError`` naming it, and the link's target is left as it was.
+
 Needs a POSIX system and a file system with ``flock`` (local disks, NFSv4); elsewhere
 the command stops with an ``OSError`` naming the folder.
 """
@@ -42,6 +45,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+from observer_gym.envs.json_file import parse_json
 
 LOCK_FILE = ".observer-gym.lock"
 # The exit code of a command refused because another command holds its output folder:
@@ -76,7 +81,7 @@ class LockHolder:
     def from_text(cls, text: str) -> LockHolder | None:
         """The record in ``text``, or None if it is not one."""
         try:
-            data = json.loads(text)
+            data = parse_json(text, LOCK_FILE)
             holder = cls(**data)
         except (ValueError, TypeError):
             return None
@@ -131,9 +136,14 @@ def _acquire(folder: Path, command: str) -> int:
     open file. :class:`FolderBusyError` if another process holds it."""
     path = folder / LOCK_FILE
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:  # O_NOFOLLOW: a link there is refused, never followed (nor its target cut)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
         except OSError as exc:
+            if path.is_symlink():
+                raise OSError(
+                    f"could not lock {folder}: {path} is a symbolic link, which is never "
+                    "followed; remove it"
+                ) from exc
             raise OSError(f"could not lock {folder}: {exc.strerror or exc}") from exc
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -145,7 +155,7 @@ def _acquire(folder: Path, command: str) -> int:
             os.close(fd)
             raise OSError(f"could not lock {folder}: {exc.strerror or exc}") from exc
         try:
-            here = os.stat(path)
+            here = os.lstat(path)
             mine = os.fstat(fd)
             same = (here.st_dev, here.st_ino) == (mine.st_dev, mine.st_ino)
         except FileNotFoundError:
@@ -220,8 +230,8 @@ def check_not_busy(folder: str | os.PathLike) -> None:
     if _held_by_this_thread(folder, folder.resolve()) is not None:
         return
     try:
-        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CLOEXEC)
-    except OSError:  # no lock file (nobody holds it) or no folder: the checks say more
+        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
+    except OSError:  # no lock file (nobody holds it), a link, no folder: the lock says more
         return
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -44,10 +44,13 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.signals import signals_deferred
 
 # The distributions that decide what an experiment computes.
+# what package_versions records for a distribution that is not installed
+NOT_INSTALLED = "not installed"
 VERSIONED_PACKAGES = (
     "observer-gym",
     "gymnasium",
@@ -75,7 +78,7 @@ def package_versions(names: Iterable[str] = VERSIONED_PACKAGES) -> dict[str, str
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
+            versions[name] = NOT_INSTALLED
     return versions
 
 
@@ -249,7 +252,7 @@ def _report_killed_runs(folder: Path) -> None:
         if MARKER_PATTERN.match(path.name) is None:
             continue
         try:
-            record = json.loads(path.read_text())
+            record = read_json(path)
         except (OSError, ValueError):
             record = {}
         if not isinstance(record, dict):
@@ -307,7 +310,7 @@ def folder_kind(path: str | os.PathLike) -> str | None:
     results = path / "results.json"
     if results.exists():
         try:
-            data = json.loads(results.read_text(encoding="utf-8"))
+            data = read_json(results)
         except (OSError, ValueError):
             return "unknown"
         if isinstance(data, dict) and "pairs" in data:

@@ -10,7 +10,8 @@
 - ``rgb``: the camera frames themselves (observer "pixels"), preprocessed as
   :class:`ImageOptions` says: each camera image resized to ``size_px`` x ``size_px``
   (OpenCV, area interpolation), converted to grayscale, and the last ``frame_stack``
-  observations stacked by Gymnasium's ``FrameStackObservation``, so a BallTable
+  observations stacked by Gymnasium's ``FrameStackObservation`` (the public
+  :class:`~observer_gym.wrappers.GrayFrameStack`), so a BallTable
   observation is a (4, 84, 84) uint8 image stack for SB3's CnnPolicy and a BallCatcher
   one a Dict of such stacks (and the stacked frame ages) for its MultiInputPolicy. With
   the image option ``encoder`` a pretrained CNN turns each frame into what it shows of
@@ -20,7 +21,8 @@
 
 With the hyperparameter ``features`` a state or estimate observation is replaced by (or
 extended with) that feature set of :mod:`observer_gym.train.rl.features`. Training envs also
-rescale the action space to [-1, 1] (Gymnasium's ``RescaleAction``), the range SB3's
+rescale the action space to [-1, 1] (:class:`~observer_gym.wrappers.NormalizedAction`,
+Gymnasium's ``RescaleAction``), the range SB3's
 Gaussian and squashed policies are built for; a loaded agent maps its
 actions back to the env's units itself, so recorded actions are physical.
 """
@@ -30,18 +32,17 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Mapping
-from typing import Any, cast
+from typing import Any
 
-import cv2
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
-from gymnasium.wrappers import FrameStackObservation, RescaleAction
+from gymnasium.wrappers import FrameStackObservation
 
 from observer_gym.train.cli.checks import agent_observer
 from observer_gym.train.experiments.observer_env import make_env
 from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.rl.features import wrap_features
+from observer_gym.wrappers import FrameImages, GrayFrameStack, NormalizedAction
 
 OBS_TYPES = ("state", "estimate", "rgb")
 ESTIMATE_SOURCES = ("measurements", "rgb")
@@ -100,49 +101,17 @@ def observer_for(
     return task_for(env_id).ESTIMATE_OBSERVERS[estimate_from]
 
 
-def _is_image(space: gym.Space) -> bool:
-    return isinstance(space, spaces.Box) and space.dtype == np.uint8 and len(space.shape) == 3
-
-
-class ResizeImages(gym.ObservationWrapper):
-    """Every camera image of the observation (a Box image, or each image entry of a Dict)
-    resized to ``size_px`` x ``size_px`` and optionally made grayscale (H, W); other Dict
-    entries pass unchanged. Gymnasium's Resize/Grayscale wrappers take a Box only, and
-    BallCatcher's frames come in a Dict, hence this wrapper over two OpenCV calls."""
-
-    def __init__(self, env: gym.Env, size_px: int, grayscale: bool) -> None:
-        super().__init__(env)
-        self.size_px, self.grayscale = size_px, grayscale
-        shape = (size_px, size_px) if grayscale else (size_px, size_px, 3)
-        image_space = spaces.Box(0, 255, shape, np.uint8)
-        space = env.observation_space
-        if _is_image(space):
-            self.observation_space = image_space
-        elif isinstance(space, spaces.Dict) and any(map(_is_image, space.spaces.values())):
-            self.observation_space = spaces.Dict(
-                {k: image_space if _is_image(s) else s for k, s in space.spaces.items()}
-            )
-        else:
-            raise ValueError(f"expected camera images to resize, got {space}")
-
-    def _image(self, image: np.ndarray) -> np.ndarray:
-        small = cv2.resize(image, (self.size_px, self.size_px), interpolation=cv2.INTER_AREA)
-        return cv2.cvtColor(small, cv2.COLOR_RGB2GRAY) if self.grayscale else small
-
-    def observation(self, observation: Any) -> Any:
-        if isinstance(observation, Mapping):
-            space = cast(spaces.Dict, self.env.observation_space)  # a Dict for a Mapping
-            return {k: self._image(v) if _is_image(space[k]) else v for k, v in observation.items()}
-        return self._image(observation)
-
-
 def wrap_images(env: gym.Env, options: ImageOptions) -> gym.Env:
-    """``env``'s camera frames resized and made grayscale as ``options`` says, each
-    turned into a vector by its encoder if it names one
+    """``env``'s camera frames resized and made grayscale as ``options`` says (the public
+    :class:`~observer_gym.wrappers.FrameImages`; by default, 84 x 84 grey, four stacked:
+    :class:`~observer_gym.wrappers.GrayFrameStack`), each turned into a vector by its
+    encoder if it names one
     (:class:`~observer_gym.train.rl.pixel_encoder.EncodedFrames`), and stacked (an encoder's
     stack as the newest vector and its differences,
     :class:`~observer_gym.train.rl.pixel_encoder.StackDifferences`)."""
-    env = ResizeImages(env, options.size_px, options.grayscale)
+    if options.encoder is None and options.grayscale and options.frame_stack > 1:
+        return GrayFrameStack(env, size_px=options.size_px, stack_size=options.frame_stack)
+    env = FrameImages(env, size_px=options.size_px, grayscale=options.grayscale)
     if options.encoder is not None:
         from observer_gym.train.rl.pixel_encoder import (
             EncodedFrames,
@@ -222,7 +191,7 @@ def finish_agent_env(
         if obs == "rgb":
             env = wrap_images(env, ImageOptions(**dict(image or {})))
         env = wrap_features(env, features)
-        return RescaleAction(env, np.float32(-1.0), np.float32(1.0))
+        return NormalizedAction(env)
     except BaseException:
         env.close()
         raise

@@ -10,16 +10,19 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import shutil
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_bytes_limited
 from observer_gym.train.reports.outputs import (
     write_json_atomic,
+    write_text_atomic,
     writer_identity,
 )
 from observer_gym.train.reports.signals import signals_deferred, sigterm_as_interrupt
@@ -49,6 +52,67 @@ EVAL_COLUMNS = (
     "length_mean",
     "episodes",
 )
+
+
+MAX_EVAL_CSV_BYTES = 64 * 1024 * 1024  # a row is about 60 bytes: a million evaluations
+
+
+def _csv_line(cells: Sequence[Any]) -> str:
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerow(cells)
+    return out.getvalue()
+
+
+def append_eval_row(path: Path, row: Sequence[Any]) -> None:
+    """Add ``row`` to the evaluation curve ``path`` (its header first if it is new): the
+    whole file is rewritten beside it and renamed into place, so a link there is replaced,
+    never written through, and a reader sees the old curve or the new one."""
+    old = _csv_line(EVAL_COLUMNS)
+    if path.exists():
+        old = read_bytes_limited(path, MAX_EVAL_CSV_BYTES).decode("utf-8", errors="replace")
+    write_text_atomic(path, old + _csv_line(row))
+
+
+def eval_csv_problem(path: Path) -> str | None:
+    """What is wrong with the evaluation curve ``path`` as a resume would append to it
+    (its header is not :data:`EVAL_COLUMNS`, a row is not that many numbers, or it is no
+    regular file or too large); None if nothing, or if there is none."""
+    if not path.exists() and not path.is_symlink():
+        return None
+    try:
+        text = read_bytes_limited(path, MAX_EVAL_CSV_BYTES).decode("utf-8")
+    except (OSError, ValueError) as exc:
+        return str(exc)
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or tuple(rows[0]) != EVAL_COLUMNS:
+        return f"its header is not {','.join(EVAL_COLUMNS)}"
+    for number, cells in enumerate(rows[1:], start=2):
+        try:
+            if len(cells) != len(EVAL_COLUMNS) or not all(np.isfinite(float(c)) for c in cells):
+                raise ValueError
+        except ValueError:
+            return f"line {number} is not {len(EVAL_COLUMNS)} finite numbers"
+    return None
+
+
+def replace_links(run_dir: Path) -> list[Path]:
+    """Remove the symbolic links where a training run writes through a path it reuses
+    (``monitor/`` and its files, ``logs/``), so that training writes new files in the
+    run's folder and never into a link's target; the links removed (their targets are
+    left as they were). ``eval.csv`` and the files written by rename need none: a rename
+    replaces a link."""
+    removed = []
+    for name in ("monitor", "logs"):
+        folder = run_dir / name
+        if folder.is_symlink():
+            folder.unlink()
+            removed.append(folder)
+        elif folder.is_dir():
+            for path in folder.rglob("*"):
+                if path.is_symlink():
+                    path.unlink()
+                    removed.append(path)
+    return removed
 
 
 def _vec_env(
@@ -150,6 +214,7 @@ def learn(
     eval_seed = EVAL_SEED_OFFSET + SEED_STRIDE * seed
     # training draws the randomised options (if any); the evaluation curve scores the
     # agent on the run's fixed options, as evaluate, run, compare and benchmark load it
+    replace_links(run_dir)  # a link in the folder is replaced, never written through
     venv = _vec_env(config, training["n_envs"], train_seed, run_dir / "monitor", randomize=True)
     eval_env = _vec_env(config, 1, eval_seed, None)
     try:
@@ -310,11 +375,6 @@ class EvalCurveCallback(EveryStepsCallback):
             float(np.mean(lengths)),
             self.episodes,
         ]
-        new = not self.csv_path.exists()
-        with open(self.csv_path, "a", newline="") as f:
-            writer = csv.writer(f)
-            if new:
-                writer.writerow(EVAL_COLUMNS)
-            writer.writerow(row)
+        append_eval_row(self.csv_path, row)
         self.logger.record("eval/return_mean", row[2])
         self.time_s += time.perf_counter() - tic_s

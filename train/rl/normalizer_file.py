@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import sys
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -39,9 +38,15 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_json
+
 FINAL_STATS = "vecnormalize.npz"
 PICKLED_FINAL_STATS = "vecnormalize.pkl"  # written by earlier versions
 FINAL_RECORD = "final.json"  # a finished run's files and their sha256
+CONFIG_FILE = "config.json"
+CONFIG_SHA256 = "config_sha256"  # config.json's hash of the rest of itself
+# how whoever trusts a folder without its recorded hashes records them (convert_folder)
+VOUCH_COMMAND = "'python -m observer_gym.train.rl.normalizer_file --trust-pickle'"
 STATS_FORMAT = "observer-gym VecNormalize statistics 1"
 CONVERT_COMMAND = "python -m observer_gym.train.rl.normalizer_file --trust-pickle"
 _MODEL = "model.zip"
@@ -326,6 +331,17 @@ def normalizer_for_spaces(stats: NormalizerStats, observation_space: Any, action
 
 
 # --- a finished run's hashes -----------------------------------------------------------
+def config_sha256(config: Mapping[str, Any]) -> str:
+    """The sha256 of ``config`` (without :data:`CONFIG_SHA256`) as canonical JSON."""
+    import json
+
+    from observer_gym.train.reports.outputs import to_jsonable
+
+    body = {k: v for k, v in to_jsonable(config).items() if k != CONFIG_SHA256}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def sha256_of(path: str | Path) -> str:
     """The sha256 of the file ``path``."""
     digest = hashlib.sha256()
@@ -350,16 +366,24 @@ def record_final_files(run_dir: str | Path) -> None:
 def check_final_files(run_dir: str | Path) -> None:
     """ValueError unless the finished run's files in ``run_dir`` are those recorded in its
     ``final.json`` (each file named there present with its sha256), and its statistics
-    are no pickle. A folder without final.json (written by a version that recorded none)
-    is checked for a pickle only."""
+    are no pickle. A ``model.zip`` without final.json (deleted, or written by a version
+    that recorded none) is refused: whoever trusts the folder records it with
+    :func:`convert_folder`."""
     run_dir = Path(run_dir)
     if (run_dir / PICKLED_FINAL_STATS).is_file() and not (run_dir / FINAL_STATS).is_file():
         raise ValueError(pickled_stats_message(run_dir / PICKLED_FINAL_STATS))
     path = run_dir / FINAL_RECORD
     if not path.exists():
+        if (run_dir / _MODEL).exists():
+            raise ValueError(
+                f"{run_dir} has {_MODEL} but no {FINAL_RECORD} recording its sha256: an "
+                "untrusted folder, refused before anything is loaded (loading a model "
+                "unpickles part of it); if it comes from a source you trust, record its "
+                f"files with {VOUCH_COMMAND} {run_dir}"
+            )
         return
     try:
-        recorded = json.loads(path.read_text())["sha256"]
+        recorded = read_json(path)["sha256"]
         if not isinstance(recorded, dict):
             raise TypeError
     except (OSError, ValueError, KeyError, TypeError):
@@ -399,45 +423,55 @@ def _unpickle(path: Path) -> NormalizerStats:
 
 
 def _convert_checkpoints(directory: Path) -> list[Path]:
-    """Convert the pickled statistics named by the checkpoint records in ``directory``;
-    returns the pickles converted (to remove)."""
+    """Convert the pickled statistics named by the checkpoint records in ``directory``,
+    and record the sha256 of the files of a record that has none (vouching for them as
+    they are now); returns the pickles converted (to remove)."""
     from observer_gym.train.reports.outputs import write_json_atomic
 
     converted: dict[str, str] = {}  # pickle name -> npz name
     records = [*sorted(directory.glob("checkpoint_*.json")), directory / "latest.json"]
     for record in records:
         try:
-            entry = json.loads(record.read_text())
+            entry = read_json(record)
         except (OSError, ValueError):
             continue  # no record, or a damaged one: resume passes it over as before
-        old = entry.get("vecnormalize") if isinstance(entry, dict) else None
-        if not isinstance(old, str) or not old.endswith(".pkl"):
+        if not isinstance(entry, dict):
             continue
-        new = old.removesuffix(".pkl") + ".npz"
-        if old not in converted and (directory / old).is_file():
-            digest = (entry.get("sha256") or {}).get(old)
-            if digest is not None and sha256_of(directory / old) != digest:
-                raise ValueError(
-                    f"{directory / old} is damaged (its sha256 differs from the one in "
-                    f"{record}); not converted"
-                )
-            write_stats(_unpickle(directory / old), directory / new)
-            converted[old] = new
-        if old not in converted:
-            continue  # its pickle is gone: the checkpoint stays as it is (incomplete)
-        entry["vecnormalize"] = new
-        if isinstance(entry.get("sha256"), dict):
-            entry["sha256"].pop(old, None)
-            entry["sha256"][new] = sha256_of(directory / new)
-        write_json_atomic(record, entry)
+        changed = False
+        old = entry.get("vecnormalize")
+        if isinstance(old, str) and old.endswith(".pkl"):
+            new = old.removesuffix(".pkl") + ".npz"
+            if old not in converted and (directory / old).is_file():
+                digest = (entry.get("sha256") or {}).get(old)
+                if digest is not None and sha256_of(directory / old) != digest:
+                    raise ValueError(
+                        f"{directory / old} is damaged (its sha256 differs from the one in "
+                        f"{record}); not converted"
+                    )
+                write_stats(_unpickle(directory / old), directory / new)
+                converted[old] = new
+            if old in converted:  # (else its pickle is gone: the checkpoint stays as it is)
+                entry["vecnormalize"] = new
+                if isinstance(entry.get("sha256"), dict):
+                    entry["sha256"].pop(old, None)
+                    entry["sha256"][new] = sha256_of(directory / new)
+                changed = True
+        if "sha256" not in entry:
+            names = [v for k, v in entry.items() if k != "timesteps" and isinstance(v, str)]
+            if all((directory / name).is_file() for name in names):
+                entry["sha256"] = {name: sha256_of(directory / name) for name in names}
+                changed = True
+        if changed:
+            write_json_atomic(record, entry)
     return [directory / old for old in converted]
 
 
 def convert_folder(run_dir: str | Path) -> list[Path]:
     """Convert the run in ``run_dir`` (or every seed's run of a multi-seed folder) from
     pickled statistics to ``.npz`` files: its final ``vecnormalize.pkl`` and those of
-    its checkpoints. Writes ``final.json`` for a finished run (vouching for its
-    ``model.zip`` as it is now) and removes the converted pickles. Returns the ``.npz``
+    its checkpoints. Writes ``final.json`` for a finished run that has none and the
+    ``config_sha256`` of a config.json that records none (vouching for the ``model.zip``
+    and the config as they are now) and removes the converted pickles. Returns the ``.npz``
     files written.
 
     Unpickling runs whatever code the files hold: call this only on a folder from a
@@ -467,9 +501,20 @@ def convert_folder(run_dir: str | Path) -> list[Path]:
         pickles.append(final)
     if (run_dir / _MODEL).is_file() and (pickles or not (run_dir / FINAL_RECORD).exists()):
         record_final_files(run_dir)
+    _record_config_sha256(run_dir)
     for path in pickles:
         path.unlink(missing_ok=True)
     return written
+
+
+def _record_config_sha256(run_dir: Path) -> None:
+    """Add :data:`CONFIG_SHA256` to ``run_dir``'s config.json if it records none (vouching
+    for it as it is now)."""
+    from observer_gym.train.reports.outputs import write_json_atomic
+
+    config = read_json(run_dir / CONFIG_FILE)
+    if isinstance(config, dict) and CONFIG_SHA256 not in config:
+        write_json_atomic(run_dir / CONFIG_FILE, {**config, CONFIG_SHA256: config_sha256(config)})
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -488,7 +533,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "Convert run folders written by an earlier observer-gym, whose VecNormalize "
             "statistics are pickles (vecnormalize.pkl), to plain-array .npz files that load "
             "without running code; writes final.json (the sha256 of model.zip and the "
-            "statistics) and removes the pickles. Unpickling runs whatever code the files "
+            "statistics) and removes the pickles; records the hashes a folder lacks (final.json, "
+            "config_sha256, the checkpoints' sha256). Unpickling runs whatever code the files "
             "hold: convert only folders from a source you trust, which --trust-pickle says."
         ),
     )

@@ -22,13 +22,24 @@ beside its fixed ``env_kwargs``, ``--resume`` continues it, and ``evaluate``, ``
 fixed options.
 
 This module imports no PyTorch and builds no world to check a randomisation
-(:func:`check_randomize`: the env's configuration class at both ends of every range).
+(:func:`check_randomize`: the env's configuration class at every corner of the box the
+draws fill, every combination of the ranges' ends and the choices). The corners cover
+every draw because every rule the configurations check between options is monotone in
+each option (a bound on one option, on a sum, difference or product of options, a
+shortest below a longest): it holds over the whole box if it holds at its corners. The one
+rule that is not, a whole multiple (BallCatcher's ``control_dt_s`` of ``physics_dt_s``,
+named by the configuration's ``discrete_options``), is refused as a range of width above
+zero (almost every draw of it fails): draw such an option from choices. Above
+:data:`MAX_CORNERS` corners a randomisation is refused. Training also builds the agent's
+env once per choice and range end (:func:`check_spaces`), since :class:`RandomizedEnv`
+needs every draw to keep its spaces (a camera count, for pixels).
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Mapping
 from typing import Any, SupportsFloat
@@ -39,6 +50,8 @@ import numpy as np
 # gym.make keywords that no randomisation may draw
 NOT_RANDOMIZED = ("obs_mode", "render_mode", "max_episode_steps", "disable_env_checker")
 FORMS = "KEY=LOW:HIGH (a number uniform in [LOW, HIGH]) or KEY=A|B|... (one of the values)"
+# the most corners (combinations of the ranges' ends and the choices) a check builds
+MAX_CORNERS = 4096
 
 
 def _literal(text: str) -> Any:
@@ -128,9 +141,11 @@ def check_randomize(
     Every key must be an option of the env's configuration class (not ``obs_mode`` or a
     ``gym.make`` keyword), none of ``fixed`` (the options given as fixed ones, named
     ``fixed_by`` in the message), and the env must take every end of a range and every
-    choice with the others at ``env_kwargs`` (the run's fixed options), and all ranges'
-    low ends together and high ends together. A range of an integer option must have
-    integer ends. Imports the env's module; builds no world.
+    choice with the others at ``env_kwargs`` (the run's fixed options), and every
+    combination of them (the box's corners: then every draw, see the module docstring;
+    at most :data:`MAX_CORNERS`). A range of an integer option must have integer ends; an
+    option of the configuration's ``discrete_options`` takes no range wider than zero.
+    Imports the env's module; builds no world.
 
     Raises:
         ValueError: naming the key, what was wrong and what is allowed.
@@ -168,6 +183,13 @@ def check_randomize(
                     f"randomize {key}: {key} is an integer option; LOW and HIGH must be "
                     f"integers, got {spec['low']}:{spec['high']}"
                 )
+            discrete = getattr(config_class, "discrete_options", {})
+            if key in discrete and spec["low"] != spec["high"]:
+                raise ValueError(
+                    f"randomize {key}: {key} must be {discrete[key]}, which almost no value "
+                    f"between {spec['low']} and {spec['high']} is, so a draw would fail; "
+                    f"draw it from choices: {key}=A|B"
+                )
         checked[key] = spec
     base = {k: v for k, v in env_kwargs.items() if k not in NOT_RANDOMIZED}
 
@@ -179,14 +201,58 @@ def check_randomize(
                 f"randomize {what}: {system.short_id} refuses it: {' '.join(str(exc).split())}"
             ) from None
 
-    for key, spec in checked.items():
-        for value in spec.get("choices", [spec.get("low"), spec.get("high")]):
-            build({key: value}, f"{key}={value!r}")
-    ranges = {k: s for k, s in checked.items() if "low" in s}
-    if len(ranges) > 1:
-        build({k: s["low"] for k, s in ranges.items()}, "with every LOW together")
-        build({k: s["high"] for k, s in ranges.items()}, "with every HIGH together")
+    # the box's corners: each range at either end, each choice (a randomised option's
+    # default never applies, so none is checked with the others at theirs)
+    values = [
+        spec["choices"] if "choices" in spec else list(dict.fromkeys([spec["low"], spec["high"]]))
+        for spec in checked.values()
+    ]
+    corners = math.prod(len(v) for v in values)
+    if corners > MAX_CORNERS:
+        raise ValueError(
+            f"randomize: {corners} combinations of the ranges' ends and the choices to "
+            f"check, at most {MAX_CORNERS} allowed; randomise fewer options or choices"
+        )
+    for corner in itertools.product(*values):
+        options = dict(zip(checked, corner, strict=True))
+        named = ", ".join(f"{k}={v!r}" for k, v in options.items())
+        build(options, named if len(options) == 1 else f"with {named} together")
     return checked
+
+
+def check_spaces(
+    make_inner: Callable[[Mapping[str, Any]], gym.Env],
+    randomize: Mapping[str, Mapping[str, Any]],
+) -> None:
+    """ValueError naming the option unless every choice and range end of ``randomize``
+    (a checked randomisation) gives the agent's env the spaces it has with every option
+    at its first value (each varied alone), as :class:`RandomizedEnv` requires of every
+    draw. Builds one world per value (``make_inner``: the agent's env for the options it
+    is given over the run's fixed ones); an option whose values differ only in number
+    cannot change the spaces between its ends (image sizes and camera counts are
+    integers, each end a value a draw takes)."""
+    first = {k: s["choices"][0] if "choices" in s else s["low"] for k, s in randomize.items()}
+
+    def spaces_of(options: Mapping[str, Any]) -> tuple[Any, Any]:
+        env = make_inner(options)
+        try:
+            return env.observation_space, env.action_space
+        finally:
+            env.close()
+
+    expected = spaces_of(first)
+    for key, spec in randomize.items():
+        others = spec["choices"][1:] if "choices" in spec else [spec["high"]]
+        for value in others:
+            if value == first[key]:
+                continue
+            found = spaces_of({**first, key: value})
+            if found != expected:
+                raise ValueError(
+                    f"randomize {key}: {key}={value!r} changes the agent's spaces "
+                    f"({found[0]} / {found[1]}; with {key}={first[key]!r}: {expected[0]} / "
+                    f"{expected[1]}); randomise only options that keep them, or fix {key}"
+                )
 
 
 def draw_options(

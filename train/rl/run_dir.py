@@ -12,23 +12,24 @@ Reading these imports neither PyTorch nor stable-baselines3, so ``observer-gym r
 from __future__ import annotations
 
 import hashlib
-import json
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
-    to_jsonable,
     write_json_atomic,
     writer_alive,
 )
 from observer_gym.train.rl.hyperparams import ALGOS
 from observer_gym.train.rl.normalizer_file import (
+    CONFIG_SHA256,
     FINAL_STATS,
+    VOUCH_COMMAND,
     check_final_files,
+    config_sha256,
     pickled_stats_message,
 )
 from observer_gym.train.rl.shipped import shipped_path
@@ -40,7 +41,6 @@ FINAL_VECNORMALIZE = FINAL_STATS  # plain arrays (normalizer_file); never a pick
 CHECKPOINTS = "checkpoints"
 LATEST = "latest.json"  # in checkpoints/: the newest complete checkpoint
 MANIFEST = "checkpoint_{}.json"  # in checkpoints/: each set's files and their sha256
-CONFIG_SHA256 = "config_sha256"  # config.json's hash of the rest of itself
 SEED_PREFIX = "seed_"  # a multi-seed run's folder holds seed_<s>/ per seed
 SEEDS_FILE = "seeds.json"  # and, written by train --seeds, what it trains
 
@@ -93,13 +93,24 @@ def agent_folder(model: str | Path) -> Path:
 
 def seed_run_dirs(folder: str | Path) -> dict[int, Path]:
     """The runs of a multi-seed folder: seed -> ``folder/seed_<seed>``, for every such
-    subfolder, by seed; empty for any other folder."""
+    subfolder, by seed; empty for any other folder.
+
+    Raises:
+        OutputFolderError: (a ValueError) two subfolders name the same seed (``seed_0``
+            and ``seed_00``), naming both.
+    """
     folder = Path(folder)
-    runs = {}
-    for path in folder.glob(f"{SEED_PREFIX}*") if folder.is_dir() else []:
+    runs: dict[int, Path] = {}
+    for path in sorted(folder.glob(f"{SEED_PREFIX}*")) if folder.is_dir() else []:
         number = path.name.removeprefix(SEED_PREFIX)
-        if path.is_dir() and number.isdigit():
-            runs[int(number)] = path
+        if path.is_dir() and number.isascii() and number.isdigit():
+            seed = int(number)
+            if seed in runs:
+                raise OutputFolderError(
+                    f"{runs[seed]} and {path} are both seed {seed}: one multi-seed folder "
+                    f"holds one run per seed ({SEED_PREFIX}{seed}); keep one of them"
+                )
+            runs[seed] = path
     return dict(sorted(runs.items()))
 
 
@@ -140,13 +151,6 @@ def check_new_seeds_folder(out_dir: str | Path) -> None:
         )
 
 
-def config_sha256(config: Mapping[str, Any]) -> str:
-    """The sha256 of ``config`` (without :data:`CONFIG_SHA256`) as canonical JSON."""
-    body = {k: v for k, v in to_jsonable(config).items() if k != CONFIG_SHA256}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 def write_config(run_dir: str | Path, config: Mapping[str, Any]) -> None:
     """Write ``config`` as ``run_dir``'s config.json, atomically, with its sha256
     (:func:`config_sha256`) recorded in it, which :func:`read_config` checks."""
@@ -161,8 +165,8 @@ def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
     Raises:
         ValueError: no training run there (no such folder, no config.json or one that is
             not JSON), a config.json changed since the run wrote it (its content does not
-            match the sha256 recorded in it; files written before hashes were recorded
-            have none and are read as they are), one naming no known algorithm, or one
+            match the sha256 recorded in it) or recording none, one naming no known
+            algorithm, or one
             trained with another algorithm than ``algo``.
     """
     path = Path(run_dir) / CONFIG_FILE
@@ -184,13 +188,19 @@ def read_config(run_dir: str | Path, algo: str | None = None) -> dict[str, Any]:
             "make one with 'observer-gym train'"
         )
     try:
-        config = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+        config = read_json(path)
+    except OSError as exc:
+        raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
     if not isinstance(config, dict):
         raise ValueError(f"{path} is not a run's configuration (a JSON object)")
     recorded = config.pop(CONFIG_SHA256, None)
-    if recorded is not None and recorded != config_sha256(config):
+    if recorded is None:
+        raise ValueError(
+            f"{path} records no {CONFIG_SHA256} (every run writes one; a config.json without "
+            f"it was edited or comes from a version before 0.2): refused; if the folder "
+            f"comes from a source you trust, vouch for it with {VOUCH_COMMAND} {run_dir}"
+        )
+    if recorded != config_sha256(config):
         raise ValueError(
             f"{path} was changed after the run wrote it (its content does not match the "
             f"{CONFIG_SHA256} recorded in it): the run's model was trained with the recorded "
@@ -233,8 +243,8 @@ def read_state(run_dir: str | Path) -> dict[str, Any] | None:
     """
     path = Path(run_dir) / STATE_FILE
     try:
-        state = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        state = read_json(path)
+    except (OSError, ValueError):
         return None
     if not isinstance(state, dict):
         return None
@@ -319,7 +329,7 @@ def _read_entry(path: Path) -> dict[str, Any] | None:
     ``timesteps`` N, its files as :data:`CHECKPOINT_FILES` names them for N (a model at
     least) and, if recorded, their ``sha256``."""
     try:
-        entry = json.loads(path.read_text())
+        entry = read_json(path)
     except (OSError, ValueError):
         return None
     if not isinstance(entry, dict) or "model" not in entry:
@@ -347,25 +357,24 @@ def file_sha256(path: Path) -> str:
 
 
 def _problem(directory: Path, entry: Mapping[str, Any]) -> str | None:
-    """What is wrong with the checkpoint ``entry``: a file missing, or one that is not
-    as saved (its sha256 differs from the one recorded then; for a checkpoint saved
-    before hashes were recorded, a model that is no intact zip file); None if nothing."""
+    """What is wrong with the checkpoint ``entry``: a file missing, one that is not as
+    saved (its sha256 differs from the one recorded then), or no sha256 recorded (the
+    record is untrusted: nothing is loaded from it); None if nothing."""
     names = [v for k, v in entry.items() if k not in ("timesteps", "sha256")]
     for name in names:
         if not (directory / name).is_file():
             return f"{directory / name} is missing"
     recorded = entry.get("sha256")
-    if isinstance(recorded, dict):
-        for name in names:
-            if recorded.get(name) != file_sha256(directory / name):
-                return f"{directory / name} is damaged (not the file that was saved)"
-        return None
-    try:
-        with zipfile.ZipFile(directory / entry["model"]) as archive:
-            bad = archive.testzip()
-    except (OSError, zipfile.BadZipFile) as exc:
-        return f"{directory / entry['model']} is damaged ({exc})"
-    return None if bad is None else f"{directory / entry['model']} is damaged ({bad})"
+    if not isinstance(recorded, dict):  # removed, or written before 0.2: nothing vouches
+        return (
+            f"{directory / entry['model']} has no sha256 recorded in its checkpoint record: "
+            "untrusted, not loaded (loading a model unpickles part of it); if the folder "
+            f"comes from a source you trust, record it with {VOUCH_COMMAND} DIR"
+        )
+    for name in names:
+        if recorded.get(name) != file_sha256(directory / name):
+            return f"{directory / name} is damaged (not the file that was saved)"
+    return None
 
 
 def intact_checkpoint(directory: Path) -> tuple[dict[str, Any] | None, list[str]]:

@@ -25,7 +25,6 @@ its checkpoint, or from its start if it saved none.
 from __future__ import annotations
 
 import dataclasses
-import json
 import multiprocessing
 import os
 import signal
@@ -40,6 +39,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.cli.checks import check_backend, check_seeds, check_seeds_folder
 from observer_gym.train.reports.aggregate import (
     Aggregate,
@@ -54,6 +54,7 @@ from observer_gym.train.reports.outputs import (
     to_jsonable,
     write_json_atomic,
 )
+from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
     SEEDS_FILE,
@@ -95,7 +96,9 @@ class SeedsConfig:
                 f"{out_dir} is not a multi-seed training run (no {SEEDS_FILE}); make one with "
                 "'observer-gym train --seeds'"
             )
-        data = json.loads(path.read_text())
+        data = read_json(path)  # JSONFileError (a ValueError) naming it
+        if not isinstance(data, dict):
+            raise ValueError(f"{path} is not a multi-seed run's record (a JSON object)")
         fields = {f.name for f in dataclasses.fields(cls)}
         # the file's JSON values, of the types the fields say (as_dict wrote them)
         values: dict[str, Any] = {k: v for k, v in data.items() if k in fields}
@@ -349,9 +352,12 @@ def _start_steps(run_dir: Path) -> int:
 # --- the local backend: one spawned process per running seed ------------------------------------
 def _worker(run_dir: str, timesteps: int | None, connection: Connection) -> None:
     """A worker process: its own process group (a terminal's Ctrl-C reaches only the
-    parent, which passes a SIGTERM on), then :func:`continue_run`; sends ``None`` or the
-    traceback of what it raised."""
+    parent, which passes a SIGTERM on) and a SIGTERM of its own when the parent ends
+    (:func:`~observer_gym.train.reports.parent_watch.end_with_parent`: a killed command
+    leaves no seed training), then :func:`continue_run`; sends ``None`` or the traceback
+    of what it raised."""
     os.setpgrp()
+    end_with_parent()
     try:
         continue_run(run_dir, timesteps)
     except BaseException as exc:  # reported by the parent, with the seed

@@ -16,13 +16,13 @@ code that changes what a shipped agent does is caught.
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.observer_env import make_env
 from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic
 from observer_gym.train.rl.agent import Agent
@@ -69,7 +69,7 @@ def take_fingerprint(agent: Agent) -> Fingerprint:
 
 def read_fingerprint(folder: str | Path) -> Fingerprint:
     """The ``fingerprint.json`` of the shipped agent in ``folder``."""
-    data = json.loads((Path(folder) / FINGERPRINT_FILE).read_text())
+    data = read_json(Path(folder) / FINGERPRINT_FILE)
     observation = data["observation"]
     dtype = data.get("observation_dtype", "float32")
     if isinstance(observation, dict):

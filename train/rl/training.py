@@ -46,7 +46,7 @@ from observer_gym.train.reports.outputs import (
     to_jsonable,
 )
 from observer_gym.train.rl.agent_env import ImageOptions, make_agent_env, observer_for
-from observer_gym.train.rl.learning import learn
+from observer_gym.train.rl.learning import eval_csv_problem, learn
 from observer_gym.train.rl.run_dir import (
     CHECKPOINTS,
     LATEST,
@@ -192,6 +192,21 @@ def run_config(
         probe.close()
     if not isinstance(action_space, spaces.Box):
         raise TypeError(f"{env_id}: the action space must be a Box, not {action_space}")
+    if randomize:  # every draw must keep the agent's spaces (RandomizedEnv requires it)
+        from observer_gym.train.rl.randomize import check_spaces
+
+        check_spaces(
+            lambda drawn: make_agent_env(
+                env_id,
+                obs,
+                estimate_from,
+                {**env_kwargs, **drawn},
+                params["image"],
+                observer,
+                params["features"],
+            ),
+            randomize,
+        )
     encoder = params["image"].get("encoder") if obs == "rgb" else None
     recorded = {}  # the frame encoder's file, which a loaded agent checks
     if encoder is not None:
@@ -364,12 +379,26 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
     """:func:`resume_training`'s work, under the folder's lock."""
     state = check_resumable(run_dir)
     config = read_config(run_dir)
+    check_recorded_randomize(config)
     checkpoint, problems = intact_checkpoint(run_dir / CHECKPOINTS)
     assert checkpoint is not None  # check_resumable found it
     for problem in problems:
         warnings.warn(
             f"{problem}; resuming from the checkpoint at {checkpoint['timesteps']} steps",
             CheckpointWarning,
+            stacklevel=2,
+        )
+    curve_problem = eval_csv_problem(run_dir / "eval.csv")
+    if curve_problem is not None:
+        raise ValueError(
+            f"{run_dir / 'eval.csv'} is not a training run's evaluation curve ({curve_problem}); "
+            "restore it, or remove it to start the curve afresh"
+        )
+    if state is None and (run_dir / STATE_FILE).exists():
+        warnings.warn(
+            f"{run_dir / STATE_FILE} is not readable as a run's state; resuming from the "
+            f"checkpoint at {checkpoint['timesteps']} steps and writing a new one",
+            OutputFolderWarning,
             stacklevel=2,
         )
     if state is not None and state["status"] == "killed":
@@ -386,6 +415,31 @@ def _resume(run_dir: Path, timesteps: int | None, progress: bool) -> dict[str, A
         config["hyperparams"]["n_timesteps"] = int(timesteps)
         write_config(run_dir, config)
     return learn(run_dir, config, progress=progress, checkpoint=checkpoint)
+
+
+def check_recorded_randomize(config: Mapping[str, Any]) -> None:
+    """ValueError, before anything is written, if the randomisation a run recorded
+    (config.json ``randomize``) could draw a world the env refuses: a run started before
+    the whole range was checked (:func:`~observer_gym.train.rl.randomize.check_randomize`)
+    would otherwise die at that draw again."""
+    if not config.get("randomize"):
+        return
+    from observer_gym.train.cli.checks import observer_mode
+    from observer_gym.train.rl.randomize import check_randomize
+
+    env_id, obs = config["env_id"], config["obs"]
+    feeding = observer_for(
+        env_id,
+        obs,
+        config["estimate_from"] or "measurements",
+        config.get("observer") if obs == "estimate" else None,
+    )
+    try:
+        check_randomize(
+            env_id, observer_mode(env_id, feeding), config["env_kwargs"], config["randomize"]
+        )
+    except ValueError as error:
+        raise ValueError(f"the run's recorded {error}; start a new run with another") from None
 
 
 def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str, Any]:
@@ -412,6 +466,7 @@ def continue_run(run_dir: str | Path, timesteps: int | None = None) -> dict[str,
 def _continue(run_dir: Path, timesteps: int | None) -> dict[str, Any]:
     """:func:`continue_run`'s work, under the folder's lock."""
     config = read_config(run_dir)
+    check_recorded_randomize(config)
     state = read_state(run_dir)
     if state is not None and state["status"] == "finished" and timesteps is None:
         return state

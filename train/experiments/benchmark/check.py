@@ -19,7 +19,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, read_csv
+from observer_gym.controllers.registry import controllers_of
+from observer_gym.envs import system_for_id
+from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
+from observer_gym.estimation.observer import modules_needed
+from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
     TABLE_MD,
@@ -30,6 +34,8 @@ from observer_gym.train.experiments.benchmark.report import (
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import camera_scale
 from observer_gym.train.experiments.observer_env import observer_env_options
+from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.reports.outputs import NOT_INSTALLED
 
 
 class FolderCheckError(ValueError):
@@ -87,6 +93,42 @@ def _agent_options_problem(controller: str, recorded: dict[str, Any]) -> str | N
     return None
 
 
+# The [rl] extra's packages: absent from a core install (observer_gym.extras)
+RL_PACKAGES = ("stable-baselines3", "torch")
+
+
+def _needs_rl(env_id: str, observer: Any, controller: Any) -> bool:
+    """Whether an entry may depend on the ``[rl]`` extra: a learned observer, an agent or
+    an outside entry (whose imports are unknown); False only for a built-in observer that
+    needs no more than the core install and a built-in controller."""
+    if not isinstance(observer, str) or not isinstance(controller, str):
+        return True
+    setup = task_for(env_id).OBSERVERS.get(observer)
+    if setup is None:
+        return True
+    pipeline = None if setup[1] is None else setup[1].get("observer")
+    system = system_for_id(env_id)
+    return bool(modules_needed(system, pipeline)) or controller not in controllers_of(system)
+
+
+def _check_same_packages(
+    path: Path, recorded: dict[str, Any], env_id: str, doc: dict[str, Any]
+) -> None:
+    """FolderCheckError naming the first package whose recorded version differs from this
+    installation's. A core install (no ``[rl]`` extra) checks a folder of a built-in
+    classical entry made on a full install: torch and stable-baselines3 decide none of its
+    numbers, so their absence here is no difference."""
+    classical = not _needs_rl(env_id, doc.get("observer"), doc.get("controller"))
+    for name, version_here in versions().items():
+        if name in RL_PACKAGES and classical and version_here == NOT_INSTALLED:
+            continue
+        if recorded.get(name) != version_here:
+            raise FolderCheckError(
+                f"{path}: package {name} is {recorded.get(name)!r} in the folder, "
+                f"{version_here!r} here"
+            )
+
+
 def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     """A one-line confirmation if ``folder`` checks out (see the module docstring).
 
@@ -102,9 +144,11 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if not path.is_file():
         raise FolderCheckError(f"{folder} has no {SCORES_JSON}: not a finished benchmark folder")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = read_json(path)
         version, env, episodes = doc["suite"], doc["env"], doc["episodes_per_level"]
         levels = doc["levels"]
+    except JSONFileError as exc:  # a key twice, too deep, too large, not JSON: named
+        raise FolderCheckError(f"{exc}; not a benchmark's scores") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FolderCheckError(f"{path} cannot be read as a benchmark's scores: {exc!r}") from None
     try:
@@ -133,15 +177,10 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
                 f"{level.seed_start} to {level.seed_start + episodes - 1}"
             )
     recorded_packages = doc.get("packages")
-    here = versions()
     if not isinstance(recorded_packages, dict):
         raise FolderCheckError(f"{path}: no package versions recorded")
-    for name, version_here in here.items():
-        if same_packages and recorded_packages.get(name) != version_here:
-            raise FolderCheckError(
-                f"{path}: package {name} is {recorded_packages.get(name)!r} in the folder, "
-                f"{version_here!r} here"
-            )
+    if same_packages:
+        _check_same_packages(path, recorded_packages, suite.env_id, doc)
     try:
         records = read_csv(folder / EPISODES_CSV, suite.metric.name)
     except ValueError as exc:
@@ -195,7 +234,11 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if difference:
         raise FolderCheckError(f"{folder}: {difference}")
     table = folder / TABLE_MD
-    if not table.is_file() or table.read_text(encoding="utf-8") != table_markdown(suite, derived):
+    try:
+        table_text = read_bytes_limited(table, MAX_CSV_BYTES).decode("utf-8", errors="replace")
+    except (OSError, ValueError):
+        table_text = None
+    if table_text != table_markdown(suite, derived):
         raise FolderCheckError(f"{table} is missing or not the table of {SCORES_JSON}")
     status = "official" if derived["official"] else "unofficial"
     return (

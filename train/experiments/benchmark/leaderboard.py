@@ -29,21 +29,82 @@ line and exit code 1.
 from __future__ import annotations
 
 import argparse
-import json
+import html
+import re
 import shutil
 import sys
+import urllib.parse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV
 from observer_gym.train.experiments.benchmark.report import SCORES_JSON, TABLE_MD
 from observer_gym.train.experiments.benchmark.suite import SystemSuite, load_suite
+from observer_gym.train.reports.outputs import (
+    WriteError,
+    output_set,
+    replace_atomically,
+    write_text_atomic,
+)
 
 PUBLISHED = (EPISODES_CSV, SCORES_JSON, TABLE_MD)
 PROG = "python -m observer_gym.train.experiments.benchmark.leaderboard"
 AGENT_PREFIXES = ("ppo:", "sac:", "td3:")
+# An entry's observer or controller name on the leaderboard: a built-in or installed name
+# (kf-measurements, lqr), an import path (package.module:factory) or an agent
+# (ppo:NAME, ppo:runs/x): letters, digits and _ . : / + = , @ -, at most 120 characters,
+# so a published folder's name (observer--controller) stays under the file systems' 255.
+ENTRY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.:/+=,@-]{0,119}")
+ENTRY_NAME_RULE = (
+    "letters, digits and _ . : / + = , @ -, starting with a letter or digit, at most 120 characters"
+)
+
+
+class EntryNameError(FolderCheckError):
+    """A results folder whose observer or controller name is no entry name
+    (:data:`ENTRY_NAME`): the command line says so in one line, exit code 2."""
+
+
+def check_entry_names(doc: dict[str, Any], path: Path) -> None:
+    """:class:`EntryNameError` naming the first of ``doc``'s observer and controller that
+    is no entry name (:data:`ENTRY_NAME`), and what names may hold."""
+    for key in ("observer", "controller"):
+        name = doc.get(key)
+        if not isinstance(name, str) or ENTRY_NAME.fullmatch(name) is None:
+            shown = (
+                repr(name)
+                if not isinstance(name, str) or len(name) <= 60
+                else (f"{name[:57]!r}... ({len(name)} characters)")
+            )
+            raise EntryNameError(f"{path}: {key} {shown} is no entry name: {ENTRY_NAME_RULE}")
+
+
+def _printable(text: str) -> str:
+    """``text`` with its line breaks and other unprintable characters as escapes (\\n)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def code_span(text: str, table: bool = False) -> str:
+    """``text`` as a Markdown code span that shows it as it is: fenced by one backtick
+    more than its longest run of backticks (CommonMark), its line breaks and other control
+    characters shown as escapes, and with ``table`` ``|`` escaped for a table cell
+    (GitHub's tables split on it even inside a span). Written by hand: no Markdown
+    library is a dependency, and the rule is these three lines."""
+    text = _printable(text)
+    text = text.replace("|", "\\|") if table else text
+    fence = "`" * (1 + max((len(run) for run in re.findall("`+", text)), default=0))
+    pad = " " if text.startswith("`") or text.endswith("`") else ""
+    return f"{fence}{pad}{text}{pad}{fence}"
+
+
+def plain(text: str) -> str:
+    """``text`` as plain Markdown text: HTML escaped, Markdown's special characters
+    backslash-escaped, control characters shown as escapes."""
+    text = _printable(str(text))
+    return re.sub(r"([\\`*_{}\[\]()#+!|~>-])", r"\\\1", html.escape(text, quote=False))
 
 
 class Row(NamedTuple):
@@ -82,7 +143,7 @@ def slug(observer: str, controller: str) -> str:
 
 def _read(folder: Path) -> dict[str, Any]:
     try:
-        doc = json.loads((folder / SCORES_JSON).read_text(encoding="utf-8"))
+        doc = read_json(folder / SCORES_JSON)
     except (OSError, ValueError) as exc:
         raise FolderCheckError(f"{folder / SCORES_JSON} cannot be read: {exc}") from None
     if not isinstance(doc, dict):
@@ -103,20 +164,35 @@ def publish(run_dir: str | Path, root: str | Path, *, same_packages: bool = True
     ``same_packages``: as :func:`~observer_gym.train.experiments.benchmark.check.
     check_folder` takes it (publish what this installation ran).
 
+    The files are copied into a staging folder beside the copy they replace and renamed
+    over it (:func:`~observer_gym.train.reports.outputs.output_set`): a full disk leaves
+    the earlier copy whole.
+
     Raises:
+        EntryNameError: its observer or controller is no entry name (:data:`ENTRY_NAME`).
         FolderCheckError: the folder does not check out (see ``benchmark --check``), or
             is unofficial.
+        WriteError: the copy cannot be written (a full disk); the earlier copy is kept.
     """
     run_dir = Path(run_dir)
+    check_entry_names(_read(run_dir), run_dir / SCORES_JSON)  # before the names are used
     check_folder(run_dir, same_packages=same_packages)
     doc = _read(run_dir)
     if not doc.get("official"):
         raise FolderCheckError(f"{run_dir} is an unofficial run (--episodes): not published")
     suite = _suite_of(doc, run_dir)
     dest = Path(root) / suite.system.name / slug(doc["observer"], doc["controller"])
-    dest.mkdir(parents=True, exist_ok=True)
-    for name in PUBLISHED:
-        shutil.copyfile(run_dir / name, dest / name)
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise WriteError(f"could not write {dest}: {exc.strerror or exc}") from exc
+    # staged beside the copy it replaces and renamed over it: a full disk leaves it whole
+    with output_set(dest, last=(SCORES_JSON,)) as staging:
+        for name in PUBLISHED:
+            try:
+                shutil.copyfile(run_dir / name, staging / name)
+            except OSError as exc:
+                raise WriteError(f"could not write {dest / name}: {exc.strerror or exc}") from exc
     return dest
 
 
@@ -130,13 +206,29 @@ def read_rows(root: str | Path, *, verify: bool = True) -> list[Row]:
     """
     rows: list[Row] = []
     versions: set[str] = set()
+    entries: dict[tuple[str, str, str], Path] = {}
     for path in sorted(Path(root).glob(f"*/*/{SCORES_JSON}")):
         folder = path.parent
+        doc = _read(folder)
+        check_entry_names(doc, path)  # before anything else reads the names
         if verify:
             check_folder(folder, same_packages=False)
-        doc = _read(folder)
         if not doc.get("official"):
             raise FolderCheckError(f"{folder} is an unofficial run: a leaderboard has none")
+        expected = (
+            f"{_suite_of(doc, folder).system.name}/{slug(doc['observer'], doc['controller'])}"
+        )
+        if f"{folder.parent.name}/{folder.name}" != expected:
+            raise FolderCheckError(
+                f"{folder} holds {doc['observer']} + {doc['controller']}, whose published "
+                f"folder is {Path(root) / expected}: move it there ('publish' names it so)"
+            )
+        key = (str(doc["env"]), doc["observer"], doc["controller"])
+        if key in entries:
+            raise FolderCheckError(
+                f"{folder} and {entries[key]} hold the same entry, {key[1]} + {key[2]}: keep one"
+            )
+        entries[key] = folder
         versions.add(str(doc.get("suite")))
         if len(versions) > 1:
             raise FolderCheckError(
@@ -185,6 +277,9 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
         raise FolderCheckError(f"no published benchmark folders under {root}")
     groups = _by_env(rows)
     version = rows[0].suite
+    command = _printable(command)
+    fence = "`" * max(3, 1 + max((len(run) for run in re.findall("`+", command)), default=0))
+    figures_dir = urllib.parse.quote(figures_dir, safe="/._-~")
     lines = [
         f"# Leaderboard: observer-gym benchmark suite {version}",
         "",
@@ -193,11 +288,12 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
         "[benchmark.md](benchmark.md)), re-derived from its per-episode records by the "
         "command that wrote this page:",
         "",
-        "```",
+        fence,
         command,
-        "```",
+        fence,
         "",
-        f"The results folders: `{root}/<system>/<entry>/` (`episodes.csv`, `scores.json`, "
+        f"The results folders: {code_span(f'{root}/<system>/<entry>/')} (`episodes.csv`, "
+        "`scores.json`, "
         "`table.md`). Scores: 1 = the oracle observer with the system's reference "
         "controller, 0 = the floor (the worse of the raw camera and doing nothing); each "
         "level's mean score and the IQM over the levels, with their 95 % bootstrap "
@@ -226,12 +322,12 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
             table.append(
                 [
                     str(rank),
-                    f"`{row.observer}`",
-                    f"`{row.controller}`",
+                    code_span(row.observer, table=True),
+                    code_span(row.controller, table=True),
                     row.kind,
                     *(_cell(s, lo, hi) for _, s, lo, hi in row.levels),
                     _cell(*row.iqm),
-                    row.version,
+                    plain(row.version),
                 ]
             )
         lines += ["| " + " | ".join(cells) + " |" for cells in table]
@@ -243,7 +339,7 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
             "Commands, by rank:",
             "",
         ]
-        lines += [f"{rank}. `{row.command}`" for rank, row in enumerate(group, start=1)]
+        lines += [f"{rank}. {code_span(row.command)}" for rank, row in enumerate(group, start=1)]
         lines.append("")
     return "\n".join(lines)
 
@@ -275,7 +371,10 @@ def draw_figures(rows: Sequence[Row], figures_dir: Path) -> list[Path]:
     from rliable import plot_utils
 
     written = []
-    figures_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        figures_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise WriteError(f"could not write {figures_dir}: {exc.strerror or exc}") from exc
     for env, group in _by_env(rows).items():
         suite = load_suite(env, group[0].suite)
         metrics = [name for name, *_ in group[0].levels] + ["IQM"]
@@ -302,10 +401,33 @@ def draw_figures(rows: Sequence[Row], figures_dir: Path) -> list[Path]:
             ax.set_xlim(lowest - 0.03, highest + 0.03)
             ax.axvline(1.0, color="grey", lw=0.8, ls="--")
         path = figures_dir / figure_name(suite)
-        fig.savefig(path, dpi=100, bbox_inches="tight")
-        plt.close(fig)
+
+        def save(tmp: Path, fig: Any = fig) -> None:
+            fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+
+        try:
+            replace_atomically(path, save)
+        finally:
+            plt.close(fig)
         written.append(path)
     return written
+
+
+NAME_MAX_BYTES = 255  # a file name's longest on Linux, macOS and Windows file systems
+
+
+def path_problem(text: str) -> str | None:
+    """Why ``text`` cannot name a file (a NUL character, a name longer than
+    :data:`NAME_MAX_BYTES` bytes), in one line; None if it can."""
+    if "\0" in text:
+        return f"{text!r} contains a NUL character, which no file name holds"
+    long = [part for part in Path(text).parts if len(part.encode()) > NAME_MAX_BYTES]
+    if long:
+        return (
+            f"{long[0][:40]!r}... ({len(long[0].encode())} bytes) is longer than a file "
+            f"name can be ({NAME_MAX_BYTES} bytes)"
+        )
+    return None
 
 
 def generate_command(root: str, out: str, figures: str) -> str:
@@ -333,6 +455,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     from observer_gym.train.cli.args import error_line
 
     args = _parser().parse_args(argv)
+    paths = [*args.runs, args.into] if args.command == "publish" else [args.root, args.out]
+    paths += [args.figures] if args.command == "generate" else []
+    for text in paths:
+        problem = path_problem(text)
+        if problem:
+            print(error_line(PROG, problem), file=sys.stderr)
+            return 2
     try:
         if args.command == "publish":
             for run_dir in args.runs:
@@ -358,11 +487,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             command,
         )
         draw_figures(rows, figures)
-        out.write_text(text, encoding="utf-8")
+        write_text_atomic(out, text)
         print(f"{out}: {len(rows)} entries; figures in {figures}")
         return 0
+    except EntryNameError as exc:
+        print(error_line(PROG, exc), file=sys.stderr)
+        return 2
     except FolderCheckError as exc:
         print(error_line(PROG, exc), file=sys.stderr)
+        return 1
+    except OSError as exc:  # a full disk, no permission: WriteError names the file
+        message = str(exc) if isinstance(exc, WriteError) else f"{exc.strerror or exc}"
+        if not isinstance(exc, WriteError) and exc.filename:
+            message = f"{exc.filename}: {message}"
+        print(error_line(PROG, message), file=sys.stderr)
         return 1
 
 

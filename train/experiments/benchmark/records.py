@@ -14,6 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+from observer_gym.envs.json_file import read_bytes_limited
+
+MAX_CSV_BYTES = 256 * 1024 * 1024  # an official run's records are a few hundred kB
+
 EPISODES_CSV = "episodes.csv"
 COLUMNS = ("level", "episode", "seed")
 
@@ -49,11 +53,14 @@ def csv_text(records: Sequence[EpisodeRecord], metric: str) -> str:
 
 def read_csv(path: Path, metric: str) -> list[EpisodeRecord]:
     """The records in ``path``; ValueError naming the file, the line and what is wrong
-    (a missing file, another header, a malformed row)."""
-    try:
-        text = path.read_text(encoding="utf-8")
+    (a missing file, no regular file or one larger than :data:`MAX_CSV_BYTES`, another
+    header, a malformed row)."""
+    try:  # a regular file of at most MAX_CSV_BYTES (not a link to /dev/zero)
+        text = read_bytes_limited(path, MAX_CSV_BYTES).decode("utf-8")
     except OSError as exc:
         raise ValueError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: cannot be read: not UTF-8 text ({exc.reason})") from None
     rows = list(csv.reader(io.StringIO(text)))
     header = [*COLUMNS, metric]
     if not rows or rows[0] != header:

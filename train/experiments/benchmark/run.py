@@ -27,6 +27,7 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.benchmark.levels import (
     LEVELS_DIR,
     BenchmarkWarning,
@@ -198,7 +199,7 @@ def check_out_dir(out_dir: Path, request: BenchmarkRequest) -> None:
     if not path.exists():
         return
     try:
-        recorded = json.loads(path.read_text(encoding="utf-8")).get("identity")
+        recorded = read_json(path).get("identity")
     except (OSError, ValueError, AttributeError):
         recorded = None
     if recorded != json.loads(json.dumps(request.identity())):
@@ -216,11 +217,15 @@ def _finished_levels(out_dir: Path, request: BenchmarkRequest) -> dict[str, dict
         path = out_dir / LEVELS_DIR / f"{level.name}.json"
         if not path.exists():
             continue
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            data = None
-        problem = level_problem(data, request.digest(), level.name, level.seeds(request.episodes))
+        problem: str | None
+        try:  # NaN, a key twice, deep nesting: refused by the reader, so it runs again
+            data = read_json(path)
+        except (OSError, ValueError) as exc:
+            problem = f"it cannot be read ({' '.join(str(exc).split())})"
+        else:
+            problem = level_problem(
+                data, request.digest(), level.name, level.seeds(request.episodes)
+            )
         if problem is None:
             finished[level.name] = data
         else:

@@ -19,7 +19,6 @@ is a new version.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping
 from importlib import resources
@@ -27,6 +26,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from observer_gym.envs import System, system_for_id
+from observer_gym.envs.json_file import read_json
 
 SUITES_PACKAGE = "observer_gym.train.experiments.benchmark"
 DEFAULT_VERSION = "v1"
@@ -123,8 +123,8 @@ def load_suite(
             )
         path = suite_path(version, system)
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        data = read_json(path)
+    except (OSError, ValueError) as exc:
         raise ValueError(f"suite file {path}: cannot be read as JSON: {exc}") from None
     return parse_suite(data, system, version, str(path))
 
