@@ -183,6 +183,10 @@ def check_env_options(
     env_class = system.env_class()
     try:
         check_render_mode(options.pop("render_mode", None), env_class.metadata)
+        # deferred: observer_env imports the estimation layer
+        from observer_gym.train.experiments.observer_env import check_gym_make_options
+
+        check_gym_make_options(options)
         for key in GYM_MAKE_OPTIONS:
             options.pop(key, None)
         env_class.config_class.from_kwargs(obs_mode=obs_mode, **options)

@@ -24,11 +24,14 @@ import numpy as np
 
 from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.entry_guard import entry_fault, read_only
 
 
 def checked_action(action: Any, space: gym.spaces.Box, who: str) -> np.ndarray:
-    """``action`` as a float array of ``space``'s shape; ValueError naming ``who`` for
-    anything else (another shape, complex, text, NaN or inf)."""
+    """``action`` as a float array of ``space``'s shape, clipped to its bounds as the env
+    clips every action (so a finite but absurd action, 1e300, is the bound it is applied
+    as, and is recorded so); ValueError naming ``who`` for anything else (another shape,
+    complex, text, NaN or inf)."""
     try:
         array = np.asarray(action)
     except (TypeError, ValueError):
@@ -40,13 +43,16 @@ def checked_action(action: Any, space: gym.spaces.Box, who: str) -> np.ndarray:
         )
     if not np.isfinite(array).all():
         raise ValueError(f"controller {who!r}: predict() returned a non-finite action {array}")
-    return array.astype(np.float64)
+    return np.clip(array.astype(np.float64), space.low, space.high)
 
 
 class CheckedController:
     """An outside controller with the protocol the experiments use (``name``, ``reset``,
-    ``predict``), its actions checked by :func:`checked_action`. Its other attributes
-    (``observe_info``, ``failures``, design values) are the wrapped object's."""
+    ``predict``, ``observe_info``), its actions checked by :func:`checked_action`, shown
+    read-only copies of the observation and info
+    (:func:`~observer_gym.train.experiments.entry_guard.read_only`), whatever it raises
+    (``sys.exit`` too) one line naming it. Its other attributes (``failures``, design
+    values) are the wrapped object's."""
 
     def __init__(self, plugin: entries.Plugin, env: gym.Env, options: Mapping[str, Any]):
         self.controller = entries.build(plugin, env, options)
@@ -60,7 +66,18 @@ class CheckedController:
     def reset(self) -> None:
         reset = getattr(self.controller, "reset", None)
         if callable(reset):
-            reset()
+            try:
+                reset()
+            except (Exception, SystemExit) as exc:
+                raise entry_fault(f"controller {self.name!r}", "reset()", exc) from None
+
+    def observe_info(self, info: Any) -> None:
+        observe_info = getattr(self.controller, "observe_info", None)
+        if callable(observe_info):
+            try:
+                observe_info(read_only(info))
+            except (Exception, SystemExit) as exc:
+                raise entry_fault(f"controller {self.name!r}", "observe_info()", exc) from None
 
     def predict(
         self,
@@ -70,11 +87,11 @@ class CheckedController:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         try:
-            result = self.controller.predict(observation, state, episode_start, deterministic)
-        except Exception as exc:  # its own fault: one line naming it, not the bare cause
-            raise ValueError(
-                f"controller {self.name!r}: predict() raised {type(exc).__name__}: {exc}"
-            ) from exc
+            result = self.controller.predict(
+                read_only(observation), state, episode_start, deterministic
+            )
+        except (Exception, SystemExit) as exc:  # its own fault: one line naming it
+            raise entry_fault(f"controller {self.name!r}", "predict()", exc) from None
         if not (isinstance(result, tuple) and len(result) == 2):
             raise ValueError(
                 f"controller {self.name!r}: predict() must return (action, state) as "

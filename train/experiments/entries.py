@@ -24,8 +24,10 @@ its ``reset()``, if it has one, is called before every episode.
 From Python (:mod:`observer_gym.train.experiments.api`), an entry can also be the factory itself or
 an object with the protocol (a pipeline, a controller; each episode gets a deep copy). A
 module-level factory is named by its import path; anything else gets the name
-``python:<module>.<qualname>`` and travels to the workers inside each episode's spec
-(:func:`as_name`), so it must pickle when episodes run in other processes.
+``python:<module>:<qualname>@<identity>`` (:func:`object_identity`: a hash of its
+content, so two closures of one qualname are two entries) and travels to the workers
+inside each episode's spec (:func:`as_name`), so it must pickle when episodes run in
+other processes.
 
 A factory may declare the systems it is made for as an attribute ``systems``, a sequence
 of env ids (``make_controller.systems = ("BallTable-v0",)``, or a class attribute): an
@@ -43,8 +45,14 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
+import hashlib
 import importlib
+import math
 import pickle
+import reprlib
+import sys
+import types
+import warnings
 from collections.abc import Callable, Iterator, Mapping
 from importlib import metadata
 from typing import Any, NamedTuple
@@ -95,8 +103,44 @@ def is_import_path(text: str) -> bool:
 
 @functools.cache
 def entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
-    """The installed entry points of ``kind`` ("observer" or "controller"), by name."""
-    return {ep.name: ep for ep in metadata.entry_points(group=GROUPS[kind])}
+    """The installed entry points of ``kind`` ("observer" or "controller"), by name,
+    without those refused with a warning naming them (:func:`entry_point_problem`)."""
+    found = {}
+    for ep in metadata.entry_points(group=GROUPS[kind]):
+        problem = entry_point_problem(kind, ep.name)
+        if problem is None:
+            found[ep.name] = ep
+            continue
+        from observer_gym.train.reports.outputs import OneLineWarning  # deferred: light import
+
+        distribution = ep.dist.name if ep.dist is not None else "an unknown distribution"
+        warnings.warn(
+            f"the {kind} entry point '{printable(ep.name)}' of {distribution} is ignored: "
+            f"{problem}",
+            OneLineWarning,
+            stacklevel=2,
+        )
+    return found
+
+
+def entry_point_problem(kind: str, name: str) -> str | None:
+    """Why an installed entry point's ``name`` cannot name an entry, or None: an
+    observer's name ending in ``-measurements`` (that suffix picks the env mode of the
+    name before it), or a name of characters other than printable ones."""
+    if not name or not all(character.isprintable() for character in name):
+        return "its name must be printable characters"
+    if kind == "observer" and name.endswith(MEASUREMENTS_SUFFIX):
+        return (
+            f"an observer's name may not end in {MEASUREMENTS_SUFFIX!r}: that suffix on a "
+            "name asks for the measurements of the observer named before it"
+        )
+    return None
+
+
+def printable(text: str) -> str:
+    """``text`` with every character that is not printable (a terminal's escape codes,
+    newlines) written as its Python escape, for names shown on a terminal or a page."""
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode() for c in text)
 
 
 def refresh() -> None:
@@ -170,7 +214,7 @@ def load_factory(plugin: Plugin) -> Callable[..., Any]:
     where = f"{plugin.kind} {plugin.name!r}"
     try:
         target: Any = importlib.import_module(module_name)
-    except Exception as exc:  # an ImportError, or anything the module raises on import
+    except (Exception, SystemExit) as exc:  # ImportError, anything raised on import, sys.exit
         raise ValueError(
             f"{where}: cannot import {module_name!r}: {type(exc).__name__}: {exc}"
         ) from None
@@ -232,7 +276,7 @@ def build(plugin: Plugin, env: Any, options: Mapping[str, Any] | None = None) ->
     where = f"{plugin.kind} {plugin.name!r}"
     try:
         made = factory(env, **dict(options or {}))
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:  # sys.exit in a factory ends only the entry
         raise ValueError(
             f"{where}: {plugin.target}(env, **{dict(options or {})}) raised "
             f"{type(exc).__name__}: {exc}"
@@ -280,7 +324,8 @@ def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[tup
     as it is, with no objects; a module-level factory by its import path; any other
     factory, or an object with the protocol (an observer pipeline's ``reset`` and
     ``observe``, a controller's ``predict``; each episode gets a deep copy), as
-    ``python:<module>.<qualname>`` with ``objects`` mapping (kind, that name) to the factory.
+    ``python:<module>:<qualname>@<identity>`` (:func:`object_identity`) with ``objects``
+    mapping (kind, that name) to the factory.
     An observer's name gets the ``-measurements`` suffix for ``obs_mode`` "measurements".
     ValueError for anything else."""
     suffix = MEASUREMENTS_SUFFIX if kind == "observer" and obs_mode == "measurements" else ""
@@ -301,10 +346,84 @@ def as_name(kind: str, entry: Any, obs_mode: str = "rgb") -> tuple[str, dict[tup
             f"{kind} {entry!r}: expected a name, an import path package.module:factory, a "
             f"factory (env, **options) or an object with {', '.join(m + '()' for m in needed)}"
         )
-    module = getattr(entry, "__module__", "object")
-    qualname = getattr(entry, "__qualname__", type(entry).__name__)
-    name = f"{OBJECT_PREFIX}{module}:{qualname}"
+    module = printable(str(getattr(entry, "__module__", "object")))
+    qualname = printable(str(getattr(entry, "__qualname__", type(entry).__name__)))
+    name = f"{OBJECT_PREFIX}{module}:{qualname}@{object_identity(factory)}"
     return name + suffix, {(kind, name): factory}
+
+
+def object_identity(obj: Any) -> str:
+    """What tells an entry given as an object from another of the same qualname: the
+    sha256 (12 hex digits) of its content (its pickle; for a closure, its code, defaults
+    and captured values), the same in every process for the same content; else, for an
+    object whose content does not hash, ``local-<id>``, this object in this process
+    only (a resumed sweep then runs its cells again)."""
+    content = _content(obj)
+    if content is None:
+        return f"local-{id(obj):x}"
+    return hashlib.sha256(content).hexdigest()[:12]
+
+
+def _code_bytes(code: types.CodeType) -> bytes:
+    """A code object's bytecode, names and constants (nested code objects likewise), as
+    bytes: not ``marshal.dumps``, whose output depends on reference counts."""
+    consts = tuple(
+        _code_bytes(const) if isinstance(const, types.CodeType) else repr(const)
+        for const in code.co_consts
+    )
+    fields = (code.co_name, code.co_code, consts, code.co_names, code.co_varnames,
+              code.co_freevars, code.co_cellvars)  # fmt: skip
+    return repr(fields).encode()
+
+
+def _content(obj: Any, depth: int = 0) -> bytes | None:
+    """Bytes that stand for ``obj``'s content, or None. Hand-written: pickle refuses
+    closures, and no standard-library function hashes a function's code and captures."""
+    try:
+        return pickle.dumps(obj, protocol=4)
+    except Exception:  # pickle raises several types (PicklingError, AttributeError, TypeError)
+        pass
+    if depth > 8:
+        return None
+    if isinstance(obj, _Copies):
+        return _content(obj.prototype, depth + 1)
+    if isinstance(obj, types.FunctionType):
+        parts = [_code_bytes(obj.__code__)]
+        try:
+            captured = [cell.cell_contents for cell in obj.__closure__ or ()]
+        except ValueError:  # an empty cell
+            return None
+        for item in (obj.__defaults__, obj.__kwdefaults__, *captured):
+            part = _content(item, depth + 1)
+            if part is None:
+                return None
+            parts.append(part)
+        return b"\0".join(hashlib.sha256(part).digest() for part in parts)
+    return None
+
+
+def entry_identity(plugin: Plugin) -> dict[str, Any]:
+    """Where an outside entry comes from, as results record it and as sweeps and
+    benchmarks key their cells and levels by: its import path, source, distribution and
+    version (:meth:`Plugin.describe` without options), and ``code_sha256``: the sha256
+    (16 hex digits) of the source file of the module that defines its factory, or, for an
+    entry given as an object, its :func:`object_identity`. An upgrade of the package that
+    changes the factory's module, or another object of the same qualname, is another
+    entry. ValueError as :func:`load_factory`."""
+    factory = load_factory(plugin)
+    record = plugin.describe()
+    del record["options"]
+    if (plugin.kind, plugin.target) in _OBJECTS:
+        record["code_sha256"] = object_identity(factory)
+        return record
+    module = sys.modules.get(getattr(factory, "__module__", "") or "")
+    path = getattr(module, "__file__", None)
+    try:
+        with open(path, "rb") as source:  # type: ignore[arg-type]  # None: TypeError
+            record["code_sha256"] = hashlib.sha256(source.read()).hexdigest()[:16]
+    except (OSError, TypeError):  # a module without a source file (built in, frozen)
+        record["code_sha256"] = object_identity(factory)
+    return record
 
 
 def check_picklable(objects: Mapping[tuple[str, str], Any]) -> None:
@@ -339,6 +458,46 @@ def objects_for(observer: str, controller: str) -> dict[tuple[str, str], Any]:
     episode's spec)."""
     wanted = {("observer", observer.removesuffix(MEASUREMENTS_SUFFIX)), ("controller", controller)}
     return {key: value for key, value in _OBJECTS.items() if key in wanted}
+
+
+def check_options(kind: str, options: Mapping[str, Any]) -> None:
+    """ValueError, one line naming the option, unless every value of an outside
+    ``kind``'s ``options`` is one results record as it was given: JSON's types (text,
+    bool, None, int, a finite float, and lists and text-keyed mappings of these). Checked
+    before the first episode, so a run does not end at "results.json cannot be written"."""
+    for key, value in options.items():
+        problem = _unrecordable(value)
+        if problem is not None:
+            raise ValueError(
+                f"{kind} option {key!r} = {reprlib.repr(value)} cannot be recorded in the "
+                f"results: {problem}; allowed: text, true/false, null, integers, finite "
+                "numbers, and lists and mappings of these"
+            )
+
+
+def _unrecordable(value: Any, depth: int = 0) -> str | None:
+    """Why ``value`` is not recorded in JSON as it is, or None."""
+    if depth > 32:
+        return "it is nested more than 32 levels deep"
+    if value is None or isinstance(value, (str, bool, int)):
+        return None
+    if isinstance(value, float):
+        return None if math.isfinite(value) else f"{value!r} is not a finite number"
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            problem = _unrecordable(item, depth + 1)
+            if problem is not None:
+                return problem
+        return None
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                return f"the key {key!r} is not text"
+            problem = _unrecordable(item, depth + 1)
+            if problem is not None:
+                return problem
+        return None
+    return f"a {type(value).__name__} is not one of JSON's types"
 
 
 def entry_line(kind: str, entry: Mapping[str, Any]) -> str:

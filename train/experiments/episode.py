@@ -116,6 +116,23 @@ def is_outside(env_id: str, observer: str, controller: str) -> bool:
     return observer_setup(env_id, observer)[2] is not None or outside_controller
 
 
+def entry_identities(env_id: str, observer: str, controller: str) -> dict[str, dict[str, Any]]:
+    """Where the pair's outside observer and controller come from, by kind
+    (:func:`~observer_gym.train.experiments.entries.entry_identity`: import path,
+    distribution, version, the sha256 of the factory's module or the object's hash); {}
+    for the package's own entries and agents. Sweeps and benchmarks key their cells and
+    levels by it, so an upgraded package's entry does not reuse another's."""
+    found: dict[str, dict[str, Any]] = {}
+    plugin = observer_setup(env_id, observer)[2]
+    if plugin is not None:
+        found["observer"] = entries.entry_identity(plugin)
+    if parse_agent_spec(controller) is None and controller not in controllers_for(env_id):
+        controller_plugin = entries.find_plugin("controller", controller)
+        if controller_plugin is not None:
+            found["controller"] = entries.entry_identity(controller_plugin)
+    return found
+
+
 def check_entries(
     env_id: str,
     observer: str,
@@ -228,6 +245,9 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         terminated = truncated = False
         try:
             obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
+            # The ground truth as the env gave it, copied before any entry sees the step
+            # (outside entries are shown read-only copies: entry_guard).
+            states = [np.array(info["state"], dtype=float)]
             observe_info(info)
             samples = [info]
             while not (terminated or truncated) and (
@@ -235,6 +255,7 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
             ):
                 action, _ = controller.predict(obs)
                 obs, reward, terminated, truncated, info = env.step(action)
+                states.append(np.array(info["state"], dtype=float))
                 observe_info(info)
                 actions.append(np.asarray(action, dtype=float))
                 rewards.append(float(reward))
@@ -246,7 +267,7 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         record: dict[str, Any] = {
             # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
             "time_s": np.round([s["time_s"] for s in samples], 9),
-            "state": np.array([s["state"] for s in samples], dtype=float),
+            "state": np.array(states),
             "estimate": None,
             "estimate_std": None,
             "actions": np.array(actions).reshape(len(actions), *env.action_space.shape),

@@ -8,10 +8,12 @@ path or an installed entry point's name).
 
 from __future__ import annotations
 
+import reprlib
 from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.envs.registration import system_for_id
@@ -19,6 +21,7 @@ from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.observer import env_options_of, modules_needed
 from observer_gym.extras import require_rl
 from observer_gym.train.experiments import entries
+from observer_gym.train.experiments.entry_guard import CheckedPipeline
 from observer_gym.train.experiments.tasks import task_for
 
 
@@ -80,6 +83,21 @@ def with_observer_env_options(
     return given
 
 
+def check_gym_make_options(options: Mapping[str, Any]) -> None:
+    """ValueError naming the option unless ``max_episode_steps`` is an integer >= 1 (or
+    None) and ``disable_env_checker`` true or false, as ``gym.make`` takes them."""
+    steps = options.get("max_episode_steps")
+    if steps is not None and (
+        isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1
+    ):
+        raise ValueError(
+            f"max_episode_steps must be an integer >= 1 (steps), got {reprlib.repr(steps)}"
+        )
+    checker = options.get("disable_env_checker", False)
+    if not isinstance(checker, bool):
+        raise ValueError(f"disable_env_checker must be true or false, got {reprlib.repr(checker)}")
+
+
 def make_env(
     env_id: str,
     observer: str,
@@ -94,6 +112,7 @@ def make_env(
     the env options the observer needs (:func:`observer_env_options`)."""
     obs_mode, _, _ = observer_setup(env_id, observer)
     env_kwargs = with_observer_env_options(env_id, observer, env_kwargs)
+    check_gym_make_options(env_kwargs)
     env = gym.make(env_id, obs_mode=obs_mode, **env_kwargs)
     return wrap_observer(env, env_id, observer, observer_options)
 
@@ -111,7 +130,10 @@ def wrap_observer(
         _, pipeline_options, plugin = observer_setup(env_id, observer)
         if plugin is not None:
             pipeline = entries.build(plugin, env.unwrapped, observer_options)
-            return VisionObserver(env, pipeline=pipeline, name=observer)
+            base: Any = env.unwrapped  # an observer-gym env: it has the state layout
+            state_dim = base.state_space.shape[0]
+            checked = CheckedPipeline(pipeline, plugin, state_dim)
+            return VisionObserver(env, pipeline=checked, name=observer)
         if observer == "oracle" or pipeline_options is None:
             if observer_options:
                 raise ValueError(

@@ -42,6 +42,7 @@ from observer_gym.train.experiments.camera_scale import (
 from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.experiments.entries import (
     Plugin,
+    check_options,
     find_plugin,
     load_factory,
 )
@@ -257,6 +258,7 @@ def _controller_entry(system: System, name: str, options: dict) -> ControllerEnt
 
 
 def _check_options(kind: str, given: dict, entries: Sequence[Any]) -> None:
+    check_options(kind, given)
     if given and not any(entry.plugin is not None for entry in entries):
         names = ", ".join(entry.name for entry in entries)
         raise ValueError(

@@ -22,6 +22,7 @@ from typing import Any
 
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.experiments.compare import check_designs, check_pairs_once, option_text
+from observer_gym.train.experiments.entries import entry_identity
 from observer_gym.train.experiments.episode import EpisodeSpec
 from observer_gym.train.experiments.request import Request, resolve_request
 from observer_gym.train.experiments.sweep_grid import Grid, VaryInput, check_grid, value_text
@@ -162,10 +163,24 @@ class SweepPlan:
                             if self.controller_options
                             else {}
                         ),
+                        # where outside entries come from (entry_identity): an upgraded
+                        # package's entry, or another object, does not reuse the cells
+                        **({"entries": found} if (found := self.entry_identities()) else {}),
                     }
                 )
             )
         )
+
+    def entry_identities(self) -> dict[str, dict[str, Any]]:
+        """:func:`~observer_gym.train.experiments.entries.entry_identity` of every
+        outside observer and controller, by ``"<kind> <name>"``."""
+        plugins = [entry.plugin for entry in self.request.observers]
+        plugins += [entry.plugin for entry in self.request.controllers]
+        return {
+            f"{plugin.kind} {plugin.name}": entry_identity(plugin)
+            for plugin in plugins
+            if plugin is not None
+        }
 
     def digest(self) -> str:
         """A hash of :meth:`arguments`, recorded in every cell file."""

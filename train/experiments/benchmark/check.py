@@ -218,6 +218,10 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
             entry["camera_scale"] = camera_scale(suite.env_id, options)
         except ValueError as exc:
             raise FolderCheckError(f"{path}: {exc}") from None
+    if "entries" in doc:  # where outside entries came from, as recorded (not re-derived)
+        if not isinstance(doc["entries"], dict):
+            raise FolderCheckError(f"{path}: entries is {_short(doc['entries'])}, not a table")
+        entry["entries"] = doc["entries"]
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
     # derived from the observer's name: a recorded table that differs is a difference

@@ -34,7 +34,7 @@ import re
 import shutil
 import sys
 import urllib.parse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -119,6 +119,11 @@ class Row(NamedTuple):
     levels: tuple[tuple[str, float, float, float], ...]  # (level, score, low, high)
     iqm: tuple[float, float, float]  # (iqm, low, high)
     version: str  # observer-gym's, as recorded
+    # the env options its episodes had beyond each level's: a trained agent's, travelled
+    # from its training (scores.json's agent_env_options), and those its observer needs
+    # (observer_env_options); empty for most entries
+    agent_env_options: Mapping[str, Any] = {}
+    observer_env_options: Mapping[str, Any] = {}
 
     @property
     def entry(self) -> str:
@@ -248,6 +253,8 @@ def read_rows(root: str | Path, *, verify: bool = True) -> list[Row]:
                 ),
                 iqm=(doc["aggregate"]["iqm"], doc["aggregate"]["low"], doc["aggregate"]["high"]),
                 version=doc["packages"].get("observer-gym", "?"),
+                agent_env_options=dict(doc.get("agent_env_options") or {}),
+                observer_env_options=dict(doc.get("observer_env_options") or {}),
             )
         )
     return rows
@@ -264,6 +271,19 @@ def _by_env(rows: Sequence[Row]) -> dict[str, list[Row]]:
 
 def _cell(score: float, low: float, high: float) -> str:
     return f"{score:.3f} [{low:.3f}, {high:.3f}]"
+
+
+def _options_cell(row: Row) -> str:
+    """The env options a row's episodes had beyond each level's: the agent's, travelled
+    from its training (``agent: ...``), and those its observer needs (``observer: ...``);
+    "none" without."""
+    parts = [
+        f"{who}: " + code_span(", ".join(f"{k}={v!r}" for k, v in options.items()), table=True)
+        for who, options in (("agent", row.agent_env_options),
+                             ("observer", row.observer_env_options))
+        if options
+    ]  # fmt: skip
+    return "; ".join(parts) or "none"
 
 
 def figure_name(suite: SystemSuite) -> str:
@@ -302,7 +322,10 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
         "designed controller, `agent` a trained policy (train/rl/agents/), `true state` an "
         "observer that reads the simulator's truth, for analysis: `oracle` (no camera; "
         "with the reference controller 1 by definition) and `oracle-visible` (the truth "
-        "while the camera sees the target, predicted otherwise).",
+        "while the camera sees the target, predicted otherwise). Env options: what a row's "
+        "episodes had beyond each level's options, a trained agent's own (its camera and "
+        "its reward's weights, the options that travel with it to every level) and those "
+        "its observer needs.",
         "",
     ]
     for env, group in groups.items():
@@ -316,7 +339,8 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
             f"reference controller `{suite.controller}`; {suite.episodes} episodes per level.",
             "",
         ]
-        header = ["rank", "observer", "controller", "kind", *level_names, "IQM [95 %]", "version"]
+        header = ["rank", "observer", "controller", "kind", "env options", *level_names,
+                  "IQM [95 %]", "version"]  # fmt: skip
         table = [header, ["---"] * len(header)]
         for rank, row in enumerate(group, start=1):
             table.append(
@@ -325,6 +349,7 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
                     code_span(row.observer, table=True),
                     code_span(row.controller, table=True),
                     row.kind,
+                    _options_cell(row),
                     *(_cell(s, lo, hi) for _, s, lo, hi in row.levels),
                     _cell(*row.iqm),
                     plain(row.version),

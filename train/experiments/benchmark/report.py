@@ -66,7 +66,9 @@ def scores_document(
     trained with env options (recorded only when there are some), ``camera_scale`` if
     they change the camera's size (recorded only then: the levels' pixel-valued options
     ran times it, the metric is in the default camera's pixels; camera_scale.py), and
-    ``observer_env_options`` if the observer needs env options (recorded only then); the
+    ``observer_env_options`` if the observer needs env options (recorded only then),
+    ``entries`` where an outside observer or controller came from (recorded only for one:
+    :func:`~observer_gym.train.experiments.episode.entry_identities`); the
     command is derived from them (:func:`command_line`)."""
     scores = score_levels(values_by_level(suite, records), suite.references, suite.metric.better)
     episodes = entry["episodes"]
@@ -92,6 +94,8 @@ def scores_document(
             if entry.get("observer_env_options")
             else {}
         ),
+        # where an outside observer or controller came from (recorded only for one)
+        **({"entries": dict(entry["entries"])} if entry.get("entries") else {}),
         "command": command_line(
             suite,
             entry["observer"],
@@ -237,6 +241,7 @@ def write_outputs(
         "agent_env_options": request.agent_env_options,
         "camera_scale": request.camera_scale,
         "observer_env_options": request.observer_env_options,
+        "entries": request.entries,
         "episodes": request.episodes,
     }
     document, scores = scores_document(suite, entry, records, versions())

@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
-from observer_gym.train.experiments.episode import EpisodeSpec
+from observer_gym.train.experiments.episode import EpisodeSpec, entry_identities
 from observer_gym.train.experiments.observer_env import observer_env_options
 
 __all__ = ["BenchmarkRequest", "command_line"]
@@ -88,7 +88,16 @@ class BenchmarkRequest(NamedTuple):
                 if self.observer_env_options
                 else {}
             ),
+            # where outside entries come from: an upgraded package's levels are not reused
+            **({"entries": self.entries} if self.entries else {}),
         }
+
+    @property
+    def entries(self) -> dict[str, dict[str, Any]]:
+        """Where an outside observer and controller come from
+        (:func:`~observer_gym.train.experiments.episode.entry_identities`); {} for the
+        package's own."""
+        return entry_identities(self.suite.env_id, self.observer, self.controller)
 
     def digest(self) -> str:
         return plan_digest(self.identity())

@@ -17,7 +17,9 @@ N seeds of each level and is marked unofficial.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import time
 import warnings
 from collections.abc import Callable, Generator, Mapping, Sequence
@@ -40,9 +42,14 @@ from observer_gym.train.experiments.benchmark.score import Scores
 from observer_gym.train.experiments.benchmark.suite import (
     DEFAULT_VERSION,
     Level,
+    SystemSuite,
     load_suite,
 )
-from observer_gym.train.experiments.camera_scale import camera_scale
+from observer_gym.train.experiments.camera_scale import (
+    CAMERA_GEOMETRY_OPTIONS,
+    camera_scale,
+    is_pixel_valued,
+)
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
 from observer_gym.train.experiments.request import resolve_request
 from observer_gym.train.experiments.sweep import sweep_episode
@@ -108,6 +115,9 @@ def check_benchmark(
             f"controller {controller!r} is a multi-seed agent folder; benchmark one seed's "
             f"agent at a time: {', '.join(request.seed_groups[controller])}"
         )
+    agent_options = request.controller(controller).env_options
+    scale = camera_scale(suite.env_id, agent_options)
+    check_agent_task(suite, controller, agent_options, scale)
     return BenchmarkRequest(
         suite,
         observer,
@@ -118,9 +128,51 @@ def check_benchmark(
         address,
         request.observer(observer).options,
         request.controller(controller).options,
-        request.controller(controller).env_options,
-        camera_scale(suite.env_id, request.controller(controller).env_options),
+        agent_options,
+        scale,
     )
+
+
+# A trained agent's env options that change only how it sees and is rewarded, and so
+# travel with it to every level: its camera's geometry and the reward's weights.
+AGENT_VIEW_OPTIONS = CAMERA_GEOMETRY_OPTIONS | {"shaping_weight", "effort_weight"}
+
+
+def check_agent_task(
+    suite: SystemSuite, controller: str, agent_options: Mapping[str, Any], scale: float
+) -> None:
+    """ValueError, one line, if the agent ``controller`` was trained with env options
+    that change the task its levels set: only :data:`AGENT_VIEW_OPTIONS` travel, and a
+    pixel-valued option (camera_scale.py) equal to its default in the agent's camera's
+    pixels (its default times ``scale``: the same task, seen by a smaller camera). An
+    agent trained with a larger hole or no aim spread would bring them to every level."""
+    config_class = suite.system.env_class().config_class
+    defaults = {
+        field.name: field.default
+        for field in dataclasses.fields(config_class)
+        if field.default is not dataclasses.MISSING
+    }
+    changed = []
+    for key, value in agent_options.items():
+        if key in AGENT_VIEW_OPTIONS:
+            continue
+        default = defaults.get(key)
+        if (
+            is_pixel_valued(key)
+            and isinstance(value, (int, float))
+            and isinstance(default, (int, float))
+            and math.isclose(value, default * scale, rel_tol=1e-6)
+        ):
+            continue  # the default task in the agent's pixels
+        changed.append(f"{key}={value!r}")
+    if changed:
+        raise ValueError(
+            f"controller {controller!r} was trained with env options that change the task: "
+            f"{', '.join(changed)}; the suite's levels set the task, and only options that "
+            "change how an agent sees or is rewarded travel "
+            f"({', '.join(sorted(AGENT_VIEW_OPTIONS))}, and pixel-valued options at their "
+            "default in the agent's pixels)"
+        )
 
 
 def agent_entry(policy: str) -> TrainedWith:
