@@ -44,15 +44,13 @@ EPISODES, STEPS = 3, 150
 CELLS = [(o, c) for o in OBSERVERS for c in ("0px", "0.5px", "2px", "drops")] + [
     (o, "latency") for o in LATENCY_AWARE
 ]
-# in the default run: one cell per observer family (the rest are slow)
-DEFAULT_RUN = [("kf", "2px"), ("stkf", "2px"), ("stkf-latency", "latency"), ("ekf", "2px")]
 
 
 def _median_nees(observer: str, env_kwargs: dict, **options) -> float:
     return median_nees(ENV_ID, observer, "vtc", EPISODES, STEPS, env_kwargs, **options)
 
 
-@pytest.mark.parametrize(("observer", "condition"), band_cells(CELLS, {}, DEFAULT_RUN))
+@pytest.mark.parametrize(("observer", "condition"), band_cells(CELLS, {}))
 def test_median_nees_per_dof_is_within_the_band(observer, condition):
     ratio = _median_nees(f"{observer}-measurements", CONDITIONS[condition])
     assert LOW <= ratio <= HIGH, ratio

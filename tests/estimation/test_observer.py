@@ -161,6 +161,7 @@ def _observed_ball_table(obs_mode: str = "rgb"):
     return VisionObserver(gym.make(ENV_ID, obs_mode=obs_mode))
 
 
+@pytest.mark.slow  # spawned workers (17 s at load 7); test_vector_envs.py's spawn test stays
 def test_observer_runs_in_spawned_subprocess_vec_env():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
