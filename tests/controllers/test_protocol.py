@@ -33,7 +33,14 @@ def test_every_controller_is_checked():
     assert all(CONTROLLER_ENVS[name][0] == env_id for name, env_id in CONTROLLERS.items())
 
 
-@pytest.mark.parametrize("name", list(CONTROLLERS))
+@pytest.mark.parametrize(
+    "name",
+    [  # mpc's episodes: 20 s at load 7, slow (MPC's closed loop stays in the default run:
+        # test_ball_table_ekf_calibration.py)
+        pytest.param(name, marks=pytest.mark.slow) if name == "mpc" else name
+        for name in CONTROLLERS
+    ],
+)
 def test_evaluate_policy_scores_each_controller_above_doing_nothing(name):
     """Two envs in a DummyVecEnv, 4 episodes from the default random starts; the
     baseline is the zero action (a level table, a box held still, a robot at rest)."""

@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 PROBE = """
 import os, threading
 import gymnasium as gym
@@ -28,6 +30,7 @@ print("same descriptor:", (before.st_dev, before.st_ino) == (after.st_dev, after
 """
 
 
+@pytest.mark.slow  # four threads making envs (23 s at load 7)
 def test_four_threads_making_envs_leave_stdout_alone():
     for _ in range(3):  # the race lost stdout in 3 runs of 3 before the fix
         done = subprocess.run(

@@ -5,7 +5,7 @@ and the check that ``r_scale`` refuses what is no positive number."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 
 import pytest
 
@@ -41,21 +41,30 @@ def median_nees(
     return run.median_nees_ratio
 
 
-def band_cells(cells: Iterable[tuple[str, str]], outside: Mapping[tuple[str, str], str]) -> list:
+def band_cells(
+    cells: Iterable[tuple[str, str]],
+    outside: Mapping[tuple[str, str], str],
+    default_run: Collection[tuple[str, str]] | None = None,
+) -> list:
     """(observer, condition) parameters, those in ``outside`` (measured outside the band)
     marked ``xfail(strict=True)`` with their reason: fixing one fails the test until its
     mark goes. Only the band's assertion is expected to fail: a cell whose episode raises
-    (an observer's fault) fails the test."""
-    return [
-        pytest.param(
-            o,
-            c,
-            marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=outside[(o, c)]),
-        )
-        if (o, c) in outside
-        else (o, c)
-        for o, c in cells
-    ]
+    (an observer's fault) fails the test. Given ``default_run`` (one cell per observer
+    family, say), the other cells are marked ``slow``: CI's slow step runs them."""
+    params = []
+    for o, c in cells:
+        marks = []
+        if (o, c) in outside:
+            marks.append(
+                pytest.mark.xfail(strict=True, raises=AssertionError, reason=outside[(o, c)])
+            )
+        if default_run is not None and (o, c) not in default_run:
+            marks.append(pytest.mark.slow)
+        params.append(pytest.param(o, c, marks=marks) if marks else (o, c))
+    if default_run is not None:
+        unknown = set(default_run) - set(cells)
+        assert not unknown, f"default_run names cells that are not: {sorted(unknown)}"
+    return params
 
 
 def assert_r_scale_refused(env, observers: Iterable[str], bad) -> None:

@@ -36,6 +36,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from closed_loop import closed_loop
 from test_ball_table_detector import _episode
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
@@ -77,34 +78,29 @@ def _closed_loop(width_px: int, height_px: int, seeds=(0, 1), steps: int = 150) 
     """benchmarks/quality_ball_table_sizes.py's figures for one size."""
     ball, tilt, detected = [], [], []
     frames = found = 0
-    for seed in seeds:
-        env = VisionObserver(
-            gym.make(
-                "observer_gym/BallTable-v0",
-                obs_mode="rgb",
-                image_width_px=width_px,
-                image_height_px=height_px,
-            ),
-            observer="kf",
-        )
-        try:
-            controller = make_controller("lqr", env)
-            obs, info = env.reset(seed=seed)
-            for _ in range(steps):
-                action, _ = controller.predict(obs, deterministic=True)
-                obs, _, terminated, truncated, info = env.step(action)
-                assert not (terminated or truncated)
-                mean, state = info["estimate"]["mean"], info["state"]
-                ball.append(mean[0:2] - state[0:2])
-                tilt.append(mean[4:6] - state[4:6])
-                detection = info["estimate"]["measurement"]
-                if detection is not None:
-                    frames += 1
-                    found += detection.table_found and detection.ball_found
-                    if detection.ball_found:
-                        detected.append(detection.ball_pos_table_m - state[0:2])
-        finally:
-            env.close()
+    loop = closed_loop(
+        lambda: gym.make(
+            "observer_gym/BallTable-v0",
+            obs_mode="rgb",
+            image_width_px=width_px,
+            image_height_px=height_px,
+        ),
+        "lqr",
+        seeds,
+        steps,
+        observer="kf",
+    )
+    for _, _, terminated, truncated, info in loop:
+        assert not (terminated or truncated)
+        mean, state = info["estimate"]["mean"], info["state"]
+        ball.append(mean[0:2] - state[0:2])
+        tilt.append(mean[4:6] - state[4:6])
+        detection = info["estimate"]["measurement"]
+        if detection is not None:
+            frames += 1
+            found += detection.table_found and detection.ball_found
+            if detection.ball_found:
+                detected.append(detection.ball_pos_table_m - state[0:2])
     return {
         "found_rate": found / frames,
         "ball_m": _rmse(np.array(ball)),

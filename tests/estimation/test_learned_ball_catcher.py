@@ -149,6 +149,7 @@ class ClosedLoop(NamedTuple):
 
 
 @functools.cache
+@functools.cache  # seeded: the tests that read one observer's throws share them
 def _closed_loop(observer: str, throws: int = THROWS) -> ClosedLoop:
     """``intercept`` on ``observer``'s estimate over seeds 10**6 ... (module docstring)."""
     result = intercept_throws(

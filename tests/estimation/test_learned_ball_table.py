@@ -4,6 +4,7 @@ and NEES on a new seed against the bounds measured, and reproducible training.""
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 
@@ -11,8 +12,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from closed_loop import closed_loop
 
-from observer_gym.controllers import make_controller
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_table.learned import (
     HISTORY_FRAMES,
@@ -107,27 +108,24 @@ def test_a_changed_weight_file_is_refused(tmp_path):
         load_network(weights)
 
 
+@functools.cache  # seeded: the tests that read one observer's loop share it
 def _closed_loop(observer: str) -> tuple[np.ndarray, float]:
     """The LQR on ``observer``'s estimate, 3 episodes of 300 steps on seeds the training
     never drew (10**6...), at 1 px of pixel noise (inside the training ranges): the RMSE
     per state entry and the median step NEES/dof (full covariance)."""
     errors, nees = [], []
-    for seed in range(10**6, 10**6 + 3):
-        env = VisionObserver(
-            gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0), observer=observer
-        )
-        try:
-            controller = make_controller("lqr", env)
-            estimate, info = env.reset(seed=seed)
-            for _ in range(300):
-                action, _ = controller.predict(estimate, deterministic=True)
-                estimate, _, terminated, _, info = env.step(action)
-                e = info["estimate"]["mean"] - info["state"]
-                errors.append(e)
-                nees.append(e.dot(np.linalg.solve(info["estimate"]["covariance"], e)) / 8)
-                assert not terminated, f"seed {seed}: the ball left the table"
-        finally:
-            env.close()
+    steps = closed_loop(
+        lambda: gym.make(ENV, obs_mode="measurements", measurement_noise_px=1.0),
+        "lqr",
+        range(10**6, 10**6 + 3),
+        300,
+        observer=observer,
+    )
+    for seed, _, terminated, _, info in steps:
+        e = info["estimate"]["mean"] - info["state"]
+        errors.append(e)
+        nees.append(e.dot(np.linalg.solve(info["estimate"]["covariance"], e)) / 8)
+        assert not terminated, f"seed {seed}: the ball left the table"
     return np.sqrt(np.mean(np.square(errors), axis=0)), float(np.median(nees))
 
 

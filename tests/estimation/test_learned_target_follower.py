@@ -6,16 +6,16 @@ reproducible training."""
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
-import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from closed_loop import closed_loop
 
-from observer_gym.controllers import make_controller
 from observer_gym.envs.target_follower import STATE_DIM, StateIndex
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.learned.network import load_network
@@ -137,6 +137,7 @@ def test_a_changed_weight_file_is_refused(tmp_path):
         env.close()
 
 
+@functools.cache  # seeded: the tests that read one observer's loop share it
 def _closed_loop(observer: str, noise_px: float = 2.0) -> tuple[np.ndarray, float]:
     """The VTC on ``observer``'s estimate, 3 episodes of 300 steps on seeds the training
     never drew (10**6...), at ``noise_px`` of pixel noise (inside the training ranges):
@@ -144,30 +145,24 @@ def _closed_loop(observer: str, noise_px: float = 2.0) -> tuple[np.ndarray, floa
     the image block, over the steps where the target is in front of the camera and the
     estimate valid (all of them, measured)."""
     errors, nees = [], []
-    for seed in range(10**6, 10**6 + 3):
-        env = VisionObserver(
-            gym.make(ENV, obs_mode="measurements", measurement_noise_px=noise_px),
-            observer=observer,
-        )
-        try:
-            controller = make_controller("vtc", env)
-            estimate, info = env.reset(seed=seed)
-            for _ in range(300):
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # a singular stop
-                    action, _ = controller.predict(estimate, deterministic=True)
-                estimate, _, terminated, truncated, info = env.step(action)
-                assert not (terminated or truncated), f"seed {seed}: the target was lost"
-                if info["state"][StateIndex.TRACKING_VALID] < 0.5:
-                    continue
-                if estimate[StateIndex.TRACKING_VALID] < 0.5:
-                    continue
-                e = info["estimate"]["mean"][:N_OUT] - info["state"][:N_OUT]
-                P = info["estimate"]["covariance"][:N_OUT, :N_OUT]
-                errors.append(e)
-                nees.append(e.dot(np.linalg.solve(P, e)) / N_OUT)
-        finally:
-            env.close()
+    steps = closed_loop(
+        lambda: gym.make(ENV, obs_mode="measurements", measurement_noise_px=noise_px),
+        "vtc",
+        range(10**6, 10**6 + 3),
+        300,
+        quiet=(RuntimeWarning,),  # a singular stop
+        observer=observer,
+    )
+    for seed, estimate, terminated, truncated, info in steps:
+        assert not (terminated or truncated), f"seed {seed}: the target was lost"
+        if info["state"][StateIndex.TRACKING_VALID] < 0.5:
+            continue
+        if estimate[StateIndex.TRACKING_VALID] < 0.5:
+            continue
+        e = info["estimate"]["mean"][:N_OUT] - info["state"][:N_OUT]
+        P = info["estimate"]["covariance"][:N_OUT, :N_OUT]
+        errors.append(e)
+        nees.append(e.dot(np.linalg.solve(P, e)) / N_OUT)
     assert len(errors) > 850, len(errors)
     return np.sqrt(np.mean(np.square(errors), axis=0)), float(np.median(nees))
 

@@ -84,6 +84,8 @@ def test_observer_refuses_state_mode():
 
 
 @pytest.mark.parametrize("seed", [0, 1])
+# 20-s pixel episodes (28-38 s each at load 7); test_closed_loop.py's pixel loops stay
+@pytest.mark.slow
 def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
     truth, mean, cov, used, raw = run_observed(seed, 20.0, obs_mode="rgb")
     assert len(truth) == 1000 and used.mean() > 0.99
@@ -159,6 +161,7 @@ def _observed_ball_table(obs_mode: str = "rgb"):
     return VisionObserver(gym.make(ENV_ID, obs_mode=obs_mode))
 
 
+@pytest.mark.slow  # spawned workers (17 s at load 7); test_vector_envs.py's spawn test stays
 def test_observer_runs_in_spawned_subprocess_vec_env():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 

@@ -99,6 +99,7 @@ def test_the_agent_meets_the_same_angles_of_view_as_every_other_entry():
         assert agent == pytest.approx(suite, rel=1e-9)
 
 
+@pytest.mark.slow  # renders and fits frames (30 s at load 7)
 def test_check_derives_the_scale_and_finds_a_changed_one(tmp_path):
     from observer_gym.train.cli import main
     from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder

@@ -1,7 +1,9 @@
 """A user's mistake on the ``observer-gym`` command line is one line on stderr naming
 what was wrong and what is allowed, exit code 2, never a traceback; it is found before
 any env is built and (but for a hyperparameter's name, which stable-baselines3 knows)
-before the heavy imports. The command's light copy of the systems' names
+before the heavy imports. The mistakes are made in this process (``main(argv)``); what
+needs an interpreter of its own (which modules a mistake or ``--help`` imports, the
+command as a process) runs in subprocesses. The command's light copy of the systems' names
 (:mod:`observer_gym.train.cli.checks`) is the layers', with the library's messages."""
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from observer_gym.envs import SYSTEMS
-from observer_gym.train.cli import build_parser, checks
+from observer_gym.train.cli import build_parser, checks, main
 from observer_gym.train.experiments.request import check_pair
 from observer_gym.train.experiments.systems import controller_choices, observer_choices
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
@@ -286,17 +288,22 @@ CASES = {
 }
 
 
-@pytest.fixture
-def runs(tmp_path: Path) -> dict[str, str]:
-    seeds_run = tmp_path / "seeds-run"
+def _runs(folder: Path) -> dict[str, str]:
+    """The fake runs the cases name, in ``folder``."""
+    seeds_run = folder / "seeds-run"
     seeds_run.mkdir()
     for seed in (0, 1):
         _fake_run(seeds_run / f"seed_{seed}")
     return {
-        "state_run": str(_fake_run(tmp_path / "state-run")),
-        "empty_run": str(_fake_run(tmp_path / "empty-run", model=False)),
+        "state_run": str(_fake_run(folder / "state-run")),
+        "empty_run": str(_fake_run(folder / "empty-run", model=False)),
         "seeds_run": str(seeds_run),
     }
+
+
+@pytest.fixture
+def runs(tmp_path: Path) -> dict[str, str]:
+    return _runs(tmp_path)
 
 
 def _argv(argv: list[str], runs: dict[str, str], out: Path) -> list[str]:
@@ -306,20 +313,42 @@ def _argv(argv: list[str], runs: dict[str, str], out: Path) -> list[str]:
     return argv
 
 
+def _main(argv: list[str], capsys) -> tuple[object, str, str]:
+    """``observer-gym ARGV`` in this process: (exit code, stdout, stderr)."""
+    try:
+        code: object = main(argv)
+    except SystemExit as exc:  # argparse's mistakes and --help
+        code = exc.code
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
 @pytest.mark.parametrize("case", sorted(CASES))
-def test_a_mistake_is_one_line_and_exit_code_2(case, runs, tmp_path):
+def test_a_mistake_is_one_line_and_exit_code_2(case, runs, tmp_path, capsys):
     argv, message = CASES[case]
+    out = tmp_path / "out"
+    code, stdout, stderr = _main(_argv(argv, runs, out), capsys)
+    assert code == 2, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1, stderr
+    command = " ".join(argv[:2] if argv[0] == "reproduce" else argv[:1])
+    assert lines[0].startswith(f"observer-gym {command}: error: "), lines[0]
+    assert message in lines[0]
+    assert stdout == ""
+    assert not out.exists()
+
+
+def test_a_mistake_through_the_command_is_one_line_without_traceback(runs, tmp_path):
+    """The mistakes above, checked in this process, are the command's: one of them through
+    ``python -m observer_gym.train.cli`` in a process of its own."""
+    argv, message = CASES["train-randomize-high-out-of-range"]
     out = tmp_path / "out"
     result = subprocess.run(
         [*CLI, *_argv(argv, runs, out)], capture_output=True, text=True, timeout=120
     )
     assert "Traceback" not in result.stderr, result.stderr
     assert result.returncode == 2, result.stderr
-    lines = result.stderr.splitlines()
-    assert len(lines) == 1, result.stderr
-    command = " ".join(argv[:2] if argv[0] == "reproduce" else argv[:1])
-    assert lines[0].startswith(f"observer-gym {command}: error: "), lines[0]
-    assert message in lines[0]
+    assert result.stderr == f"observer-gym train: error: {message}\n"
     assert result.stdout == ""
     assert not out.exists()
 
@@ -337,74 +366,73 @@ def test_the_hyperparameter_error_lists_only_public_settable_names(algo):
         assert set_by_train not in names
 
 
-_PROBE = """
-import sys
-from observer_gym.train.cli import main
-try:
-    code = main(sys.argv[1:])
-except SystemExit as exc:
-    code = exc.code
-heavy = sorted(m for m in sys.modules if m.split(".")[0] in {heavy!r}
-               or any(m == h or m.startswith(h + ".") for h in {heavy!r}))
-print(code, heavy)
-"""
+FOUND_BEFORE_HEAVY = [
+    "run-foreign-controller",
+    "run-stkf-on-balltable",
+    "run-pixels-with-lqr",
+    "run-missing-agent",
+    "evaluate-missing-model",
+    "train-without-algo-and-obs",
+    "train-seeds-duplicate",
+    "run-multi-seed-agent",
+    "run-unknown-env-option",
+    "compare-bad-env-option",
+    "train-unknown-env-option",
+    "train-randomize-unknown-key",
+    "train-randomize-high-out-of-range",
+    "train-randomize-and-env-option",
+]
+HELP = [
+    *(
+        [command]
+        for command in (
+            "demo",
+            "run",
+            "compare",
+            "sweep",
+            "train",
+            "evaluate",
+            "benchmark",
+            "reproduce",
+        )
+    ),
+    [],
+    ["reproduce", "linderoth2010"],
+    ["reproduce", "tsai2009"],
+]
 
 
-@pytest.mark.parametrize(
-    "case",
-    [
-        "run-foreign-controller",
-        "run-stkf-on-balltable",
-        "run-pixels-with-lqr",
-        "run-missing-agent",
-        "evaluate-missing-model",
-        "train-without-algo-and-obs",
-        "train-seeds-duplicate",
-        "run-multi-seed-agent",
-        "run-unknown-env-option",
-        "compare-bad-env-option",
-        "train-unknown-env-option",
-        "train-randomize-unknown-key",
-        "train-randomize-high-out-of-range",
-        "train-randomize-and-env-option",
-    ],
-)
-def test_mistakes_are_found_before_the_heavy_imports(case, runs, tmp_path):
-    argv = _argv(CASES[case][0], runs, tmp_path / "out")
-    probe = _PROBE.format(heavy=HEAVY)
+@pytest.fixture(scope="module")
+def fresh_command(tmp_path_factory) -> dict[str, tuple[int, list[str]]]:
+    """{case or help argv: (exit code, heavy modules imported)} of the command run with the
+    argv in an interpreter that had imported only the command (tests/train/fresh_imports.py:
+    one subprocess, a forked child per argv)."""
+    folder = tmp_path_factory.mktemp("fresh-command")
+    runs = _runs(folder)
+    argvs = {case: _argv(CASES[case][0], runs, folder / "out") for case in FOUND_BEFORE_HEAVY}
+    argvs |= {" ".join([*argv, "--help"]): [*argv, "--help"] for argv in HELP}
+    script = Path(__file__).with_name("fresh_imports.py")
     result = subprocess.run(
-        [sys.executable, "-c", probe, *argv], capture_output=True, text=True, timeout=120
+        [sys.executable, str(script), "cli", json.dumps(HEAVY)]
+        + [json.dumps(argv) for argv in argvs.values()],
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
-    assert result.stdout.split() == ["2", "[]"], result.stdout + result.stderr
+    assert result.returncode == 0, result.stderr
+    return {
+        key: tuple(answer) for key, answer in zip(argvs, json.loads(result.stdout), strict=True)
+    }
 
 
-@pytest.mark.parametrize(
-    "argv",
-    [
-        *(
-            [command]
-            for command in (
-                "demo",
-                "run",
-                "compare",
-                "sweep",
-                "train",
-                "evaluate",
-                "benchmark",
-                "reproduce",
-            )
-        ),
-        [],
-        ["reproduce", "linderoth2010"],
-        ["reproduce", "tsai2009"],
-    ],
-)
-def test_help_imports_no_heavy_module(argv):
-    probe = _PROBE.format(heavy=HEAVY)
-    result = subprocess.run(
-        [sys.executable, "-c", probe, *argv, "--help"], capture_output=True, text=True, timeout=60
-    )
-    assert result.stdout.splitlines()[-1] == "0 []", result.stdout + result.stderr
+@pytest.mark.parametrize("case", FOUND_BEFORE_HEAVY)
+def test_mistakes_are_found_before_the_heavy_imports(case, fresh_command):
+    assert fresh_command[case] == (2, [])
+
+
+@pytest.mark.parametrize("argv", HELP)
+def test_help_imports_no_heavy_module(argv, fresh_command):
+    assert fresh_command[" ".join([*argv, "--help"])] == (0, [])
 
 
 def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:

@@ -197,6 +197,7 @@ def without_files(pairs: list[dict]) -> list[dict]:
     return [{k: v for k, v in p.items() if k != "files"} for p in pairs]
 
 
+@pytest.mark.slow  # spawned workers (27 s at load 7); test_run.py's twin stays in the default run
 def test_two_workers_give_the_results_of_one(compared, tmp_path, no_plots):
     _, results = compared
     again = run_comparison(
@@ -207,6 +208,7 @@ def test_two_workers_give_the_results_of_one(compared, tmp_path, no_plots):
     assert again["config"]["workers"] == 2
 
 
+@pytest.mark.slow  # starts Ray (43 s at load 7)
 def test_the_ray_backend_gives_the_local_results(tmp_path, no_plots):
     pytest.importorskip("ray")
     args = ("BallTable-v0", OBSERVERS, ["lqr"], [0, 1])

@@ -107,6 +107,7 @@ STUCK_TRAINER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # a training killed and resumed (33 s at load 7)
 def test_a_killed_training_run_is_reported_and_its_temps_removed(tmp_path, capfd):
     out = tmp_path / "run"
     command = [

@@ -53,6 +53,7 @@ def _metrics(pair):
     return {k: v for k, v in pair.statistics.items() if v["mean"] is not None}
 
 
+@pytest.mark.slow  # 58 s at load 7
 def test_outside_entries_run_beside_the_builtins_and_give_their_numbers(outside, tmp_path):
     # An observer that passes kf through and a controller that is the LQR at gain 1 must
     # give exactly kf's and the LQR's numbers: the machinery adds nothing of its own.
@@ -106,6 +107,7 @@ def test_an_alpha_beta_observer_runs_with_its_options_and_one_worker_equals_two(
     assert "controller obslab.control:make_controller_ (obslab not installed" in runs[0].text
 
 
+@pytest.mark.slow  # 27 s at load 7
 def test_a_sweep_takes_outside_entries_and_their_options(outside, tmp_path):
     out = tmp_path / "sweep"
     argv = [
@@ -239,6 +241,7 @@ class _Gain:
         return 0.5 * np.asarray(action), state
 
 
+@pytest.mark.slow  # 34 s at load 7
 def test_factories_and_objects_from_python(outside, tmp_path):
     from obslab.filters import make_observer
 
@@ -276,6 +279,7 @@ def test_an_object_that_does_not_pickle_is_refused_before_the_workers_start(tmp_
 
 
 # --- a policy trained outside observer-gym ---------------------------------------------------
+@pytest.mark.slow  # a training, 15 s at load 7
 def test_a_policy_zip_trained_with_plain_stable_baselines3_is_compared(tmp_path, capsys):
     import gymnasium as gym
     from stable_baselines3 import PPO
@@ -357,6 +361,7 @@ def test_the_tutorials_alpha_beta_covariance_is_the_closed_form(monkeypatch):
     np.testing.assert_allclose(estimate.covariance[2, 2], velocity, rtol=1e-9)
 
 
+@pytest.mark.slow  # 20 s at load 7
 def test_the_tutorials_sweep_runs_from_python(tmp_path):
     env = {
         **os.environ,
@@ -377,6 +382,7 @@ def test_the_tutorials_sweep_runs_from_python(tmp_path):
     assert len(results["cells"]) == 24
 
 
+@pytest.mark.slow  # a training, 21 s at load 7
 def test_an_agent_trains_on_an_outside_observers_estimate(outside, tmp_path):
     out = tmp_path / "agent"
     argv = [

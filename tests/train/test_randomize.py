@@ -273,6 +273,7 @@ def test_resume_keeps_the_randomisation(randomized_run, counted, tmp_path):
     assert all(env.episodes >= 3 for env in resumed)
 
 
+@pytest.mark.slow  # three trainings (44 s at load 7)
 def test_a_seed_of_a_randomised_multi_seed_run_equals_its_single_run(randomized_run, tmp_path):
     result = train_seeds(
         ENV,

@@ -67,6 +67,7 @@ def _parameters(path: Path) -> list[np.ndarray]:
     return [p.detach().numpy().copy() for p in model.policy.parameters()]
 
 
+@pytest.mark.slow  # a multi-seed training and single runs (34 s at load 7)
 def test_each_seed_is_an_ordinary_run(seeds_run):
     assert is_multi_seed(seeds_run)
     record = SeedsConfig.read(seeds_run)
@@ -165,6 +166,7 @@ def test_evaluate_and_compare_score_every_seed_on_the_same_episodes(seeds_run, t
     assert "Multi-seed agents" in (tmp_path / "compare" / "table.md").read_text()
 
 
+@pytest.mark.slow  # a killed and resumed multi-seed training (30 s at load 7)
 def test_resume_trains_only_the_unfinished_seeds(seeds_run, tmp_path):
     """Seed 1 made 'interrupted' at its 256-step checkpoint, seed 2 'killed' before its
     first: resume trains seed 1 on from 256 steps and seed 2 from the start, leaves seed 0

@@ -245,6 +245,8 @@ class Interrupted(Exception):
     pass
 
 
+# a killed sweep in a process (26 s at load 7); test_fuzz_sweep_cells.py keeps cell reuse
+@pytest.mark.slow
 def test_an_interrupted_sweep_resumes_without_rerunning_cells(swept, tmp_path, monkeypatch):
     reference, _ = swept
     calls = []

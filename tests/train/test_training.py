@@ -131,6 +131,7 @@ def test_evaluate_scores_like_run(ppo_run, tmp_path):
         evaluate_agent(ppo_run, 1, tmp_path / "p", observer="pixels", progress=False)
 
 
+@pytest.mark.slow  # three PPO trainings (70 s at load 7)
 def test_same_seed_same_model_on_cpu(tmp_path):
     """Two runs with seed 0 give identical weights and evaluation curves; seed 1 differs."""
     runs = {}
@@ -151,6 +152,7 @@ def test_same_seed_same_model_on_cpu(tmp_path):
     assert torch.get_num_threads() == 1  # the YAML's torch_threads, set by the run
 
 
+@pytest.mark.slow  # two trainings (24 s at load 7); test_killed_run_...[kill-1] resumes too
 def test_resume_continues_the_timestep_count(tmp_path):
     out = tmp_path / "run"
     first = _train(out, timesteps=1000, vec_env="dummy")
@@ -167,7 +169,10 @@ def test_resume_continues_the_timestep_count(tmp_path):
 
 @pytest.mark.parametrize(
     ("how", "n_envs"),
-    [("kill", 1), ("ctrl-c", 2)],  # SIGTERM to the trainer; SIGINT to it and its workers
+    [  # SIGTERM to the trainer; SIGINT to it and its workers
+        ("kill", 1),
+        pytest.param("ctrl-c", 2, marks=pytest.mark.slow),  # 2 workers (62 s at load 7)
+    ],
 )
 def test_killed_run_keeps_its_last_checkpoint_and_resumes(tmp_path, how, n_envs):
     """Stopped in the middle of training: exit code 130, the last checkpoint loads, and
