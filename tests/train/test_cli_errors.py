@@ -9,6 +9,7 @@ command as a process) runs in subprocesses. The command's light copy of the syst
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
