@@ -16,9 +16,8 @@ from hypothesis import given, note
 from hypothesis import strategies as st
 
 from observer_gym.train.rl.run_dir import check_resumable, intact_checkpoint, read_config
-from observer_gym.train.rl.training import train_agent
 
-STEPS = 64  # one checkpoint per rollout of one env
+STEPS = 64  # tests/conftest.py's tiny_run: a checkpoint every 64 env steps
 FILES = [
     "config.json",
     "checkpoints/latest.json",
@@ -32,17 +31,10 @@ FILES = [
 
 
 @pytest.fixture(scope="module")
-def saved(tmp_path_factory) -> Path:
-    """A finished 128-step PPO run: checkpoints at 64 and 128 steps."""
-    out_dir = tmp_path_factory.mktemp("fuzz_run") / "run"
-    train_agent(
-        "BallTable-v0", "ppo", "state", out_dir, timesteps=2 * STEPS, n_envs=1, vec_env="dummy",
-        hyperparams={"n_steps": STEPS, "batch_size": STEPS, "checkpoint_freq": STEPS,
-                     "eval_freq": 10_000, "eval_episodes": 1},
-        progress=False,
-    )  # fmt: skip
-    assert set(FILES) <= {p.relative_to(out_dir).as_posix() for p in out_dir.rglob("*.*")}
-    return out_dir
+def saved(tiny_run) -> Path:
+    """tests/conftest.py's finished 128-step PPO run: checkpoints at 64 and 128 steps."""
+    assert set(FILES) <= {p.relative_to(tiny_run).as_posix() for p in tiny_run.rglob("*.*")}
+    return tiny_run
 
 
 json_values = st.recursive(

@@ -29,7 +29,6 @@ from observer_gym.train.reports.folder_lock import LOCK_FILE, folder_lock
 from observer_gym.train.reports.outputs import write_json_atomic
 from observer_gym.train.rl.learning import append_eval_row, replace_links
 from observer_gym.train.rl.run_dir import read_config, read_state
-from observer_gym.train.rl.training import train_agent
 
 REPO = Path(__file__).resolve().parents[2]
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
@@ -152,7 +151,7 @@ def test_the_reader_refuses_a_key_twice_wherever_it_is(value, depth, key):
 
 
 # --- links in a training run's folder ---------------------------------------------------------
-STEPS = 64
+STEPS = 64  # tests/conftest.py's tiny_run: a checkpoint every 64 env steps
 LINKABLE = [
     LOCK_FILE,
     "eval.csv",
@@ -166,16 +165,9 @@ LINKABLE = [
 
 
 @pytest.fixture(scope="module")
-def saved(tmp_path_factory) -> Path:
-    """A finished 128-step PPO run: checkpoints at 64 and 128 steps, one evaluation."""
-    out_dir = tmp_path_factory.mktemp("fuzz_links") / "run"
-    train_agent(
-        "BallTable-v0", "ppo", "state", out_dir, timesteps=2 * STEPS, n_envs=1, vec_env="dummy",
-        hyperparams={"n_steps": STEPS, "batch_size": STEPS, "checkpoint_freq": STEPS,
-                     "eval_freq": 10_000, "eval_episodes": 1},
-        progress=False,
-    )  # fmt: skip
-    return out_dir
+def saved(tiny_run) -> Path:
+    """tests/conftest.py's finished 128-step PPO run: checkpoints at 64 and 128 steps."""
+    return tiny_run
 
 
 def _link_out(run: Path, outside: Path, names: list[str]) -> None:

@@ -13,40 +13,12 @@ import pytest
 
 from observer_gym.train.cli import main
 from observer_gym.train.rl import run_dir
-from observer_gym.train.rl.training import train_agent
-
-CHECKPOINT_EVERY = 64  # env steps: one rollout of one env
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> Path:
-    """A finished 128-step PPO run with checkpoints at 64 and 128 steps."""
-    out_dir = tmp_path_factory.mktemp("damaged") / "run"
-    state = train_agent(
-        "BallTable-v0",
-        "ppo",
-        "state",
-        out_dir,
-        timesteps=2 * CHECKPOINT_EVERY,
-        n_envs=1,
-        vec_env="dummy",
-        hyperparams={
-            "n_steps": CHECKPOINT_EVERY,
-            "batch_size": CHECKPOINT_EVERY,
-            "checkpoint_freq": CHECKPOINT_EVERY,
-            "eval_freq": 10_000,
-            "eval_episodes": 1,
-        },
-        progress=False,
-    )
-    assert state["status"] == "finished"
-    return out_dir
 
 
 @pytest.fixture
-def run(trained, tmp_path) -> Path:
+def run(tiny_run, tmp_path) -> Path:
     """A copy of the trained run to damage."""
-    return Path(shutil.copytree(trained, tmp_path / "run"))
+    return Path(shutil.copytree(tiny_run, tmp_path / "run"))
 
 
 def _truncate(path: Path) -> None:

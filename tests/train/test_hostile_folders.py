@@ -8,15 +8,13 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import shutil
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 from markdown_it import MarkdownIt  # a dependency of rich, which observer-gym requires
+from run_folders import STEPS, file_size_limit, snapshot
 
 from observer_gym.envs.json_file import JSONFileError, parse_json, read_json
 from observer_gym.train.cli import main
@@ -27,31 +25,9 @@ from observer_gym.train.reports.folder_lock import LOCK_FILE, folder_lock
 from observer_gym.train.reports.outputs import OutputFolderError
 from observer_gym.train.rl import run_dir
 from observer_gym.train.rl.shipped import shipped_path
-from observer_gym.train.rl.training import train_agent
 
 REPO = Path(__file__).resolve().parents[2]
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
-STEPS = 64  # env steps per checkpoint of the tiny run
-
-
-@contextmanager
-def file_size_limit(limit_bytes: int) -> Iterator[None]:
-    """Writing past ``limit_bytes`` fails with EFBIG, as on a full disk (Python ignores
-    SIGXFSZ); tests/train/test_write_failures.py does the same."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, hard))
-    try:
-        yield
-    finally:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
-
-
-def snapshot(folder: Path) -> dict[str, bytes]:
-    return {
-        p.relative_to(folder).as_posix(): p.read_bytes()
-        for p in folder.rglob("*")
-        if p.is_file() and not p.is_symlink()
-    }
 
 
 # --- the JSON reader ---------------------------------------------------------------------
@@ -102,34 +78,9 @@ def test_a_linked_lock_file_is_refused_and_its_target_kept(tmp_path, capsys):
     assert (out / LOCK_FILE).is_symlink()  # left for its owner to remove
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> Path:
-    """A finished 128-step PPO run (checkpoints at 64 and 128 steps, one evaluation)."""
-    out_dir = tmp_path_factory.mktemp("hostile") / "run"
-    state = train_agent(
-        "BallTable-v0",
-        "ppo",
-        "state",
-        out_dir,
-        timesteps=2 * STEPS,
-        n_envs=1,
-        vec_env="dummy",
-        hyperparams={
-            "n_steps": STEPS,
-            "batch_size": STEPS,
-            "checkpoint_freq": STEPS,
-            "eval_freq": 10_000,
-            "eval_episodes": 1,
-        },
-        progress=False,
-    )
-    assert state["status"] == "finished"
-    return out_dir
-
-
 @pytest.fixture
-def run(trained, tmp_path) -> Path:
-    return Path(shutil.copytree(trained, tmp_path / "run"))
+def run(tiny_run, tmp_path) -> Path:
+    return Path(shutil.copytree(tiny_run, tmp_path / "run"))
 
 
 RESUME = ["train", "--no-progress", "--timesteps", str(3 * STEPS), "--resume"]
