@@ -119,6 +119,7 @@ def test_observer_tracks_the_ball_from_pixels_for_20_s(seed):
     assert 1.0 / 3.0 < nees.mean() / 4.0 < 3.0, nees.mean() / 4.0
 
 
+@pytest.mark.slow  # a long pixel episode (20 s at load 4)
 def test_observer_rides_out_dropped_frames_and_an_occluded_ball():
     truth, mean, cov, used, _raw = run_observed(
         3, 12.0, obs_mode="rgb", frame_drop_prob=0.1, occluder_rate_hz=0.3, occluder_pass_s=3.5

@@ -83,6 +83,7 @@ def test_each_seed_is_an_ordinary_run(seeds_run):
         read_config(seeds_run)  # what 'run --controller ppo:OUT' says
 
 
+@pytest.mark.slow  # on the multi-seed training (31 s to build at load 4)
 def test_the_aggregate_has_curves_with_a_band_and_the_iqm(seeds_run):
     for name in ("learning_curves.png", "aggregate.json", "aggregate.md"):
         assert (seeds_run / name).stat().st_size > 0, name
@@ -106,6 +107,7 @@ def test_the_aggregate_has_curves_with_a_band_and_the_iqm(seeds_run):
     assert "IQM" in (seeds_run / "aggregate.md").read_text()
 
 
+@pytest.mark.slow  # on the multi-seed training (31 s to build at load 4)
 def test_parallel_seeds_equal_a_sequential_single_seed_run(seeds_run, tmp_path):
     """Seed 1 trained alone, in this process, after other training: the same weights and
     evaluation curve as in its worker process beside two other seeds."""
@@ -133,6 +135,7 @@ def no_plots(monkeypatch):
     monkeypatch.setattr(ball_table, "plot", lambda records, observer, out_dir: [])
 
 
+@pytest.mark.slow  # on the multi-seed training (31 s to build at load 4)
 def test_evaluate_and_compare_score_every_seed_on_the_same_episodes(seeds_run, tmp_path, no_plots):
     evaluation = evaluate_seeds(
         seeds_run, 2, tmp_path / "eval", steps=30, progress=False, reps=REPS
