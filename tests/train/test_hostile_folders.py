@@ -432,3 +432,25 @@ def test_the_committed_leaderboard_reads_and_renders_unchanged():
         warnings.simplefilter("error")
         rows = leaderboard.read_rows(ROOT, verify=False)
     assert len(rows) == len(list(ROOT.glob("*/*/scores.json")))
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "timesteps,return_mean\n64,1.0,7\n",
+        "steps,mean\n64,1.0\n",
+        "timesteps,return_mean\n64,nan\n",
+    ],
+    ids=["wide-row", "other-columns", "nan"],
+)
+def test_the_multi_seed_aggregate_names_a_malformed_eval_csv(text, tmp_path):
+    """The curves across seeds read each seed's eval.csv: a malformed one is a ValueError
+    naming it (a resume checks the file itself, the test above)."""
+    from observer_gym.train.reports.aggregate import read_eval_curve
+
+    (tmp_path / "eval.csv").write_text(text)
+    with pytest.raises(ValueError, match=rf"^{tmp_path / 'eval.csv'} is not an evaluation curve"):
+        read_eval_curve(tmp_path, seed=0)
+    (tmp_path / "eval.csv").write_text("timesteps,return_mean\n64,1.0\n128,2.5\n64,1.5\n")
+    curve = read_eval_curve(tmp_path, seed=3)
+    assert curve is not None and curve.timesteps == (64, 128) and curve.return_mean == (1.5, 2.5)

@@ -131,16 +131,22 @@ class EvalCurve:
 
 def read_eval_curve(run_dir: str | Path, seed: int) -> EvalCurve | None:
     """The curve in ``run_dir/eval.csv`` (None if the run has not evaluated yet); a
-    timestep evaluated twice (a resumed run) keeps its last row."""
+    timestep evaluated twice (a resumed run) keeps its last row. ValueError naming the
+    file if it is not a curve (a row of another width, a missing column, a value that is
+    not a number)."""
     path = Path(run_dir) / "eval.csv"
     if not path.is_file():
         return None
-    rows = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
-    if rows.size == 0:
-        return None
-    by_step = dict(
-        zip(rows["timesteps"].astype(int).tolist(), rows["return_mean"].tolist(), strict=True)
-    )
+    try:
+        rows = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+        if rows.size == 0:
+            return None
+        steps_col, returns_col = rows["timesteps"], rows["return_mean"]
+    except (ValueError, TypeError) as exc:  # a row of other width, no such column, no header
+        raise ValueError(f"{path} is not an evaluation curve: {exc}") from None
+    if not (np.all(np.isfinite(steps_col)) and np.all(np.isfinite(returns_col))):
+        raise ValueError(f"{path} is not an evaluation curve: a value is not a number")
+    by_step = dict(zip(steps_col.astype(int).tolist(), returns_col.tolist(), strict=True))
     steps = tuple(sorted(by_step))
     return EvalCurve(seed, steps, tuple(float(by_step[s]) for s in steps))
 
