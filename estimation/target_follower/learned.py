@@ -84,6 +84,7 @@ from observer_gym.estimation.learned.inputs import require_frames_or_measurement
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VSEParams
 from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
+from observer_gym.estimation.target_follower.learned_detector import ACTION_NOISE
 from observer_gym.estimation.target_follower.state_layout import (
     RobotStep,
     lost_estimate,
@@ -110,8 +111,6 @@ PER_FRAME = 3 + 1 + 1 + 1  # (x_i, y_i, d_x), detected, age, tilt at capture
 N_FEATURES = HISTORY_FRAMES * PER_FRAME + 3 * HISTORY_STEPS + 1  # + the tilt now
 N_OUT = 6  # X_i (px) and X_i^t' (px/s): the state's first six entries
 HIDDEN = 64
-# white noise on the VTC's (v, omega, omega_t) while collecting: m/s, rad/s, rad/s
-ACTION_NOISE = (0.05, 0.1, 0.05)
 EPISODE_STEPS = 300  # 30 s at the default 10 frames/s
 EPISODES = 100  # per round: the training command's default --episodes
 # the VSE's reliability threshold (px^2): an X_i variance above it is "lost"

@@ -13,8 +13,8 @@ and ``learned-kf``'s filter downstream are those of the measurements.
 :func:`~observer_gym.estimation.learned.frame_data.collect_lockstep`): episodes run in
 rgb and in measurements mode in lockstep; the rgb frame is the input, the measurement
 (no noise) its label. The VTC acts on the true state plus white noise on (v, omega,
-omega_t), its std :data:`~observer_gym.estimation.target_follower.learned.ACTION_NOISE`
-times a factor drawn per episode from :data:`ACTION_NOISE_RANGE`; pushes, occluders and
+omega_t), its std :data:`ACTION_NOISE` times a factor drawn per episode from
+:data:`ACTION_NOISE_RANGE`; pushes, occluders and
 image noise are drawn per episode from :data:`FRAME_RANGES`; every :data:`STRIDE`-th frame
 is kept. Trained by::
 
@@ -33,6 +33,7 @@ import numpy as np
 from observer_gym.envs.target_follower import DETECTED, TARGET_PX
 
 __all__ = [
+    "ACTION_NOISE",
     "FRAME_RANGES",
     "NET_SIZE_PX",
     "VALUE_PARTS",
@@ -49,7 +50,11 @@ VALUE_PARTS = [0, 0, 0]  # (x_i, y_i, d_x): one part, the target
 EPISODES = 100
 EPISODE_STEPS = 300  # 30 s at the default 10 frames/s
 STRIDE = 2
-ACTION_NOISE_RANGE = (0.0, 3.0)  # times learned.ACTION_NOISE
+# white noise on the VTC's (v, omega, omega_t) while collecting training episodes: m/s,
+# rad/s, rad/s; the learned observer's episodes (learned.py) take it as it is, this
+# detector's times a factor drawn per episode from ACTION_NOISE_RANGE
+ACTION_NOISE = (0.05, 0.1, 0.05)
+ACTION_NOISE_RANGE = (0.0, 3.0)  # times ACTION_NOISE
 FRAME_RANGES: dict[str, tuple[float, float]] = {
     "push_rate_hz": (0.0, 0.5),
     "occluder_rate_hz": (0.0, 0.1),
@@ -93,7 +98,6 @@ def collect_frames(episodes: int, seed: int, steps: int = EPISODE_STEPS) -> Any:
     """A :class:`~observer_gym.estimation.learned.frame_training.FrameDataset` of
     ``episodes`` lockstep episodes (see the module docstring), reproducible from ``seed``."""
     from observer_gym.estimation.learned.frame_data import collect_lockstep
-    from observer_gym.estimation.target_follower.learned import ACTION_NOISE
 
     return collect_lockstep(
         "observer_gym/TargetFollower-v0",
