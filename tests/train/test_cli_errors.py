@@ -19,8 +19,8 @@ import pytest
 
 from observer_gym.envs import SYSTEMS
 from observer_gym.train.cli import build_parser, checks, main
+from observer_gym.train.core.systems import controller_choices, observer_choices
 from observer_gym.train.experiments.request import check_pair
-from observer_gym.train.experiments.systems import controller_choices, observer_choices
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
 from observer_gym.train.rl.normalizer_file import record_final_files

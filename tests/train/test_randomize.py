@@ -14,7 +14,7 @@ import pytest
 from stable_baselines3 import PPO
 
 from observer_gym.train.cli import main
-from observer_gym.train.experiments.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.rl import randomize as randomize_module
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.agent_env import make_agent_env

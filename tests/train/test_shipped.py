@@ -9,8 +9,8 @@ from pathlib import PurePosixPath
 import pytest
 
 from observer_gym.envs import system_for_id
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.experiments.episode import build_controller
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.rl import shipped
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import model_files, parse_agent_spec, read_config

@@ -16,12 +16,12 @@ from observer_gym.estimation.observer import env_options_of
 from observer_gym.train import cli
 from observer_gym.train.cli.args import controller_name
 from observer_gym.train.cli.checks import check_observer
-from observer_gym.train.experiments.systems import (
+from observer_gym.train.core.systems import (
     controller_choices,
     observer_choices,
     system_entries,
 )
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core.tasks import task_for
 
 LAYERS = ("envs", "estimation", "controllers", "task")
 

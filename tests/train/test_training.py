@@ -18,8 +18,8 @@ import torch
 from stable_baselines3 import PPO
 
 from observer_gym.train.cli import main
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.experiments.evaluate import evaluate_agent
-from observer_gym.train.experiments.observer_env import make_env
 from observer_gym.train.experiments.run import run_experiment
 from observer_gym.train.rl.agent import Agent, model_files
 from observer_gym.train.rl.checkpoints import latest_checkpoint

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.experiments.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.rl import normalizer_file
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import file_sha256

@@ -52,20 +52,20 @@ PER_ENV = {"observers": "<observers per env>", "controllers": "<controllers per 
 class HelpFormatter(argparse.HelpFormatter):
     """argparse's help formatter, with :data:`INSTALLED`'s placeholders replaced by the
     names of the installed entry points
-    (:func:`observer_gym.train.experiments.entries.entry_points`) and :data:`PER_ENV`'s by
+    (:func:`observer_gym.train.core.entries.entry_points`) and :data:`PER_ENV`'s by
     every system's observers or controllers."""
 
     def _expand_help(self, action: argparse.Action) -> str:
         text = super()._expand_help(action)
         for kind, marker in INSTALLED.items():
             if marker in text:
-                from observer_gym.train.experiments.entries import entry_points
+                from observer_gym.train.core.entries import entry_points
 
                 names = ", ".join(sorted(entry_points(kind))) or "none"
                 text = text.replace(marker, f"installed: {names}")
         for field, marker in PER_ENV.items():
             if marker in text:
-                from observer_gym.train.experiments.systems import per_env
+                from observer_gym.train.core.systems import per_env
 
                 text = text.replace(marker, per_env(field))
         return text
@@ -244,8 +244,8 @@ def controller_name(text: str) -> str:
     """argparse type: a controller of some system, a trained agent ``ALGO:DIR``, a
     stable-baselines3 zip ``ALGO:PATH.zip`` or an outside controller (an import path or an
     installed entry point's name); whether it fits the env is checked with the env."""
-    from observer_gym.train.experiments.entries import find_plugin
-    from observer_gym.train.experiments.systems import controller_choices
+    from observer_gym.train.core.entries import find_plugin
+    from observer_gym.train.core.systems import controller_choices
 
     controllers = controller_choices()
     algo, sep, run_dir = text.partition(":")

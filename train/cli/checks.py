@@ -4,7 +4,7 @@ PyTorch or stable-baselines3 and without building an env.
 
 The names a system takes (its task's observers with the ``obs_mode`` each makes the env
 give, the task's ``ESTIMATE_OBSERVERS`` and the system's controllers) are read from its
-packages in every layer (:mod:`observer_gym.train.experiments.systems`), so a system added
+packages in every layer (:mod:`observer_gym.train.core.systems`), so a system added
 to :data:`observer_gym.envs.SYSTEMS` is taken with no edit here. The library checks every
 request again against the layers, with the same messages
 (:func:`observer_gym.train.experiments.request.check_pair`).
@@ -26,12 +26,12 @@ import numpy as np
 from observer_gym.envs import SYSTEMS, system_for_id
 from observer_gym.envs.config import check_render_mode
 from observer_gym.extras import require_rl
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
+from observer_gym.train.core import entries
+from observer_gym.train.core.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.rl.hyperparams import ALGOS, resolve_hyperparams
 
 if TYPE_CHECKING:
-    from observer_gym.train.experiments.systems import SystemEntry
+    from observer_gym.train.core.systems import SystemEntry
 from observer_gym.train.rl.run_dir import (
     check_new_run_folder,
     check_new_seeds_folder,
@@ -53,16 +53,16 @@ GYM_MAKE_OPTIONS = ("max_episode_steps", "disable_env_checker")
 
 def names_for(env_id: str) -> SystemEntry:
     """The names of the system registered as ``env_id``, read from its layers
-    (:func:`observer_gym.train.experiments.systems.entry_for`); ValueError for an unknown
+    (:func:`observer_gym.train.core.systems.entry_for`); ValueError for an unknown
     env."""
-    from observer_gym.train.experiments.systems import entry_for
+    from observer_gym.train.core.systems import entry_for
 
     return entry_for(env_id)
 
 
 def check_observer(env_id: str, observer: str) -> str:
     """The registered id of ``env_id`` after checking that ``observer`` is one of its
-    task's observers, or an outside observer (:mod:`observer_gym.train.experiments.entries`) whose
+    task's observers, or an outside observer (:mod:`observer_gym.train.core.entries`) whose
     factory imports; ValueError naming what is allowed otherwise. A learned observer
     without PyTorch: :class:`~observer_gym.extras.ExtraNotInstalled` (an ImportError)
     naming ``pip install 'observer-gym[rl]'``."""
@@ -70,7 +70,7 @@ def check_observer(env_id: str, observer: str) -> str:
     if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
     else:  # deferred: observer_env imports the estimation layer
-        from observer_gym.train.experiments.observer_env import require_observer_modules
+        from observer_gym.train.core.observer_env import require_observer_modules
 
         require_observer_modules(env_id, observer)  # the learned ones: PyTorch
     return env_id
@@ -184,7 +184,7 @@ def check_env_options(
     try:
         check_render_mode(options.pop("render_mode", None), env_class.metadata)
         # deferred: observer_env imports the estimation layer
-        from observer_gym.train.experiments.observer_env import check_gym_make_options
+        from observer_gym.train.core.observer_env import check_gym_make_options
 
         check_gym_make_options(options)
         for key in GYM_MAKE_OPTIONS:
@@ -198,7 +198,7 @@ def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | No
     """The observer that feeds an agent trained with ``obs`` (as
     :func:`observer_gym.train.rl.agent_env.observer_for`): ``observer`` if given (with
     ``obs="estimate"`` only, one of the system's observers that estimate or an outside
-    observer, :mod:`observer_gym.train.experiments.entries`), else the one
+    observer, :mod:`observer_gym.train.core.entries`), else the one
     ``estimate_from`` picks."""
     names = names_for(env_id)
     if observer is not None:

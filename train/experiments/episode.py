@@ -26,13 +26,13 @@ from observer_gym.controllers import (
     make_controller,
 )
 from observer_gym.envs import system_for_id, system_of
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.controller_entries import (
+from observer_gym.train.core import entries
+from observer_gym.train.core.controller_entries import (
     CheckedController,
     PolicyFile,
     is_policy_file,
 )
-from observer_gym.train.experiments.observer_env import make_env, observer_setup
+from observer_gym.train.core.observer_env import make_env, observer_setup
 from observer_gym.train.reports.consistency import (
     nees_per_step,
 )
@@ -118,7 +118,7 @@ def is_outside(env_id: str, observer: str, controller: str) -> bool:
 
 def entry_identities(env_id: str, observer: str, controller: str) -> dict[str, dict[str, Any]]:
     """Where the pair's outside observer and controller come from, by kind
-    (:func:`~observer_gym.train.experiments.entries.entry_identity`: import path,
+    (:func:`~observer_gym.train.core.entries.entry_identity`: import path,
     distribution, version, the sha256 of the factory's module or the object's hash); {}
     for the package's own entries and agents. Sweeps and benchmarks key their cells and
     levels by it, so an upgraded package's entry does not reuse another's."""
@@ -143,7 +143,7 @@ def check_entries(
     seed: int = 0,
 ) -> None:
     """Try an outside observer or controller once before anything runs: refuse one whose
-    factory declares other systems (:func:`~observer_gym.train.experiments.entries.check_declared`),
+    factory declares other systems (:func:`~observer_gym.train.core.entries.check_declared`),
     then build the env, the pipeline and the controller, reset with ``seed``, and ask for
     one action (the estimate's layout and the action are checked as in every step).
     ValueError, one line naming the entry, the system and what is wrong; nothing for a
@@ -181,8 +181,8 @@ def build_controller(
     controller: str, env: gym.Env, options: Mapping[str, Any] | None = None
 ) -> Any:
     """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
-    a :class:`~observer_gym.train.experiments.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
-    the :class:`~observer_gym.train.experiments.controller_entries.CheckedController` of an outside
+    a :class:`~observer_gym.train.core.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
+    the :class:`~observer_gym.train.core.controller_entries.CheckedController` of an outside
     factory called with ``options``, else ``make_controller(controller, env, **options)``."""
     agent_spec = parse_agent_spec(controller)
     if agent_spec is not None:

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.aggregate import METHOD, SeedStatistics, across_seeds
 from observer_gym.train.reports.compare_stats import MetricSpec, compare_metrics
 from observer_gym.train.reports.outputs import (

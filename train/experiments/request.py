@@ -33,26 +33,26 @@ from observer_gym.train.cli.checks import (
     check_seeds,
     frames_message,
 )
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.camera_scale import (
-    camera_scale,
-    is_pixel_valued,
-    options_in_entry_pixels,
-)
-from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
-from observer_gym.train.experiments.entries import (
+from observer_gym.train.core import entries
+from observer_gym.train.core.controller_entries import check_policy_file, is_policy_file
+from observer_gym.train.core.entries import (
     Plugin,
     check_options,
     find_plugin,
     load_factory,
 )
-from observer_gym.train.experiments.observer_env import (
+from observer_gym.train.core.observer_env import (
     observer_env_options,
     observer_setup,
     require_observer_modules,
 )
-from observer_gym.train.experiments.systems import resolve_env_id
-from observer_gym.train.experiments.tasks import task_of
+from observer_gym.train.core.systems import resolve_env_id
+from observer_gym.train.core.tasks import task_of
+from observer_gym.train.experiments.camera_scale import (
+    camera_scale,
+    is_pixel_valued,
+    options_in_entry_pixels,
+)
 from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
 
 
@@ -92,7 +92,7 @@ class Request(NamedTuple):
     """A checked request of ``compare`` or ``sweep``."""
 
     system: System
-    task: ModuleType  # observer_gym.train.experiments.tasks.<system>
+    task: ModuleType  # observer_gym.train.core.tasks.<system>
     observers: tuple[ObserverEntry, ...]
     controllers: tuple[ControllerEntry, ...]  # a multi-seed agent stands for its seeds' agents
     named_controllers: tuple[str, ...]  # the controllers as given
@@ -171,7 +171,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
     folder holds a run of ``env_id`` with a model to load
     (:func:`observer_gym.train.cli.checks.check_agent`), a stable-baselines3 zip
     ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
-    :mod:`observer_gym.train.experiments.entries`; its factory is imported). Controllers, outside
+    :mod:`observer_gym.train.core.entries`; its factory is imported). Controllers, outside
     ones and agents trained on the state or an estimate read the state layout (any
     observer but "pixels"); an agent trained on rgb reads only "pixels"."""
     obs_mode, pipeline, plugin = observer_setup(env_id, observer)

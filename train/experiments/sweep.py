@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
 from observer_gym.train.experiments.sweep_grid import VaryInput, point_text, world_draw_notes
@@ -52,7 +53,6 @@ from observer_gym.train.experiments.sweep_plan import (
     check_out_dir,
     check_sweep,
 )
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
     compare_metrics,

@@ -39,8 +39,8 @@ import numpy as np
 from gymnasium.wrappers import FrameStackObservation
 
 from observer_gym.train.cli.checks import agent_observer
-from observer_gym.train.experiments.observer_env import make_env
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.rl.features import wrap_features
 from observer_gym.wrappers import FrameImages, GrayFrameStack, NormalizedAction
 
@@ -139,7 +139,7 @@ def make_agent_env(
     randomize: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
-    (``observer_gym.train.experiments.observer_env.make_env``), for ``rgb`` with
+    (``observer_gym.train.core.observer_env.make_env``), for ``rgb`` with
     :func:`wrap_images` (``image``:
     :class:`ImageOptions` fields), through the feature set ``features``, and the action
     space rescaled to [-1, 1]. A top-level function of plain arguments, so

@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from observer_gym.envs.json_file import read_json
-from observer_gym.train.experiments.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.normalizer_file import record_final_files

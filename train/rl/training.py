@@ -280,7 +280,7 @@ def check_training(
         observer_mode,
         training_overrides,
     )
-    from observer_gym.train.experiments.systems import resolve_env_id
+    from observer_gym.train.core.systems import resolve_env_id
     from observer_gym.train.rl.hyperparams import check_algorithm_keys
     from observer_gym.train.rl.randomize import check_randomize
 

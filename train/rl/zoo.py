@@ -48,8 +48,8 @@ import yaml
 
 from observer_gym.envs import System, system_of
 from observer_gym.envs.registration import PACKAGE_SYSTEMS
-from observer_gym.train.experiments.observer_env import wrap_observer
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core.observer_env import wrap_observer
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.rl.agent_env import (
     OBS_TYPES,
     finish_agent_env,

@@ -23,6 +23,8 @@ from observer_gym.controllers.registry import controllers_of
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
 from observer_gym.estimation.observer import modules_needed
+from observer_gym.train.core.observer_env import observer_env_options
+from observer_gym.train.core.tasks import task_for
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -33,8 +35,6 @@ from observer_gym.train.experiments.benchmark.report import (
 )
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import camera_scale
-from observer_gym.train.experiments.observer_env import observer_env_options
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.outputs import NOT_INSTALLED
 
 

@@ -7,11 +7,11 @@ import shlex
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+from observer_gym.train.core.observer_env import observer_env_options
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec, entry_identities
-from observer_gym.train.experiments.observer_env import observer_env_options
 
 __all__ = ["BenchmarkRequest", "command_line"]
 

@@ -57,7 +57,7 @@ class Task(Protocol):
 
 
 def task_of(system: System) -> ModuleType:
-    """The task module of ``system``: ``observer_gym.train.experiments.tasks.<system name>``."""
+    """The task module of ``system``: ``observer_gym.train.core.tasks.<system name>``."""
     return importlib.import_module(system.module("task"))
 
 

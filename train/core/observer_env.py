@@ -2,7 +2,7 @@
 
 The same env serves ``observer-gym run`` and ``compare`` (with a controller on it) and
 ``train`` (with an agent on it). ``observer`` is one of the env's task's ``OBSERVERS``,
-or an observer from outside the package (:mod:`observer_gym.train.experiments.entries`: an import
+or an observer from outside the package (:mod:`observer_gym.train.core.entries`: an import
 path or an installed entry point's name).
 """
 
@@ -20,16 +20,16 @@ from observer_gym.envs.registration import system_for_id
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.observer import env_options_of, modules_needed
 from observer_gym.extras import require_rl
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.entry_guard import CheckedPipeline
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core import entries
+from observer_gym.train.core.entry_guard import CheckedPipeline
+from observer_gym.train.core.tasks import task_for
 
 
 def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] | None, Any]:
     """``(obs_mode, pipeline_options, plugin)`` of ``observer`` for ``env_id``: a task
     observer's env mode and default-pipeline options (None for one without a pipeline,
     "pixels") and plugin None; an outside observer's mode, None and its
-    :class:`~observer_gym.train.experiments.entries.Plugin`. ValueError naming what is allowed for
+    :class:`~observer_gym.train.core.entries.Plugin`. ValueError naming what is allowed for
     any other name."""
     observers = task_for(env_id).OBSERVERS
     if observer in observers:
