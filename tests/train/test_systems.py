@@ -15,7 +15,7 @@ from observer_gym.estimation import VisionObserver, observers_of
 from observer_gym.estimation.observer import env_options_of
 from observer_gym.train import cli
 from observer_gym.train.cli.args import controller_name
-from observer_gym.train.cli.checks import check_observer
+from observer_gym.train.core.checks import check_observer
 from observer_gym.train.core.systems import (
     controller_choices,
     observer_choices,

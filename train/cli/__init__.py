@@ -5,8 +5,10 @@ one, write its ``add_arguments`` and ``run`` functions and list its module in ``
 
 Building the parser imports nothing heavy (:mod:`observer_gym.train.cli.args`), so
 ``--help`` answers at once. Each ``run`` function checks the whole request first
-(:mod:`observer_gym.train.cli.checks`: observers, controllers, trained agents, env options,
-training settings), before the heavy imports (PyTorch, stable-baselines3, the layers) and
+(:mod:`observer_gym.train.core.checks`, :mod:`observer_gym.train.rl.checks` and the
+library's :func:`~observer_gym.train.experiments.request.check_controller`: observers,
+controllers, trained agents, env options, training settings), before the heavy imports
+(PyTorch, stable-baselines3) and
 before any env is built; a mistake, there or in parsing, is one line on stderr,
 ``observer-gym COMMAND: error: ...``, and exit code 2.
 """

@@ -2,7 +2,7 @@
 
 Parsing imports nothing heavy: env ids come from the system registry
 (:data:`observer_gym.envs.SYSTEMS`, which imports Gymnasium only) and controller names
-from :mod:`observer_gym.train.cli.checks`. A mistake is answered with one line on stderr
+from :mod:`observer_gym.train.core.checks`. A mistake is answered with one line on stderr
 (:class:`Parser`).
 """
 
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple, NoReturn
 
-from observer_gym.train.rl.hyperparams import ALGOS
+from observer_gym.train.core.checks import ALGOS
 
 
 class UsageError(SystemExit):

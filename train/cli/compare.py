@@ -2,7 +2,8 @@
 :func:`observer_gym.train.experiments.compare.run_comparison`).
 
 The help texts list every system's observers and controllers
-(:mod:`observer_gym.train.cli.checks`, which imports no layer). :func:`run` checks each
+(:mod:`observer_gym.train.core.checks` and the library's
+:func:`~observer_gym.train.experiments.request.check_controller`). :func:`run` checks each
 observer, controller and env option there first, then loads the library (and Ray),
 which checks the rest (:func:`~observer_gym.train.experiments.compare.check_comparison`), runs the
 comparison and prints what it returns.
@@ -123,15 +124,11 @@ def check_pairs(
     controllers: list[str],
     env_options: dict[str, object],
 ) -> None:
-    """The checks of :mod:`observer_gym.train.cli.checks` for every pair and the env options
+    """The checks of :mod:`observer_gym.train.core.checks` for every pair and the env options
     with each observer's obs_mode; ValueError naming what is allowed otherwise. Imports
     no layer but the env's module."""
-    from observer_gym.train.cli.checks import (
-        check_controller,
-        check_env_options,
-        check_observer,
-        observer_mode,
-    )
+    from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
+    from observer_gym.train.experiments.request import check_controller
     from observer_gym.train.rl.run_dir import expand_agent
 
     for observer in observers:

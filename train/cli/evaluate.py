@@ -57,12 +57,8 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.cli.checks import (
-        check_controller,
-        check_env_options,
-        check_observer,
-        observer_mode,
-    )
+    from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
+    from observer_gym.train.experiments.request import check_controller
     from observer_gym.train.rl.run_dir import (
         agent_folder,
         is_multi_seed,

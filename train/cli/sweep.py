@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     cells that cannot be summarised (no output written), 130 for Ctrl-C or SIGTERM (the
     cells written are kept, each whole). The progress bar shows only on a terminal; off
     one, each finished cell is one line on stderr (neither with ``--no-progress``)."""
-    from observer_gym.train.cli.checks import observer_mode
+    from observer_gym.train.core.checks import observer_mode
     from observer_gym.train.experiments.sweep_grid import check_grid
 
     env_options = dict(args.env_option)

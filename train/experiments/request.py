@@ -4,8 +4,8 @@ gives (an env id, observer and controller names, seeds, options) into one valida
 env id or looks a name up again.
 
 :func:`check_pair` and :func:`check_controller` are the library's checks of one observer
-and controller by name (the command line's light copies are in
-:mod:`observer_gym.train.cli.checks`, held to the same messages by the tests).
+and controller by name; the command line checks a controller with this one (its other
+up-front checks are :mod:`observer_gym.train.core.checks`).
 
 Each observer becomes an :class:`ObserverEntry` (its env mode, the package's pipeline
 options or an outside entry, its options) and each controller a :class:`ControllerEntry`
@@ -24,16 +24,15 @@ from typing import Any, NamedTuple
 
 from observer_gym.controllers import check_controller_fits, controllers_for, controllers_of
 from observer_gym.envs import System, system_for_id
-from observer_gym.train.cli.checks import (
+from observer_gym.train.core import entries
+from observer_gym.train.core.checks import (
     AGENT_FORMS,
     BACKENDS,
     OUTSIDE_FORMS,
     RAY_INSTALL_HINT,
-    check_agent,
     check_seeds,
     frames_message,
 )
-from observer_gym.train.core import entries
 from observer_gym.train.core.controller_entries import check_policy_file, is_policy_file
 from observer_gym.train.core.entries import (
     Plugin,
@@ -53,7 +52,7 @@ from observer_gym.train.experiments.camera_scale import (
     is_pixel_valued,
     options_in_entry_pixels,
 )
-from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
+from observer_gym.train.rl.run_dir import check_agent, expand_agent, parse_agent_spec, trained_with
 
 
 class ObserverEntry(NamedTuple):
@@ -169,7 +168,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
     ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
     system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
     folder holds a run of ``env_id`` with a model to load
-    (:func:`observer_gym.train.cli.checks.check_agent`), a stable-baselines3 zip
+    (:func:`observer_gym.train.rl.run_dir.check_agent`), a stable-baselines3 zip
     ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
     :mod:`observer_gym.train.core.entries`; its factory is imported). Controllers, outside
     ones and agents trained on the state or an estimate read the state layout (any

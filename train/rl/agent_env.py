@@ -38,7 +38,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import FrameStackObservation
 
-from observer_gym.train.cli.checks import agent_observer
+from observer_gym.train.core.checks import agent_observer
 from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.core.tasks import task_for
 from observer_gym.train.rl.features import wrap_features

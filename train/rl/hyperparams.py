@@ -43,11 +43,12 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import yaml
 
+from observer_gym.train.core.checks import ALGOS
+
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-ALGOS = ("ppo", "sac", "td3")
 
 TRAINING_DEFAULTS: dict[str, Any] = {
     "n_timesteps": 100_000,
