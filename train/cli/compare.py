@@ -17,18 +17,20 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_backend_arguments,
     add_entry_option_arguments,
-    add_env_option_argument,
     add_output_arguments,
+    recorded_args,
+)
+from observer_gym.train.core.args import (
+    PER_ENV,
+    add_env_option_argument,
     env_name,
     error_line,
     nonnegative_int,
     positive_int,
-    recorded_args,
     seed_list,
 )
 

@@ -11,12 +11,9 @@ from observer_gym.train.cli.args import (
     Command,
     add_output_arguments,
     command_error,
-    error_line,
-    folder_path,
-    nonnegative_int,
-    positive_int,
     recorded_args,
 )
+from observer_gym.train.core.args import error_line, folder_path, nonnegative_int, positive_int
 
 
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:

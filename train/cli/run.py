@@ -8,19 +8,21 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_entry_option_arguments,
-    add_env_option_argument,
     command_error,
     controller_name,
+    recorded_args,
+)
+from observer_gym.train.core.args import (
+    PER_ENV,
+    add_env_option_argument,
     env_name,
     error_line,
     folder_path,
     nonnegative_int,
     positive_int,
-    recorded_args,
 )
 
 

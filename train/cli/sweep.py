@@ -18,21 +18,23 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_backend_arguments,
     add_entry_option_arguments,
+    progress_display,
+    recorded_args,
+)
+from observer_gym.train.cli.compare import check_pairs, name_list
+from observer_gym.train.core.args import (
+    PER_ENV,
     add_env_option_argument,
     env_name,
     error_line,
     folder_path,
     nonnegative_int,
     positive_int,
-    progress_display,
-    recorded_args,
 )
-from observer_gym.train.cli.compare import check_pairs, name_list
 from observer_gym.train.experiments.sweep_grid import vary_option
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 

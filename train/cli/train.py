@@ -9,19 +9,21 @@ from typing import Any
 
 from observer_gym.train.cli.args import (
     Command,
-    UsageError,
-    add_env_option_argument,
     add_output_arguments,
     command_error,
+    hyperparam_option,
+    randomize_option,
+    recorded_args,
+)
+from observer_gym.train.core.args import (
+    UsageError,
+    add_env_option_argument,
     distinct_seeds,
     env_name,
     error_line,
     folder_path,
-    hyperparam_option,
     nonnegative_int,
     positive_int,
-    randomize_option,
-    recorded_args,
 )
 from observer_gym.train.core.checks import ALGOS
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
