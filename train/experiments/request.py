@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Mapping, Sequence
-from types import ModuleType
 from typing import Any, NamedTuple
 
 from observer_gym.controllers import check_controller_fits, controllers_for, controllers_of
@@ -46,7 +45,7 @@ from observer_gym.train.core.observer_env import (
     require_observer_modules,
 )
 from observer_gym.train.core.systems import resolve_env_id
-from observer_gym.train.core.tasks import task_of
+from observer_gym.train.core.tasks import Task, task_of
 from observer_gym.train.experiments.camera_scale import (
     camera_scale,
     is_pixel_valued,
@@ -91,7 +90,7 @@ class Request(NamedTuple):
     """A checked request of ``compare`` or ``sweep``."""
 
     system: System
-    task: ModuleType  # observer_gym.train.core.tasks.<system>
+    task: Task  # observer_gym.train.core.tasks.<system>
     observers: tuple[ObserverEntry, ...]
     controllers: tuple[ControllerEntry, ...]  # a multi-seed agent stands for its seeds' agents
     named_controllers: tuple[str, ...]  # the controllers as given
