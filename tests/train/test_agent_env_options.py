@@ -10,6 +10,7 @@ import json
 
 import pytest
 
+from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
 from observer_gym.train.experiments.request import resolve_request
 
@@ -68,7 +69,9 @@ def test_the_target_follower_rgb_agent_runs_on_its_small_camera_with_no_env_opti
     request = resolve_request("TargetFollower-v0", ["pixels"], [agent_name], [0])
     assert request.controller(agent_name).env_options == options
     assert request.env_kwargs_for(request.controller(agent_name)) == options
-    env = make_env(env_id, "pixels", request.env_kwargs_for(request.controller(agent_name)))
+    env = make_env(
+        system_for_id(env_id), "pixels", request.env_kwargs_for(request.controller(agent_name))
+    )
     try:
         frame, info = env.reset(seed=0)
         assert frame.shape == (63, 84, 3)

@@ -489,7 +489,7 @@ def test_the_checks_say_what_the_library_says(tmp_path):
         for observer in [*observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
-                    check_controller, controller, system.env_id, observer
+                    check_controller, controller, system, observer
                 )
                 library = _message(check_pair, system.short_id, observer, controller)
                 assert cli_side == library, (system.short_id, observer, controller)

@@ -129,6 +129,7 @@ def check_pairs(
     """The checks of :mod:`observer_gym.train.core.checks` for every pair and the env options
     with each observer's obs_mode; ValueError naming what is allowed otherwise. Imports
     no layer but the env's module."""
+    from observer_gym.envs import system_for_id
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
     from observer_gym.train.experiments.request import check_controller
     from observer_gym.train.rl.run_dir import expand_agent
@@ -139,7 +140,7 @@ def check_pairs(
     controllers = [agent for name in controllers for agent in expand_agent(name)]
     for controller in controllers:
         for observer in observers:
-            check_controller(controller, env_id, observer)
+            check_controller(controller, system_for_id(env_id), observer)
     for obs_mode in dict.fromkeys(observer_mode(env_id, observer) for observer in observers):
         check_env_options(env_id, obs_mode, env_options, decided_by="each observer")
 

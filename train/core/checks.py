@@ -59,13 +59,14 @@ def check_observer(env_id: str, observer: str) -> str:
     factory imports; ValueError naming what is allowed otherwise. A learned observer
     without PyTorch: :class:`~observer_gym.extras.ExtraNotInstalled` (an ImportError)
     naming ``pip install 'observer-gym[rl]'``."""
-    env_id = system_for_id(env_id).env_id
+    system = system_for_id(env_id)
+    env_id = system.env_id
     if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
     else:  # deferred: observer_env imports the estimation layer
         from observer_gym.train.core.observer_env import require_observer_modules
 
-        require_observer_modules(env_id, observer)  # the learned ones: PyTorch
+        require_observer_modules(system, observer)  # the learned ones: PyTorch
     return env_id
 
 

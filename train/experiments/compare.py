@@ -111,7 +111,7 @@ def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     if not baselines:
         return
     try:
-        env = make_env(env_id, ORACLE, env_kwargs)
+        env = make_env(request.system, ORACLE, env_kwargs)
     except (TypeError, ValueError) as exc:
         raise ValueError(
             f"cannot make {env_id} with env options {dict(env_kwargs)}: {exc}"

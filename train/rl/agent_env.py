@@ -38,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import FrameStackObservation
 
+from observer_gym.envs import system_for_id
 from observer_gym.train.core.checks import agent_observer
 from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.core.tasks import task_for
@@ -157,7 +158,8 @@ def make_agent_env(
             _drawn_agent_env, env_id, obs, estimate_from, fixed, image, observer, features
         )
         return RandomizedEnv(make_inner, env_id, randomize)
-    env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
+    feeding = observer_for(env_id, obs, estimate_from, observer)
+    env = make_env(system_for_id(env_id), feeding, env_kwargs)
     return finish_agent_env(env, obs, image, features)
 
 

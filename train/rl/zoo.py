@@ -102,7 +102,7 @@ def agent_wrapper(
             f"env takes its env_kwargs from --eval-env-kwargs: add "
             f"--eval-env-kwargs \"obs_mode:'{obs_mode}'\" and the file's other env_kwargs)"
         )
-    return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image, features)
+    return finish_agent_env(wrap_observer(env, system_of(env), feeding), obs, image, features)
 
 
 class ZooFile(NamedTuple):

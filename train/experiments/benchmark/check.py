@@ -225,7 +225,9 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
     # derived from the observer's name: a recorded table that differs is a difference
-    entry["observer_env_options"] = observer_env_options(suite.env_id, entry["observer"])
+    entry["observer_env_options"] = observer_env_options(
+        system_for_id(suite.env_id), entry["observer"]
+    )
     problem = _agent_options_problem(entry["controller"], entry.get("agent_env_options", {}))
     if problem:
         raise FolderCheckError(f"{path}: {problem}")
