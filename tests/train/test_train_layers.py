@@ -23,10 +23,6 @@ RANK = {name: rank for rank, name in enumerate(LAYERS)}
 # only shrink: a new upward import fails the test, and so does an entry that no longer
 # holds.
 KNOWN_UPWARD = {
-    # an outside zip's algorithm class (stable-baselines3), imported on use
-    ("observer_gym.train.core.controller_entries", "observer_gym.train.rl.hyperparams"),
-    # OneLineWarning, raised when an entry point fails to load
-    ("observer_gym.train.core.entries", "observer_gym.train.reports.outputs"),
     # the tasks' plots (matplotlib), imported on use
     ("observer_gym.train.core.tasks.ball_catcher", "observer_gym.train.reports.plots"),
     ("observer_gym.train.core.tasks.ball_table", "observer_gym.train.reports.plots"),

@@ -24,7 +24,8 @@ from observer_gym.train.cli.args import (
     progress_display,
     recorded_args,
 )
-from observer_gym.train.core.args import PER_ENV, env_name, error_line, folder_path, positive_int
+from observer_gym.train.core.args import PER_ENV, env_name, folder_path, positive_int
+from observer_gym.train.core.messages import error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
 PROG = "observer-gym benchmark"

@@ -28,11 +28,11 @@ from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
     env_name,
-    error_line,
     nonnegative_int,
     positive_int,
     seed_list,
 )
+from observer_gym.train.core.messages import error_line
 
 DEFAULT_EPISODES = 10
 DEFAULT_SEED = 0

@@ -13,7 +13,8 @@ from observer_gym.train.cli.args import (
     command_error,
     recorded_args,
 )
-from observer_gym.train.core.args import error_line, folder_path, nonnegative_int, positive_int
+from observer_gym.train.core.args import folder_path, nonnegative_int, positive_int
+from observer_gym.train.core.messages import error_line
 
 
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:

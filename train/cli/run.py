@@ -19,11 +19,11 @@ from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
     env_name,
-    error_line,
     folder_path,
     nonnegative_int,
     positive_int,
 )
+from observer_gym.train.core.messages import error_line
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:

@@ -30,11 +30,11 @@ from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
     env_name,
-    error_line,
     folder_path,
     nonnegative_int,
     positive_int,
 )
+from observer_gym.train.core.messages import error_line
 from observer_gym.train.experiments.sweep_grid import vary_option
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 

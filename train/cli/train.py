@@ -15,17 +15,16 @@ from observer_gym.train.cli.args import (
     randomize_option,
     recorded_args,
 )
+from observer_gym.train.core.algorithms import ALGOS
 from observer_gym.train.core.args import (
-    UsageError,
     add_env_option_argument,
     distinct_seeds,
     env_name,
-    error_line,
     folder_path,
     nonnegative_int,
     positive_int,
 )
-from observer_gym.train.core.checks import ALGOS
+from observer_gym.train.core.messages import UsageError, error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
 # Listed here so that parsing needs no heavy import; train_agent checks them again.

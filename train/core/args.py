@@ -19,27 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-
-class UsageError(SystemExit):
-    """A mistake in the command line: exit code 2; ``str()`` is the message."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__(2)
-        self.message = message
-
-    def __str__(self) -> str:
-        return self.message
-
-
-def one_line(text: object) -> str:
-    """``text`` with every run of whitespace (newlines too) made one space."""
-    return " ".join(str(text).split())
-
-
-def error_line(prog: str, message: object) -> str:
-    """The one line that reports a mistake: ``PROG: error: MESSAGE``."""
-    return f"{prog}: error: {one_line(message)}"
-
+from observer_gym.train.core.messages import UsageError, error_line
 
 # Placeholders in help texts for the installed packages' entry points, filled in only
 # when --help is shown (reading the installed packages takes ~0.1 s).

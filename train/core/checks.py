@@ -27,12 +27,11 @@ import numpy as np
 from observer_gym.envs import system_for_id
 from observer_gym.envs.config import check_render_mode
 from observer_gym.train.core import entries
+from observer_gym.train.core.algorithms import ALGOS
 
 if TYPE_CHECKING:
     from observer_gym.train.core.systems import SystemEntry
 
-# the reinforcement-learning algorithms an agent is trained with (stable-baselines3's names)
-ALGOS = ("ppo", "sac", "td3")
 # a trained agent, wherever a controller is taken: "ppo:DIR, sac:DIR, td3:DIR"
 AGENT_FORMS = ", ".join(f"{algo}:DIR" for algo in ALGOS)
 # what else a controller can be: a saved stable-baselines3 model or an outside factory

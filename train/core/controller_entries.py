@@ -134,7 +134,7 @@ class PolicyFile:
     """
 
     def __init__(self, algo: str, path: Path, env: gym.Env):
-        from observer_gym.train.rl.hyperparams import algorithm_class  # deferred: torch
+        from observer_gym.train.core.algorithms import algorithm_class  # deferred: torch
 
         self.name, self.algo, self.run_dir = f"{algo}:{path}", algo, str(path)
         check_policy_file(self.name, path)

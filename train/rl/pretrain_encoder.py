@@ -321,10 +321,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         Parser,
         add_env_option_argument,
         env_name,
-        error_line,
         nonnegative_int,
         positive_int,
     )
+    from observer_gym.train.core.messages import error_line
     from observer_gym.train.rl.hyperparams import resolve_hyperparams
 
     prog = "python -m observer_gym.train.rl.pretrain_encoder"

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 from observer_gym.envs.json_file import read_json
 from observer_gym.extras import require_rl
-from observer_gym.train.core.checks import ALGOS
+from observer_gym.train.core.algorithms import ALGOS
 from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
