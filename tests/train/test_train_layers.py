@@ -29,8 +29,6 @@ KNOWN_UPWARD = {
     ("observer_gym.train.core.tasks.target_follower", "observer_gym.train.reports.plots"),
     # a multi-seed run's folders (read_config, seed_run_dirs)
     ("observer_gym.train.reports.aggregate", "observer_gym.train.rl.run_dir"),
-    # a sweep's grid, read back by its report
-    ("observer_gym.train.reports.sweep_report", "observer_gym.train.experiments.sweep_grid"),
     # train --seeds --backend ray runs its seeds as Ray tasks
     ("observer_gym.train.rl.seeds", "observer_gym.train.experiments.ray_backend"),
 }

@@ -15,9 +15,9 @@ import ast
 import functools
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from observer_gym.train.core.messages import UsageError, error_line
 
@@ -166,6 +166,17 @@ def literal(value: str) -> object:
         return ast.literal_eval(value)
     except (ValueError, SyntaxError):
         return value
+
+
+def value_text(value: Any) -> str:
+    """A value as the command line writes it back (``0.02``, ``True``, ``single``), what
+    :func:`literal` reads back."""
+    return value if isinstance(value, str) else repr(value)
+
+
+def point_text(point: Mapping[str, Any]) -> str:
+    """Options (a sweep's grid point) as ``key=value, key=value``."""
+    return ", ".join(f"{key}={value_text(value)}" for key, value in point.items())
 
 
 def env_option(text: str) -> tuple[str, object]:

@@ -41,10 +41,11 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.args import point_text
 from observer_gym.train.core.tasks import task_for
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
-from observer_gym.train.experiments.sweep_grid import VaryInput, point_text, world_draw_notes
+from observer_gym.train.experiments.sweep_grid import VaryInput, world_draw_notes
 from observer_gym.train.experiments.sweep_plan import (
     ARGUMENTS_FILE,
     CELLS_DIR,
