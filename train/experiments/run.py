@@ -13,8 +13,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs import system_for_id
 from observer_gym.train.core import entries
-from observer_gym.train.core.tasks import task_for
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, check_entries, run_episodes
 from observer_gym.train.experiments.request import Request, check_pair, resolve_request
 from observer_gym.train.reports.consistency import (
@@ -211,7 +212,7 @@ def results_text(results: Mapping[str, Any], command: str = "run") -> str:
         f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
         f"{results['wall_time_s']:.1f} s",
         *entry_lines(config.get("entry"), config["controller_config"].get("entry")),
-        summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
+        summary_table(results["summary"], task_of(system_for_id(config["env_id"])).SUMMARY_ROWS),
     ]
     consistency = results.get("consistency")
     if consistency and consistency.get("nees_ratio") is not None:

@@ -41,7 +41,7 @@ from gymnasium.wrappers import FrameStackObservation
 from observer_gym.envs import system_for_id
 from observer_gym.train.core.checks import agent_observer
 from observer_gym.train.core.observer_env import make_env
-from observer_gym.train.core.tasks import task_for
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.features import wrap_features
 from observer_gym.wrappers import FrameImages, GrayFrameStack, NormalizedAction
 
@@ -99,7 +99,7 @@ def observer_for(
         return "oracle"
     if obs == "rgb":
         return "pixels"
-    return task_for(env_id).ESTIMATE_OBSERVERS[estimate_from]
+    return task_of(system_for_id(env_id)).ESTIMATE_OBSERVERS[estimate_from]
 
 
 def wrap_images(env: gym.Env, options: ImageOptions) -> gym.Env:

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
-from observer_gym.envs import System, system_for_id
+from observer_gym.envs import System
 
 
 class Task(Protocol):
@@ -69,12 +69,6 @@ class Task(Protocol):
 def task_of(system: System) -> Task:
     """The task module of ``system``: ``observer_gym.train.core.tasks.<system name>``."""
     return cast(Task, importlib.import_module(system.module("task")))
-
-
-def task_for(env_id: str) -> Task:
-    """The task module of the system registered as ``env_id`` (with or without the
-    ``observer_gym/`` namespace); ValueError listing the known envs otherwise."""
-    return task_of(system_for_id(env_id))
 
 
 if TYPE_CHECKING:  # mypy holds each of the package's tasks to Task (.ci/typecheck.py)

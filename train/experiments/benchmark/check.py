@@ -24,7 +24,7 @@ from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
 from observer_gym.estimation.observer import modules_needed
 from observer_gym.train.core.observer_env import observer_env_options
-from observer_gym.train.core.tasks import task_for
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -103,7 +103,7 @@ def _needs_rl(env_id: str, observer: Any, controller: Any) -> bool:
     needs no more than the core install and a built-in controller."""
     if not isinstance(observer, str) or not isinstance(controller, str):
         return True
-    setup = task_for(env_id).OBSERVERS.get(observer)
+    setup = task_of(system_for_id(env_id)).OBSERVERS.get(observer)
     if setup is None:
         return True
     pipeline = None if setup[1] is None else setup[1].get("observer")
