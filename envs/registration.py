@@ -2,7 +2,7 @@
 
 Each system has one record in :data:`SYSTEMS`. Its ``name`` is the name of its package in
 every layer (``envs/<name>/``, ``estimation/<name>/``, ``controllers/<name>/``,
-``train/experiments/tasks/<name>.py``); each layer finds its own part of a system there by that
+``train/core/tasks/<name>.py``); each layer finds its own part of a system there by that
 name (:meth:`System.module`), or where the record's ``modules`` say for a system kept
 outside the package.
 Adding a system to the package is one package per layer and one record here; a system
@@ -25,7 +25,7 @@ LAYERS = {
     "envs": "observer_gym.envs",
     "estimation": "observer_gym.estimation",
     "controllers": "observer_gym.controllers",
-    "task": "observer_gym.train.experiments.tasks",
+    "task": "observer_gym.train.core.tasks",
 }
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from observer_gym.controllers import make_controller
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.reports.metrics import settling_time_s
+from observer_gym.train.core.metrics import settling_time_s
 
 START_DISTANCE_M = 0.10
 BAND_M = 0.01

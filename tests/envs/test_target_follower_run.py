@@ -1,4 +1,4 @@
-"""TargetFollower-v0 in ``observer-gym run`` (train/experiments/tasks/target_follower.py): the
+"""TargetFollower-v0 in ``observer-gym run`` (train/core/tasks/target_follower.py): the
 observers and the VTC in closed loop, occlusions found and their recovery measured."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import json
 import numpy as np
 
 from observer_gym.envs.target_follower import STATE_DIM, StateIndex
+from observer_gym.train.core.tasks import target_follower as task
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.tasks import target_follower as task
 
 
 def test_occlusion_intervals_are_found_in_the_ground_truth():

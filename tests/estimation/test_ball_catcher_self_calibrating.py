@@ -16,8 +16,8 @@ from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import EndpointObserver, SelfCalibratingObserver
 from observer_gym.estimation.ball_catcher.self_calibrating import BoxTrack
 from observer_gym.estimation.calibration import moved_camera
+from observer_gym.train.core.observer_env import make_env as make_observer_env
 from observer_gym.train.experiments.benchmark.suite import load_suite
-from observer_gym.train.experiments.observer_env import make_env as make_observer_env
 
 ENV_ID = "observer_gym/BallCatcher-v1"
 # suite v1's lab and field levels

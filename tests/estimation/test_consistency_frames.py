@@ -21,7 +21,7 @@ from observer_gym.train.experiments.consistency_study import (
 
 
 def test_every_frame_observer_reads_rendered_frames():
-    from observer_gym.train.experiments.tasks import ball_table, target_follower
+    from observer_gym.train.core.tasks import ball_table, target_follower
 
     tasks = {"BallTable-v0": ball_table, "TargetFollower-v0": target_follower}
     for env_id, frame_study in FRAME_SYSTEMS.items():

@@ -22,9 +22,9 @@ from hypothesis import strategies as st
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
 from observer_gym.estimation import Estimate, default_pipeline
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.controller_entries import CheckedController
-from observer_gym.train.experiments.entry_guard import CheckedPipeline
+from observer_gym.train.core import entries
+from observer_gym.train.core.controller_entries import CheckedController
+from observer_gym.train.core.entry_guard import CheckedPipeline
 
 ENV = "observer_gym/BallTable-v0"
 ERRORS = (RuntimeError, KeyError, ZeroDivisionError, AssertionError, TypeError, ValueError,

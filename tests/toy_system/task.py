@@ -1,5 +1,5 @@
 """PointMass-v0 in ``observer-gym run``: bring the mass to the origin (the Task interface
-of observer_gym.train.experiments.tasks)."""
+of observer_gym.train.core.tasks)."""
 
 from __future__ import annotations
 

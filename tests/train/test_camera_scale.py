@@ -1,7 +1,7 @@
 """An agent with its own camera meets the same angles as every other entry: the
 benchmark's levels and the pixel-valued options of compare, run and sweep times its
 camera's scale (train/experiments/camera_scale.py), and TargetFollower's pixel metrics in
-the default camera's pixels (train/experiments/tasks/target_follower.py)."""
+the default camera's pixels (train/core/tasks/target_follower.py)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from observer_gym.train.core.tasks import target_follower as follower_task
 from observer_gym.train.experiments.benchmark.run import check_benchmark
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import (
@@ -19,7 +20,6 @@ from observer_gym.train.experiments.camera_scale import (
     options_in_entry_pixels,
 )
 from observer_gym.train.experiments.request import resolve_request
-from observer_gym.train.experiments.tasks import target_follower as follower_task
 
 BT, TF = "observer_gym/BallTable-v0", "observer_gym/TargetFollower-v0"
 # the shipped TargetFollower rgb agent's camera: 84 x 63, focal lengths times 84 / 320

@@ -4,7 +4,7 @@ any env is built and (but for a hyperparameter's name, which stable-baselines3 k
 before the heavy imports. The mistakes are made in this process (``main(argv)``); what
 needs an interpreter of its own (which modules a mistake or ``--help`` imports, the
 command as a process) runs in subprocesses. The command's light copy of the systems' names
-(:mod:`observer_gym.train.cli.checks`) is the layers', with the library's messages."""
+(:mod:`observer_gym.train.core.checks`) is the layers', with the library's messages."""
 
 from __future__ import annotations
 
@@ -18,9 +18,10 @@ from pathlib import Path
 import pytest
 
 from observer_gym.envs import SYSTEMS
-from observer_gym.train.cli import build_parser, checks, main
-from observer_gym.train.experiments.request import check_pair
-from observer_gym.train.experiments.systems import controller_choices, observer_choices
+from observer_gym.train.cli import build_parser, main
+from observer_gym.train.core import checks
+from observer_gym.train.core.systems import controller_choices, observer_choices
+from observer_gym.train.experiments.request import check_controller, check_pair
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
 from observer_gym.train.rl.normalizer_file import record_final_files
@@ -488,7 +489,7 @@ def test_the_checks_say_what_the_library_says(tmp_path):
         for observer in [*observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
-                    checks.check_controller, controller, system.env_id, observer
+                    check_controller, controller, system, observer
                 )
                 library = _message(check_pair, system.short_id, observer, controller)
                 assert cli_side == library, (system.short_id, observer, controller)

@@ -19,14 +19,14 @@ import pytest
 from scipy import stats
 
 from observer_gym.envs.ball_catcher import MISS_REASONS
-from observer_gym.train.cli import args as cli_args
 from observer_gym.train.cli import compare as compare_cli
+from observer_gym.train.core.args import env_option
+from observer_gym.train.core.tasks import ball_catcher, ball_table
+from observer_gym.train.core.tasks.ball_table import COMPARE_METRICS
 from observer_gym.train.experiments import ray_backend, request
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.compare import command_line, run_comparison
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.tasks import ball_catcher, ball_table
-from observer_gym.train.experiments.tasks.ball_table import COMPARE_METRICS
 from observer_gym.train.reports import compare_report
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, safe_name
 from observer_gym.train.reports.compare_stats import (
@@ -337,9 +337,7 @@ def test_the_command_line_reads_back_its_env_options():
     line = command_line("observer_gym/BallCatcher-v1", ["oracle"], ["intercept"], [0], None, 1,
                         "local", None, env_kwargs)  # fmt: skip
     words = shlex.split(line)
-    options = [
-        cli_args.env_option(words[i + 1]) for i, w in enumerate(words) if w == "--env-option"
-    ]
+    options = [env_option(words[i + 1]) for i, w in enumerate(words) if w == "--env-option"]
     assert dict(options) == env_kwargs
 
 

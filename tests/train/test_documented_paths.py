@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from observer_gym.train.cli import main
-from observer_gym.train.experiments import api, catalogue, entries
+from observer_gym.train.core import entries
+from observer_gym.train.experiments import api, catalogue
 from observer_gym.train.experiments.episode import check_entries
 from observer_gym.train.rl.run_dir import agent_folder
 from observer_gym.train.rl.shipped import shipped_path

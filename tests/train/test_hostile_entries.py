@@ -201,14 +201,14 @@ def test_an_objects_identity_is_its_content_in_every_process():
     import subprocess
     from pathlib import Path
 
-    from observer_gym.train.experiments import entries
+    from observer_gym.train.core import entries
 
     here = entries.object_identity(_scaled(1.0))
     assert here == entries.object_identity(_scaled(1.0))
     assert here != entries.object_identity(_scaled(0.25))
     code = (
         "import sys; sys.path.insert(0, sys.argv[1]); from test_hostile_entries import _scaled;"
-        "from observer_gym.train.experiments import entries;"
+        "from observer_gym.train.core import entries;"
         "print(entries.object_identity(_scaled(1.0)))"
     )
     folder = str(Path(__file__).parent)
@@ -222,7 +222,7 @@ def test_an_objects_identity_is_its_content_in_every_process():
 def badly_named(tmp_path, monkeypatch):
     """A distribution ``badnames`` whose entry points are named ``kf2-measurements``, with
     an escape code, and ``fine``."""
-    from observer_gym.train.experiments import entries
+    from observer_gym.train.core import entries
 
     root = write_hostile(tmp_path / "site")
     info = root / "badnames-1.0.dist-info"
@@ -267,7 +267,7 @@ def test_an_objects_unprintable_qualname_is_escaped_in_its_name(tmp_path):
 def _install_upg(root, version: str, body: str) -> None:
     """The distribution ``upg`` at ``version``: controller entry points ``upg-lqr`` (BallTable)
     and ``upg-catch`` (BallCatcher), their module ending in ``body``."""
-    from observer_gym.train.experiments import entries
+    from observer_gym.train.core import entries
 
     package = root / "upg"
     package.mkdir(parents=True, exist_ok=True)
@@ -303,7 +303,7 @@ def _install_upg(root, version: str, body: str) -> None:
 
 @pytest.fixture
 def upg(tmp_path, monkeypatch):
-    from observer_gym.train.experiments import entries
+    from observer_gym.train.core import entries
 
     root = tmp_path / "site"
     root.mkdir()

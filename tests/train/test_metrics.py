@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from observer_gym.train.reports.metrics import (
+from observer_gym.train.core.metrics import (
     distance_from_centre_m,
     episode_metrics,
     rms_norm,

@@ -16,7 +16,7 @@ from outside_package import PACKAGE, VERSION, forget_package, write_package
 
 import observer_gym
 from observer_gym.train.cli import main
-from observer_gym.train.experiments import entries
+from observer_gym.train.core import entries
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 
 ENV = "BallTable-v0"
@@ -314,7 +314,7 @@ def test_a_policy_zip_trained_with_plain_stable_baselines3_is_compared(tmp_path,
 
 
 def test_list_has_one_line_for_every_system_observer_controller_and_shipped_agent(capsys):
-    from observer_gym.train.experiments.systems import system_entries
+    from observer_gym.train.core.systems import system_entries
     from observer_gym.train.rl.shipped import shipped_names
 
     assert main(["list"]) == 0

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from stable_baselines3 import PPO
 
+from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
-from observer_gym.train.experiments.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.rl import randomize as randomize_module
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.agent_env import make_agent_env
@@ -244,7 +245,11 @@ def test_the_run_records_its_randomisation_and_trains_only_on_it(randomized):
 def test_a_loaded_agent_reads_the_fixed_options(randomized_run):
     agent = Agent.load(randomized_run)
     env = agent.wrap_env(
-        make_env(agent.config["env_id"], agent.config["observer"], agent.config["env_kwargs"])
+        make_env(
+            system_for_id(agent.config["env_id"]),
+            agent.config["observer"],
+            agent.config["env_kwargs"],
+        )
     )
     try:
         observation, _ = env.reset(seed=0)

@@ -9,10 +9,10 @@ import cv2
 import pytest
 
 from observer_gym.train.cli import main
+from observer_gym.train.core.systems import resolve_env_id
+from observer_gym.train.core.tasks.ball_table import SUMMARY_ROWS
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episodes
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.systems import resolve_env_id
-from observer_gym.train.experiments.tasks.ball_table import SUMMARY_ROWS
 from observer_gym.train.reports.outputs import VERSIONED_PACKAGES
 
 ENV_ID = "observer_gym/BallTable-v0"

@@ -9,7 +9,7 @@ from scipy.stats import binomtest
 
 from observer_gym.envs.ball_catcher import MISS_REASONS
 from observer_gym.train.cli import main
-from observer_gym.train.experiments.tasks.ball_catcher import (
+from observer_gym.train.core.tasks.ball_catcher import (
     NOT_CAUGHT_REASONS,
     SUMMARY_ROWS,
     UNFINISHED,

@@ -19,9 +19,9 @@ import pytest
 from stable_baselines3 import PPO
 
 from observer_gym.train.cli import main
+from observer_gym.train.core.tasks import ball_table
 from observer_gym.train.experiments.compare import run_comparison
 from observer_gym.train.experiments.evaluate import evaluate_agent, evaluate_seeds
-from observer_gym.train.experiments.tasks import ball_table
 from observer_gym.train.reports import aggregate, compare_report
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.checkpoints import latest_checkpoint

@@ -9,8 +9,8 @@ from pathlib import PurePosixPath
 import pytest
 
 from observer_gym.envs import system_for_id
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import build_controller
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.rl import shipped
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import model_files, parse_agent_spec, read_config
@@ -37,7 +37,7 @@ def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
     # default on measurements, -<features> for a feature set given with --hyperparam (not
     # the YAML's), and -randomized for an agent trained with --randomize
     overrides = dict(map(tuple, config.get("cli_args", {}).get("hyperparam") or []))
-    default_observer = task_for(config["env_id"]).ESTIMATE_OBSERVERS["measurements"]
+    default_observer = task_of(system_for_id(config["env_id"])).ESTIMATE_OBSERVERS["measurements"]
     reads_another = config["obs"] == "estimate" and config["observer"] != default_observer
     observer = f"-{config['observer']}" if reads_another else ""
     features = f"-{overrides['features']}" if "features" in overrides else ""

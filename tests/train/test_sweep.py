@@ -22,11 +22,11 @@ from scipy import stats
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import build_parser, main
+from observer_gym.train.core.tasks.ball_table import COMPARE_METRICS
 from observer_gym.train.experiments import sweep
 from observer_gym.train.experiments.sweep import SweepWarning, run_sweep
 from observer_gym.train.experiments.sweep_grid import check_grid, world_draw_notes
 from observer_gym.train.experiments.sweep_plan import check_sweep
-from observer_gym.train.experiments.tasks.ball_table import COMPARE_METRICS
 
 CLI = [sys.executable, "-m", "observer_gym.train.cli"]
 KEY = "measurement_noise_px"  # a sensor option: it changes what kf-measurements sees only

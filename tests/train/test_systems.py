@@ -15,13 +15,13 @@ from observer_gym.estimation import VisionObserver, observers_of
 from observer_gym.estimation.observer import env_options_of
 from observer_gym.train import cli
 from observer_gym.train.cli.args import controller_name
-from observer_gym.train.cli.checks import check_observer
-from observer_gym.train.experiments.systems import (
+from observer_gym.train.core.checks import check_observer
+from observer_gym.train.core.systems import (
     controller_choices,
     observer_choices,
     system_entries,
 )
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core.tasks import task_of
 
 LAYERS = ("envs", "estimation", "controllers", "task")
 
@@ -41,7 +41,7 @@ def test_every_layer_holds_its_part_of_the_system(system):
     assert controllers and all(isinstance(c, ControllerDesign) for c in controllers.values())
     assert controllers_for(system.env_id) is controllers
 
-    task = task_for(system.env_id)
+    task = task_of(system)
     assert task.__name__ == system.module("task")
     assert task.OBSERVERS["oracle"] == ("state", {})
     assert set(task.ESTIMATE_OBSERVERS.values()) <= set(task.OBSERVERS)
@@ -53,7 +53,7 @@ def test_every_layer_holds_its_part_of_the_system(system):
 
 @pytest.mark.parametrize("system", SYSTEMS, ids=lambda s: s.name)
 def test_every_observer_of_the_task_builds_its_pipeline(system):
-    for observer, (obs_mode, options) in task_for(system.env_id).OBSERVERS.items():
+    for observer, (obs_mode, options) in task_of(system).OBSERVERS.items():
         if options is None or observer == "oracle":
             continue
         needed = env_options_of(system, options.get("observer"))  # e.g. the hole's pixels

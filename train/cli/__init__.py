@@ -5,8 +5,10 @@ one, write its ``add_arguments`` and ``run`` functions and list its module in ``
 
 Building the parser imports nothing heavy (:mod:`observer_gym.train.cli.args`), so
 ``--help`` answers at once. Each ``run`` function checks the whole request first
-(:mod:`observer_gym.train.cli.checks`: observers, controllers, trained agents, env options,
-training settings), before the heavy imports (PyTorch, stable-baselines3, the layers) and
+(:mod:`observer_gym.train.core.checks`, :mod:`observer_gym.train.rl.checks` and the
+library's :func:`~observer_gym.train.experiments.request.check_controller`: observers,
+controllers, trained agents, env options, training settings), before the heavy imports
+(PyTorch, stable-baselines3) and
 before any env is built; a mistake, there or in parsing, is one line on stderr,
 ``observer-gym COMMAND: error: ...``, and exit code 2.
 """
@@ -31,7 +33,8 @@ from observer_gym.train.cli import (
     sweep,
     train,
 )
-from observer_gym.train.cli.args import Parser, error_line, one_line
+from observer_gym.train.core.args import Parser
+from observer_gym.train.core.messages import error_line, one_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 # the subcommands in the order --help lists them
@@ -80,7 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``observer-gym``; returns the process exit code.
 
     argparse raises ``SystemExit`` for ``--help`` (code 0); a mistake in parsing raises
-    :class:`~observer_gym.train.cli.args.UsageError` (a ``SystemExit`` with code 2) after
+    :class:`~observer_gym.train.core.messages.UsageError` (a ``SystemExit`` with code 2) after
     printing its one line, one found by a command's checks returns 2 after printing its.
     Ctrl-C and SIGTERM stop any command the same way: ``observer-gym COMMAND: interrupted``
     (or the command's own account: ``train`` says how far it got), exit code 130, after

@@ -17,18 +17,15 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_backend_arguments,
     add_entry_option_arguments,
-    env_name,
-    error_line,
-    folder_path,
-    positive_int,
     progress_display,
     recorded_args,
 )
+from observer_gym.train.core.args import PER_ENV, env_name, folder_path, positive_int
+from observer_gym.train.core.messages import error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
 PROG = "observer-gym benchmark"

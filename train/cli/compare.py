@@ -2,7 +2,8 @@
 :func:`observer_gym.train.experiments.compare.run_comparison`).
 
 The help texts list every system's observers and controllers
-(:mod:`observer_gym.train.cli.checks`, which imports no layer). :func:`run` checks each
+(:mod:`observer_gym.train.core.checks` and the library's
+:func:`~observer_gym.train.experiments.request.check_controller`). :func:`run` checks each
 observer, controller and env option there first, then loads the library (and Ray),
 which checks the rest (:func:`~observer_gym.train.experiments.compare.check_comparison`), runs the
 comparison and prints what it returns.
@@ -16,20 +17,22 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_backend_arguments,
     add_entry_option_arguments,
-    add_env_option_argument,
     add_output_arguments,
+    recorded_args,
+)
+from observer_gym.train.core.args import (
+    PER_ENV,
+    add_env_option_argument,
     env_name,
-    error_line,
     nonnegative_int,
     positive_int,
-    recorded_args,
     seed_list,
 )
+from observer_gym.train.core.messages import error_line
 
 DEFAULT_EPISODES = 10
 DEFAULT_SEED = 0
@@ -123,15 +126,12 @@ def check_pairs(
     controllers: list[str],
     env_options: dict[str, object],
 ) -> None:
-    """The checks of :mod:`observer_gym.train.cli.checks` for every pair and the env options
+    """The checks of :mod:`observer_gym.train.core.checks` for every pair and the env options
     with each observer's obs_mode; ValueError naming what is allowed otherwise. Imports
     no layer but the env's module."""
-    from observer_gym.train.cli.checks import (
-        check_controller,
-        check_env_options,
-        check_observer,
-        observer_mode,
-    )
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
+    from observer_gym.train.experiments.request import check_controller
     from observer_gym.train.rl.run_dir import expand_agent
 
     for observer in observers:
@@ -140,7 +140,7 @@ def check_pairs(
     controllers = [agent for name in controllers for agent in expand_agent(name)]
     for controller in controllers:
         for observer in observers:
-            check_controller(controller, env_id, observer)
+            check_controller(controller, system_for_id(env_id), observer)
     for obs_mode in dict.fromkeys(observer_mode(env_id, observer) for observer in observers):
         check_env_options(env_id, obs_mode, env_options, decided_by="each observer")
 

@@ -5,13 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from observer_gym.train.cli.args import (
-    Command,
-    add_output_arguments,
-    command_error,
-    positive_float,
-    positive_int,
-)
+from observer_gym.train.cli.args import Command, add_output_arguments, command_error
+from observer_gym.train.core.args import positive_float, positive_int
 
 
 def _demo_arguments(parser: argparse.ArgumentParser) -> None:

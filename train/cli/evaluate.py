@@ -11,12 +11,10 @@ from observer_gym.train.cli.args import (
     Command,
     add_output_arguments,
     command_error,
-    error_line,
-    folder_path,
-    nonnegative_int,
-    positive_int,
     recorded_args,
 )
+from observer_gym.train.core.args import folder_path, nonnegative_int, positive_int
+from observer_gym.train.core.messages import error_line
 
 
 def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,12 +55,9 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.cli.checks import (
-        check_controller,
-        check_env_options,
-        check_observer,
-        observer_mode,
-    )
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
+    from observer_gym.train.experiments.request import check_controller
     from observer_gym.train.rl.run_dir import (
         agent_folder,
         is_multi_seed,
@@ -81,7 +76,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
             config = read_config(run_dir)
             observer = args.observer or config["observer"]
             env_id = check_observer(config["env_id"], observer)
-            check_controller(f"{config['algo']}:{run_dir}", env_id, observer)
+            check_controller(f"{config['algo']}:{run_dir}", system_for_id(env_id), observer)
             obs_mode = observer_mode(env_id, observer)
             check_env_options(env_id, obs_mode, config["env_kwargs"])
     except (ValueError, ImportError) as exc:  # no agent there, or an observer it cannot read

@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 
 from observer_gym.extras import AGENT_MODULES, RL_INSTALL, missing_modules
-from observer_gym.train.cli.args import (
-    Command,
-)
+from observer_gym.train.cli.args import Command
 
 LIST_KINDS = ("system", "observer", "controller", "agent")
 RL_MARK = "[rl]"  # after an entry that needs the [rl] extra (observer_gym.extras)

@@ -7,9 +7,7 @@ import importlib
 import importlib.util
 from collections.abc import Callable
 
-from observer_gym.train.cli.args import (
-    Command,
-)
+from observer_gym.train.cli.args import Command
 
 
 def _study_runner(module_name: str) -> Callable[[argparse.Namespace], int]:

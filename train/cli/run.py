@@ -8,20 +8,22 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_entry_option_arguments,
-    add_env_option_argument,
     command_error,
     controller_name,
+    recorded_args,
+)
+from observer_gym.train.core.args import (
+    PER_ENV,
+    add_env_option_argument,
     env_name,
-    error_line,
     folder_path,
     nonnegative_int,
     positive_int,
-    recorded_args,
 )
+from observer_gym.train.core.messages import error_line
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,16 +99,13 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
-    from observer_gym.train.cli.checks import (
-        check_controller,
-        check_env_options,
-        check_observer,
-        observer_mode,
-    )
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
+    from observer_gym.train.experiments.request import check_controller
 
     try:
         env_id = check_observer(args.env, args.observer)
-        check_controller(args.controller, env_id, args.observer)
+        check_controller(args.controller, system_for_id(env_id), args.observer)
         obs_mode = observer_mode(env_id, args.observer)
         check_env_options(env_id, obs_mode, dict(args.env_option))
     except ValueError as exc:  # an observer, controller or env option the env does not take

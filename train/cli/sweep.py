@@ -18,21 +18,23 @@ import sys
 from observer_gym.train.cli.args import (
     OUTSIDE_CONTROLLERS_HELP,
     OUTSIDE_OBSERVERS_HELP,
-    PER_ENV,
     TRUST_HELP,
     Command,
     add_backend_arguments,
     add_entry_option_arguments,
-    add_env_option_argument,
-    env_name,
-    error_line,
-    folder_path,
-    nonnegative_int,
-    positive_int,
     progress_display,
     recorded_args,
 )
 from observer_gym.train.cli.compare import check_pairs, name_list
+from observer_gym.train.core.args import (
+    PER_ENV,
+    add_env_option_argument,
+    env_name,
+    folder_path,
+    nonnegative_int,
+    positive_int,
+)
+from observer_gym.train.core.messages import error_line
 from observer_gym.train.experiments.sweep_grid import vary_option
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
@@ -143,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     cells that cannot be summarised (no output written), 130 for Ctrl-C or SIGTERM (the
     cells written are kept, each whole). The progress bar shows only on a terminal; off
     one, each finished cell is one line on stderr (neither with ``--no-progress``)."""
-    from observer_gym.train.cli.checks import observer_mode
+    from observer_gym.train.core.checks import observer_mode
     from observer_gym.train.experiments.sweep_grid import check_grid
 
     env_options = dict(args.env_option)

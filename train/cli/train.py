@@ -9,22 +9,23 @@ from typing import Any
 
 from observer_gym.train.cli.args import (
     Command,
-    UsageError,
-    add_env_option_argument,
     add_output_arguments,
     command_error,
-    distinct_seeds,
-    env_name,
-    error_line,
-    folder_path,
     hyperparam_option,
-    nonnegative_int,
-    positive_int,
     randomize_option,
     recorded_args,
 )
+from observer_gym.train.core.algorithms import ALGOS
+from observer_gym.train.core.args import (
+    add_env_option_argument,
+    distinct_seeds,
+    env_name,
+    folder_path,
+    nonnegative_int,
+    positive_int,
+)
+from observer_gym.train.core.messages import UsageError, error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
-from observer_gym.train.rl.hyperparams import ALGOS
 
 # Listed here so that parsing needs no heavy import; train_agent checks them again.
 TRAIN_OBS = ("state", "estimate", "rgb")
@@ -303,7 +304,7 @@ def _train_options(args: argparse.Namespace, run_dir: object, seed: int) -> dict
 def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> None:
     """The checks of a new run: the light ones first, then (importing PyTorch and
     stable-baselines3, whose classes know their hyperparameters) ``check_training``."""
-    from observer_gym.train.cli.checks import check_training_request, training_overrides
+    from observer_gym.train.rl.checks import check_training_request, training_overrides
 
     keys = [key for key, _ in args.randomize]
     repeated = sorted({key for key in keys if keys.count(key) > 1})
@@ -330,7 +331,7 @@ def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> N
         args.observer,
     )
     if options["randomize"]:  # both ends of every range, without PyTorch
-        from observer_gym.train.cli.checks import agent_observer, observer_mode
+        from observer_gym.train.core.checks import agent_observer, observer_mode
         from observer_gym.train.rl.randomize import check_randomize
 
         observer = agent_observer(args.env, args.obs, args.estimate_from, args.observer)
@@ -347,8 +348,9 @@ def _check_train_options(args: argparse.Namespace, options: dict[str, Any]) -> N
 
 def _train_seeds_run(args: argparse.Namespace) -> int:
     """``train --seeds`` (a new multi-seed run) or ``--resume`` of one."""
-    from observer_gym.train.cli.checks import check_backend, check_seeds_folder
+    from observer_gym.train.core.checks import check_backend
     from observer_gym.train.reports.outputs import default_out_dir
+    from observer_gym.train.rl.checks import check_seeds_folder
 
     backend = args.backend or "local"
     try:

@@ -7,7 +7,7 @@ take an observer or a controller, it may be
 - a name of the package (``"kf"``, ``"lqr"``, ``"ppo:ball_table-estimate"``), a
   stable-baselines3 zip (``"ppo:path/model.zip"``), an import path
   (``"mylab.filters:make_observer"``) or an installed entry point's name
-  (:mod:`observer_gym.train.experiments.entries`), or
+  (:mod:`observer_gym.train.core.entries`), or
 - the factory itself, ``factory(env, **options)``, or an object with the protocol (an
   observer pipeline with ``reset()`` and ``observe(obs, info, action) -> Estimate``, a
   controller with stable-baselines3's ``predict``; each episode gets a deep copy). An
@@ -45,7 +45,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from observer_gym.train.experiments import entries
+from observer_gym.train.core import entries
 
 Entry = Any  # a name, an import path, a factory or an object (see the module docstring)
 
@@ -105,7 +105,7 @@ class _Entries(NamedTuple):
 def _names(
     observers: Sequence[Entry], controllers: Sequence[Entry], workers: int, backend: str
 ) -> _Entries:
-    """Names for the entries (:func:`observer_gym.train.experiments.entries.as_name`) and the
+    """Names for the entries (:func:`observer_gym.train.core.entries.as_name`) and the
     objects
     among them; ValueError for one that cannot reach the workers."""
     objects: dict[tuple[str, str], Any] = {}

@@ -9,7 +9,7 @@ every other entry meets 12.5 mrad. The benchmark (each level's options) and ``co
 such an agent each pixel-valued option times its camera's scale (the agent's focal length
 over the default's), so every entry meets the same angles. A metric in pixels needs no
 scaling here: the task reports it in the default camera's pixels
-(:func:`observer_gym.train.experiments.tasks.target_follower.default_camera_factors`).
+(:func:`observer_gym.train.core.tasks.target_follower.default_camera_factors`).
 
 The scale comes from the cameras the episodes will have (``camera_intrinsics()`` of the
 env built with and without the agent's env options); a camera that is not the default

@@ -1,6 +1,6 @@
 """What ``observer-gym list`` shows: every system, observer, controller and shipped agent,
 with one line each, and the outside observers and controllers installed packages add
-through entry points (:mod:`observer_gym.train.experiments.entries`).
+through entry points (:mod:`observer_gym.train.core.entries`).
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from observer_gym.controllers import controllers_of
 from observer_gym.envs import SYSTEMS
 from observer_gym.envs.json_file import read_json
 from observer_gym.estimation.observer import OBSERVER_ROLES, modules_needed
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.systems import SystemEntry, system_entries
+from observer_gym.train.core import entries
+from observer_gym.train.core.systems import SystemEntry, system_entries
 from observer_gym.train.rl.shipped import README_FILE, shipped_names, shipped_path
 
 # the observers of a task that are no pipeline
@@ -131,7 +131,7 @@ def catalogue() -> list[Listed]:
 
 def entry_systems(plugin: entries.Plugin) -> tuple[str, ...]:
     """The env ids an outside entry fits: those its factory declares
-    (:func:`~observer_gym.train.experiments.entries.declared_systems`), else those a trial
+    (:func:`~observer_gym.train.core.entries.declared_systems`), else those a trial
     build succeeds on (:func:`~observer_gym.train.experiments.episode.check_entries` with the
     system's first controller, or on the true state for a controller; an observer on
     measurements, then on frames). An entry that cannot even be imported fits none."""

@@ -3,7 +3,7 @@
 Episode i of every pair resets with the same seed, so every pair starts from the same
 state and, as far as the env draws its disturbances from the reset seed, meets the same
 disturbances: differences between pairs are paired, episode by episode. Each pair's
-per-episode metrics come from the env's task module (:mod:`observer_gym.train.experiments.tasks`),
+per-episode metrics come from the env's task module (:mod:`observer_gym.train.core.tasks`),
 whose ``COMPARE_METRICS`` decides which go into the table (the first is the primary
 metric, the one of the "oracle vs observer" column).
 
@@ -23,13 +23,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.experiments.episode import (
     EpisodeSpec,
     build_controller,
     check_entries,
     run_episodes,
 )
-from observer_gym.train.experiments.observer_env import make_env
 from observer_gym.train.experiments.request import Request, resolve_request
 from observer_gym.train.reports.aggregate import across_seeds
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, write_comparison
@@ -111,7 +111,7 @@ def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     if not baselines:
         return
     try:
-        env = make_env(env_id, ORACLE, env_kwargs)
+        env = make_env(request.system, ORACLE, env_kwargs)
     except (TypeError, ValueError) as exc:
         raise ValueError(
             f"cannot make {env_id} with env options {dict(env_kwargs)}: {exc}"

@@ -42,7 +42,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import stats
 
-from observer_gym.train.cli.args import error_line
+from observer_gym.train.core.messages import error_line
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 from observer_gym.train.reports.consistency import consistency_text, episode_consistency, nees_flag
 from observer_gym.train.reports.outputs import format_table, write_text_atomic

@@ -21,7 +21,7 @@ from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.reports.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
+from observer_gym.train.core.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
 from observer_gym.train.reports.outputs import (
     check_folder_kind,
     default_out_dir,

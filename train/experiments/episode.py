@@ -21,18 +21,17 @@ import gymnasium as gym
 import numpy as np
 
 from observer_gym.controllers import (
-    controllers_for,
     controllers_of,
     make_controller,
 )
-from observer_gym.envs import system_for_id, system_of
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.controller_entries import (
+from observer_gym.envs import System, system_for_id, system_of
+from observer_gym.train.core import entries
+from observer_gym.train.core.controller_entries import (
     CheckedController,
     PolicyFile,
     is_policy_file,
 )
-from observer_gym.train.experiments.observer_env import make_env, observer_setup
+from observer_gym.train.core.observer_env import make_env, observer_setup
 from observer_gym.train.reports.consistency import (
     nees_per_step,
 )
@@ -104,29 +103,30 @@ class EpisodeError(ValueError):
     message names it, the episode's seed and the step."""
 
 
-def is_outside(env_id: str, observer: str, controller: str) -> bool:
+def is_outside(system: System, observer: str, controller: str) -> bool:
     """Whether the pair has an outside observer or controller (an import path, an entry
     point, or a stable-baselines3 zip): what :func:`check_entries` tries."""
     agent_spec = parse_agent_spec(controller)
     outside_controller = (
         is_policy_file(agent_spec[1])
         if agent_spec is not None
-        else controller not in controllers_for(env_id)
+        else controller not in controllers_of(system)
     )
-    return observer_setup(env_id, observer)[2] is not None or outside_controller
+    return observer_setup(system, observer)[2] is not None or outside_controller
 
 
 def entry_identities(env_id: str, observer: str, controller: str) -> dict[str, dict[str, Any]]:
     """Where the pair's outside observer and controller come from, by kind
-    (:func:`~observer_gym.train.experiments.entries.entry_identity`: import path,
+    (:func:`~observer_gym.train.core.entries.entry_identity`: import path,
     distribution, version, the sha256 of the factory's module or the object's hash); {}
     for the package's own entries and agents. Sweeps and benchmarks key their cells and
     levels by it, so an upgraded package's entry does not reuse another's."""
     found: dict[str, dict[str, Any]] = {}
-    plugin = observer_setup(env_id, observer)[2]
+    system = system_for_id(env_id)
+    plugin = observer_setup(system, observer)[2]
     if plugin is not None:
         found["observer"] = entries.entry_identity(plugin)
-    if parse_agent_spec(controller) is None and controller not in controllers_for(env_id):
+    if parse_agent_spec(controller) is None and controller not in controllers_of(system):
         controller_plugin = entries.find_plugin("controller", controller)
         if controller_plugin is not None:
             found["controller"] = entries.entry_identity(controller_plugin)
@@ -143,21 +143,21 @@ def check_entries(
     seed: int = 0,
 ) -> None:
     """Try an outside observer or controller once before anything runs: refuse one whose
-    factory declares other systems (:func:`~observer_gym.train.experiments.entries.check_declared`),
+    factory declares other systems (:func:`~observer_gym.train.core.entries.check_declared`),
     then build the env, the pipeline and the controller, reset with ``seed``, and ask for
     one action (the estimate's layout and the action are checked as in every step).
     ValueError, one line naming the entry, the system and what is wrong; nothing for a
     pair of the package's own (tested) entries."""
-    if not is_outside(env_id, observer, controller):
-        return
     system = system_for_id(env_id)
-    plugins = [observer_setup(env_id, observer)[2]]
-    if parse_agent_spec(controller) is None and controller not in controllers_for(env_id):
+    if not is_outside(system, observer, controller):
+        return
+    plugins = [observer_setup(system, observer)[2]]
+    if parse_agent_spec(controller) is None and controller not in controllers_of(system):
         plugins.append(entries.find_plugin("controller", controller))
     for plugin in plugins:
         if plugin is not None:
             entries.check_declared(plugin, system.env_id, system.short_id)
-    env = make_env(env_id, observer, env_kwargs, observer_options)
+    env = make_env(system, observer, env_kwargs, observer_options)
     try:
         built = build_controller(controller, env, controller_options)
         env = getattr(built, "wrap_env", lambda env: env)(env)
@@ -181,8 +181,8 @@ def build_controller(
     controller: str, env: gym.Env, options: Mapping[str, Any] | None = None
 ) -> Any:
     """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
-    a :class:`~observer_gym.train.experiments.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
-    the :class:`~observer_gym.train.experiments.controller_entries.CheckedController` of an outside
+    a :class:`~observer_gym.train.core.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
+    the :class:`~observer_gym.train.core.controller_entries.CheckedController` of an outside
     factory called with ``options``, else ``make_controller(controller, env, **options)``."""
     agent_spec = parse_agent_spec(controller)
     if agent_spec is not None:
@@ -229,7 +229,9 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
     (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
     Stops at termination, truncation (the env's time limit) or ``spec.max_steps``.
     """
-    env = make_env(spec.env_id, spec.observer, spec.env_kwargs, spec.observer_options)
+    env = make_env(
+        system_for_id(spec.env_id), spec.observer, spec.env_kwargs, spec.observer_options
+    )
     try:
         controller = build_controller(spec.controller, env, spec.controller_options)
         # An agent sees the env through the wrappers it was trained with (image resizing

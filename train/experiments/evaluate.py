@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from observer_gym.envs import system_for_id
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.run import run_experiment
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.aggregate import METHOD, SeedStatistics, across_seeds
 from observer_gym.train.reports.compare_stats import MetricSpec, compare_metrics
 from observer_gym.train.reports.outputs import (
@@ -168,7 +169,7 @@ def evaluate_seeds(
     for path in runs.values():
         model_files(path)
     env_id = env_ids.pop()
-    task = task_for(env_id)
+    task = task_of(system_for_id(env_id))
     metric, spec = next(iter(compare_metrics(task).items()))
     out_dir = Path(out_dir)
     with output_folder(out_dir, "evaluate"):

@@ -4,8 +4,8 @@ gives (an env id, observer and controller names, seeds, options) into one valida
 env id or looks a name up again.
 
 :func:`check_pair` and :func:`check_controller` are the library's checks of one observer
-and controller by name (the command line's light copies are in
-:mod:`observer_gym.train.cli.checks`, held to the same messages by the tests).
+and controller by name; the command line checks a controller with this one (its other
+up-front checks are :mod:`observer_gym.train.core.checks`).
 
 Each observer becomes an :class:`ObserverEntry` (its env mode, the package's pipeline
 options or an outside entry, its options) and each controller a :class:`ControllerEntry`
@@ -19,41 +19,38 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Mapping, Sequence
-from types import ModuleType
 from typing import Any, NamedTuple
 
-from observer_gym.controllers import check_controller_fits, controllers_for, controllers_of
+from observer_gym.controllers import check_controller_fits, controllers_of
 from observer_gym.envs import System, system_for_id
-from observer_gym.train.cli.checks import (
+from observer_gym.train.core import entries
+from observer_gym.train.core.checks import (
     AGENT_FORMS,
     BACKENDS,
     OUTSIDE_FORMS,
     RAY_INSTALL_HINT,
-    check_agent,
     check_seeds,
     frames_message,
 )
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.camera_scale import (
-    camera_scale,
-    is_pixel_valued,
-    options_in_entry_pixels,
-)
-from observer_gym.train.experiments.controller_entries import check_policy_file, is_policy_file
-from observer_gym.train.experiments.entries import (
+from observer_gym.train.core.controller_entries import check_policy_file, is_policy_file
+from observer_gym.train.core.entries import (
     Plugin,
     check_options,
     find_plugin,
     load_factory,
 )
-from observer_gym.train.experiments.observer_env import (
+from observer_gym.train.core.observer_env import (
     observer_env_options,
     observer_setup,
     require_observer_modules,
 )
-from observer_gym.train.experiments.systems import resolve_env_id
-from observer_gym.train.experiments.tasks import task_of
-from observer_gym.train.rl.run_dir import expand_agent, parse_agent_spec, trained_with
+from observer_gym.train.core.tasks import Task, task_of
+from observer_gym.train.experiments.camera_scale import (
+    camera_scale,
+    is_pixel_valued,
+    options_in_entry_pixels,
+)
+from observer_gym.train.rl.run_dir import check_agent, expand_agent, parse_agent_spec, trained_with
 
 
 class ObserverEntry(NamedTuple):
@@ -92,7 +89,7 @@ class Request(NamedTuple):
     """A checked request of ``compare`` or ``sweep``."""
 
     system: System
-    task: ModuleType  # observer_gym.train.experiments.tasks.<system>
+    task: Task  # observer_gym.train.core.tasks.<system>
     observers: tuple[ObserverEntry, ...]
     controllers: tuple[ControllerEntry, ...]  # a multi-seed agent stands for its seeds' agents
     named_controllers: tuple[str, ...]  # the controllers as given
@@ -145,7 +142,7 @@ class Request(NamedTuple):
         """The env options each observer needs and gets wherever it runs
         (observer_env.make_env), for the observers that need some (what results record
         beside ``env_kwargs``)."""
-        needed = {o.name: observer_env_options(self.env_id, o.name) for o in self.observers}
+        needed = {o.name: observer_env_options(self.system, o.name) for o in self.observers}
         return {name: options for name, options in needed.items() if options}
 
     def agent_camera_scales(self, varied: Sequence[str] = ()) -> dict[str, float]:
@@ -164,29 +161,29 @@ class Request(NamedTuple):
         return [entry.name for entry in self.controllers]
 
 
-def check_controller(controller: str, env_id: str, observer: str) -> None:
+def check_controller(controller: str, system: System, observer: str) -> None:
     """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
-    ``env_id``: a controller of the env's system (``controllers_for(env_id)``; another
+    ``system``'s env: one of the system's controllers (``controllers_of(system)``; another
     system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
-    folder holds a run of ``env_id`` with a model to load
-    (:func:`observer_gym.train.cli.checks.check_agent`), a stable-baselines3 zip
+    folder holds a run of the system's env with a model to load
+    (:func:`observer_gym.train.rl.run_dir.check_agent`), a stable-baselines3 zip
     ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
-    :mod:`observer_gym.train.experiments.entries`; its factory is imported). Controllers, outside
+    :mod:`observer_gym.train.core.entries`; its factory is imported). Controllers, outside
     ones and agents trained on the state or an estimate read the state layout (any
     observer but "pixels"); an agent trained on rgb reads only "pixels"."""
-    obs_mode, pipeline, plugin = observer_setup(env_id, observer)
+    obs_mode, pipeline, plugin = observer_setup(system, observer)
     reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
     agent_spec = parse_agent_spec(controller)
     if agent_spec is None:
         controller_plugin = None
-        if controller not in controllers_for(env_id):
+        if controller not in controllers_of(system):
             controller_plugin = entries.find_plugin("controller", controller)
         if controller_plugin is not None:
             entries.load_factory(controller_plugin)
         else:
             check_controller_fits(
                 controller,
-                system_for_id(env_id),
+                system,
                 others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}",
             )
         if reads_pixels:
@@ -197,7 +194,7 @@ def check_controller(controller: str, env_id: str, observer: str) -> None:
         if reads_pixels:
             raise ValueError(frames_message(controller, observer))
         return
-    check_agent(controller, resolve_env_id(env_id), reads_pixels, observer)
+    check_agent(controller, system.env_id, reads_pixels, observer)
 
 
 def check_pair(env_id: str, observer: str, controller: str) -> str:
@@ -205,12 +202,12 @@ def check_pair(env_id: str, observer: str, controller: str) -> str:
     task's ``OBSERVERS`` or an outside observer whose factory imports, and ``controller``
     acts on it (:func:`check_controller`); ValueError naming what is allowed otherwise.
     Builds no env."""
-    env_id = resolve_env_id(env_id)
-    _, _, plugin = observer_setup(env_id, observer)
+    system = system_for_id(env_id)
+    _, _, plugin = observer_setup(system, observer)
     if plugin is not None:
         entries.load_factory(plugin)
-    check_controller(controller, env_id, observer)
-    return env_id
+    check_controller(controller, system, observer)
+    return system.env_id
 
 
 def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
@@ -230,9 +227,9 @@ def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
 
 
 def _observer_entry(system: System, name: str, options: dict) -> ObserverEntry:
-    obs_mode, pipeline_options, plugin = observer_setup(system.env_id, name)
+    obs_mode, pipeline_options, plugin = observer_setup(system, name)
     if plugin is None:
-        require_observer_modules(system.env_id, name)  # the learned ones: PyTorch
+        require_observer_modules(system, name)  # the learned ones: PyTorch
         return ObserverEntry(name, obs_mode, pipeline_options, None, {})
     load_factory(plugin)  # ValueError naming the entry if it does not import
     return ObserverEntry(name, obs_mode, None, plugin, options)
@@ -308,7 +305,7 @@ def resolve_request(
         raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
     for controller in expanded:
         for observer in observer_names:
-            check_controller(controller, system.env_id, observer)
+            check_controller(controller, system, observer)
     controller_entries = tuple(
         _controller_entry(system, name, controller_options) for name in expanded
     )

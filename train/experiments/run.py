@@ -2,7 +2,7 @@
 observer's estimate, with metrics, a summary, plots and ``results.json``.
 
 What is measured and drawn depends on the env: its task module in
-:mod:`observer_gym.train.experiments.tasks` supplies the observers, metrics, summary rows and plots.
+:mod:`observer_gym.train.core.tasks` supplies the observers, metrics, summary rows and plots.
 The episodes themselves are :mod:`observer_gym.train.experiments.episode`'s.
 """
 
@@ -13,10 +13,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from observer_gym.train.experiments import entries
+from observer_gym.envs import system_for_id
+from observer_gym.train.core import entries
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, check_entries, run_episodes
 from observer_gym.train.experiments.request import Request, check_pair, resolve_request
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.consistency import (
     NEES_COLUMN,
     consistency_text,
@@ -71,7 +72,7 @@ def run_experiment(
         env_id: a registered id, with or without ``observer_gym/`` ("BallTable-v0").
         observer: one of the task's ``OBSERVERS`` (BallTable: oracle, kf, kf-latency, ekf,
             raw, oracle-visible, each but oracle also as NAME-measurements, and pixels), or
-            an outside observer (:mod:`observer_gym.train.experiments.entries`).
+            an outside observer (:mod:`observer_gym.train.core.entries`).
         controller: one of the env's ``observer_gym.controllers.controllers_for(env_id)``,
             a trained agent ``ALGO:DIR`` (``ppo:runs/ppo-balltable``), a stable-baselines3
             zip ``ALGO:PATH.zip`` or an outside controller.
@@ -211,7 +212,7 @@ def results_text(results: Mapping[str, Any], command: str = "run") -> str:
         f"{config['controller']}, {episodes} episode(s), seeds {first}..{last}, "
         f"{results['wall_time_s']:.1f} s",
         *entry_lines(config.get("entry"), config["controller_config"].get("entry")),
-        summary_table(results["summary"], task_for(config["env_id"]).SUMMARY_ROWS),
+        summary_table(results["summary"], task_of(system_for_id(config["env_id"])).SUMMARY_ROWS),
     ]
     consistency = results.get("consistency")
     if consistency and consistency.get("nees_ratio") is not None:

@@ -40,10 +40,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.args import point_text
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
-from observer_gym.train.experiments.sweep_grid import VaryInput, point_text, world_draw_notes
+from observer_gym.train.experiments.sweep_grid import VaryInput, world_draw_notes
 from observer_gym.train.experiments.sweep_plan import (
     ARGUMENTS_FILE,
     CELLS_DIR,
@@ -52,7 +55,6 @@ from observer_gym.train.experiments.sweep_plan import (
     check_out_dir,
     check_sweep,
 )
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
     compare_metrics,
@@ -95,7 +97,7 @@ def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
     controller's description and the seconds it took (measured where it ran)."""
     tic_s = time.perf_counter()
     record = run_episode(spec)
-    values = episode_values(task_for(spec.env_id), record)
+    values = episode_values(task_of(system_for_id(spec.env_id)), record)
     return {
         "metrics": to_jsonable(values),
         "start": to_jsonable(record["state"][0]),
@@ -269,8 +271,6 @@ def assemble_results(
 
 def _base_config(plan: SweepPlan) -> Any:
     """The env's configuration with the sweep's fixed options (the keys at their defaults)."""
-    from observer_gym.envs import system_for_id
-
     config_class = system_for_id(plan.env_id).env_class().config_class
     return config_class.from_kwargs(**plan.env_kwargs)
 

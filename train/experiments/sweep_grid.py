@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from observer_gym.envs import system_for_id
+from observer_gym.train.core.args import point_text, value_text
 
 # A sweep's keys and values: {key: values} or [(key, values), ...] (the command line's
 # --vary, where a key may repeat, which is refused).
@@ -60,16 +61,6 @@ class Grid:
     def first(self) -> dict[str, Any]:
         """The first grid point: every key at its first value."""
         return {key: values[0] for key, values in zip(self.keys, self.values, strict=True)}
-
-
-def value_text(value: Any) -> str:
-    """A grid value as the command line writes it back (``0.02``, ``True``, ``single``)."""
-    return value if isinstance(value, str) else repr(value)
-
-
-def point_text(point: Mapping[str, Any]) -> str:
-    """A grid point as ``key=value, key=value``."""
-    return ", ".join(f"{key}={value_text(value)}" for key, value in point.items())
 
 
 def vary_option(text: str) -> tuple[str, list[str]]:

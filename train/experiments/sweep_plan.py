@@ -21,11 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.args import value_text
+from observer_gym.train.core.entries import entry_identity
 from observer_gym.train.experiments.compare import check_designs, check_pairs_once, option_text
-from observer_gym.train.experiments.entries import entry_identity
 from observer_gym.train.experiments.episode import EpisodeSpec
 from observer_gym.train.experiments.request import Request, resolve_request
-from observer_gym.train.experiments.sweep_grid import Grid, VaryInput, check_grid, value_text
+from observer_gym.train.experiments.sweep_grid import Grid, VaryInput, check_grid
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import compare_metrics
 from observer_gym.train.reports.outputs import OutputFolderError, check_folder_kind, to_jsonable
@@ -172,7 +173,7 @@ class SweepPlan:
         )
 
     def entry_identities(self) -> dict[str, dict[str, Any]]:
-        """:func:`~observer_gym.train.experiments.entries.entry_identity` of every
+        """:func:`~observer_gym.train.core.entries.entry_identity` of every
         outside observer and controller, by ``"<kind> <name>"``."""
         plugins = [entry.plugin for entry in self.request.observers]
         plugins += [entry.plugin for entry in self.request.controllers]

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.train.experiments.entries import entry_line
+from observer_gym.train.core.entries import entry_line
 from observer_gym.train.reports.aggregate import METHOD
 from observer_gym.train.reports.compare_stats import (
     ORACLE,

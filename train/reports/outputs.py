@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.messages import OneLineWarning
 from observer_gym.train.reports.folder_lock import folder_lock
 from observer_gym.train.reports.signals import signals_deferred
 
@@ -130,11 +131,6 @@ def json_text(data: Any) -> str:
             f"{where or 'the data'} is {value!r}, which JSON cannot hold (an undefined "
             "number is None)"
         ) from None
-
-
-class OneLineWarning(UserWarning):
-    """A warning the ``observer-gym`` command shows as one line,
-    ``observer-gym COMMAND: warning: ...`` (without Python's file and line)."""
 
 
 class OutputFolderError(ValueError):

@@ -13,7 +13,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
-from observer_gym.train.reports.metrics import TOLERANCE_M
+from observer_gym.train.core.metrics import TOLERANCE_M
 from observer_gym.train.reports.outputs import replace_atomically
 
 DPI = 110

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.train.experiments.sweep_grid import point_text, value_text
+from observer_gym.train.core.args import point_text, value_text
 from observer_gym.train.reports.compare_report import (
     difference_unit,
     format_difference,

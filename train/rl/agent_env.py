@@ -38,9 +38,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import FrameStackObservation
 
-from observer_gym.train.cli.checks import agent_observer
-from observer_gym.train.experiments.observer_env import make_env
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.envs import system_for_id
+from observer_gym.train.core.checks import agent_observer
+from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.features import wrap_features
 from observer_gym.wrappers import FrameImages, GrayFrameStack, NormalizedAction
 
@@ -98,7 +99,7 @@ def observer_for(
         return "oracle"
     if obs == "rgb":
         return "pixels"
-    return task_for(env_id).ESTIMATE_OBSERVERS[estimate_from]
+    return task_of(system_for_id(env_id)).ESTIMATE_OBSERVERS[estimate_from]
 
 
 def wrap_images(env: gym.Env, options: ImageOptions) -> gym.Env:
@@ -139,7 +140,7 @@ def make_agent_env(
     randomize: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
-    (``observer_gym.train.experiments.observer_env.make_env``), for ``rgb`` with
+    (``observer_gym.train.core.observer_env.make_env``), for ``rgb`` with
     :func:`wrap_images` (``image``:
     :class:`ImageOptions` fields), through the feature set ``features``, and the action
     space rescaled to [-1, 1]. A top-level function of plain arguments, so
@@ -157,7 +158,8 @@ def make_agent_env(
             _drawn_agent_env, env_id, obs, estimate_from, fixed, image, observer, features
         )
         return RandomizedEnv(make_inner, env_id, randomize)
-    env = make_env(env_id, observer_for(env_id, obs, estimate_from, observer), env_kwargs)
+    feeding = observer_for(env_id, obs, estimate_from, observer)
+    env = make_env(system_for_id(env_id), feeding, env_kwargs)
     return finish_agent_env(env, obs, image, features)
 
 

@@ -43,11 +43,12 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import yaml
 
+from observer_gym.train.core.algorithms import ALGOS, algorithm_class
+
 if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
+    pass
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-ALGOS = ("ppo", "sac", "td3")
 
 TRAINING_DEFAULTS: dict[str, Any] = {
     "n_timesteps": 100_000,
@@ -66,16 +67,6 @@ TRAINING_DEFAULTS: dict[str, Any] = {
 INTEGER_KEYS = ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes")
 VEC_ENVS = ("subproc", "dummy")
 ACTIVATIONS = ("relu", "tanh", "elu")
-
-
-def algorithm_class(algo: str) -> type[BaseAlgorithm]:
-    """SB3's class for ``algo`` (ppo, sac, td3)."""
-    from stable_baselines3 import PPO, SAC, TD3
-
-    classes: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
-    if algo not in classes:
-        raise ValueError(f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
-    return classes[algo]
 
 
 def _set_dotted(params: dict[str, Any], dotted: str, value: Any) -> None:

@@ -317,14 +317,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``--env-option``) and save it with its report; a mistake is one line on stderr and
     exit code 2."""
     from observer_gym.envs import system_for_id
-    from observer_gym.train.cli.args import (
+    from observer_gym.train.core.args import (
         Parser,
         add_env_option_argument,
         env_name,
-        error_line,
         nonnegative_int,
         positive_int,
     )
+    from observer_gym.train.core.messages import error_line
     from observer_gym.train.rl.hyperparams import resolve_hyperparams
 
     prog = "python -m observer_gym.train.rl.pretrain_encoder"

@@ -17,13 +17,14 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.extras import require_rl
+from observer_gym.train.core.algorithms import ALGOS
 from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
     write_json_atomic,
     writer_alive,
 )
-from observer_gym.train.rl.hyperparams import ALGOS
 from observer_gym.train.rl.normalizer_file import (
     CONFIG_SHA256,
     FINAL_STATS,
@@ -438,3 +439,24 @@ def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
     if str(checkpoint.get("vecnormalize", "")).endswith(LEGACY_STATS_SUFFIX):
         raise ValueError(pickled_stats_message(checkpoint["vecnormalize"]))
     return checkpoint["model"], checkpoint.get("vecnormalize"), checkpoint["timesteps"]
+
+
+def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str) -> None:
+    """ValueError unless the trained agent ``controller`` (``ALGO:DIR``) is a run of
+    ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``;
+    first, :class:`~observer_gym.extras.ExtraNotInstalled` without stable-baselines3 and
+    PyTorch to load it."""
+    spec = parse_agent_spec(controller)
+    assert spec is not None, f"{controller!r} is not ALGO:DIR"  # the callers' check
+    require_rl(f"agent {controller!r}")  # stable-baselines3 and PyTorch load it
+    algo, run_dir = spec
+    agent = read_config(run_dir, algo=algo)
+    model_files(run_dir)
+    if agent["env_id"] != env_id:
+        raise ValueError(f"agent {controller!r} was trained on {agent['env_id']}, not {env_id}")
+    if (agent["obs"] == "rgb") != reads_frames:
+        wants = "observer 'pixels'" if agent["obs"] == "rgb" else "an observer but 'pixels'"
+        raise ValueError(
+            f"agent {controller!r} was trained with --obs {agent['obs']}: it needs {wants}, "
+            f"got {observer!r}"
+        )

@@ -40,7 +40,7 @@ from typing import Any
 from tqdm import tqdm
 
 from observer_gym.envs.json_file import read_json
-from observer_gym.train.cli.checks import check_backend, check_seeds, check_seeds_folder
+from observer_gym.train.core.checks import check_backend, check_seeds
 from observer_gym.train.reports.aggregate import (
     Aggregate,
     aggregate_runs,
@@ -55,6 +55,7 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.parent_watch import end_with_parent
+from observer_gym.train.rl.checks import check_seeds_folder
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
     SEEDS_FILE,

@@ -261,7 +261,7 @@ def check_training(
 ) -> tuple[str, str, dict[str, Any], dict[str, Any], dict[str, dict[str, Any]]]:
     """The checks of :func:`train_agent` (same arguments), which build no env and write
     nothing: the env, ``obs`` and ``estimate_from``, the seed, the env options, the
-    output folder and TensorBoard (:func:`observer_gym.train.cli.checks.check_training_request`),
+    output folder and TensorBoard (:func:`observer_gym.train.rl.checks.check_training_request`),
     then the hyperparameters' keys against the algorithm's constructor (this imports
     stable-baselines3) and, for ``obs="rgb"``, the image options.
 
@@ -275,12 +275,9 @@ def check_training(
     Raises:
         ValueError: naming the bad argument or hyperparameter and what is allowed.
     """
-    from observer_gym.train.cli.checks import (
-        check_training_request,
-        observer_mode,
-        training_overrides,
-    )
-    from observer_gym.train.experiments.systems import resolve_env_id
+    from observer_gym.train.core.checks import observer_mode
+    from observer_gym.train.core.systems import resolve_env_id
+    from observer_gym.train.rl.checks import check_training_request, training_overrides
     from observer_gym.train.rl.hyperparams import check_algorithm_keys
     from observer_gym.train.rl.randomize import check_randomize
 
@@ -424,7 +421,7 @@ def check_recorded_randomize(config: Mapping[str, Any]) -> None:
     would otherwise die at that draw again."""
     if not config.get("randomize"):
         return
-    from observer_gym.train.cli.checks import observer_mode
+    from observer_gym.train.core.checks import observer_mode
     from observer_gym.train.rl.randomize import check_randomize
 
     env_id, obs = config["env_id"], config["obs"]

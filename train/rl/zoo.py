@@ -48,8 +48,8 @@ import yaml
 
 from observer_gym.envs import System, system_of
 from observer_gym.envs.registration import PACKAGE_SYSTEMS
-from observer_gym.train.experiments.observer_env import wrap_observer
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core.observer_env import wrap_observer
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.agent_env import (
     OBS_TYPES,
     finish_agent_env,
@@ -91,9 +91,9 @@ def agent_wrapper(
         ValueError: ``env``'s obs_mode is not the one the observer reads, or a bad
             ``obs``, ``observer`` or ``image``.
     """
-    env_id = system_of(env).env_id
-    feeding = observer_for(env_id, obs, "measurements", observer)
-    obs_mode = task_for(env_id).OBSERVERS[feeding][0]
+    system = system_of(env)
+    feeding = observer_for(system.env_id, obs, "measurements", observer)
+    obs_mode = task_of(system).OBSERVERS[feeding][0]
     made_with = cast("CameraEnv", env.unwrapped).config.obs_mode  # system_of said it is one
     if made_with != obs_mode:
         raise ValueError(
@@ -102,7 +102,7 @@ def agent_wrapper(
             f"env takes its env_kwargs from --eval-env-kwargs: add "
             f"--eval-env-kwargs \"obs_mode:'{obs_mode}'\" and the file's other env_kwargs)"
         )
-    return finish_agent_env(wrap_observer(env, env_id, feeding), obs, image, features)
+    return finish_agent_env(wrap_observer(env, system, feeding), obs, image, features)
 
 
 class ZooFile(NamedTuple):
@@ -164,7 +164,7 @@ def zoo_hyperparams(env_id: str, algo: str, obs: str) -> ZooFile:
     system = system_for_id(env_id)
     params = resolve_hyperparams(system.env_id, algo, obs)
     feeding = observer_for(system.env_id, obs)
-    obs_mode = task_for(system.env_id).OBSERVERS[feeding][0]
+    obs_mode = task_of(system).OBSERVERS[feeding][0]
     wrapper: dict[str, Any] = {"obs": obs}
     if obs == "estimate":
         wrapper["observer"] = feeding

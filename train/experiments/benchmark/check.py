@@ -23,6 +23,8 @@ from observer_gym.controllers.registry import controllers_of
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import JSONFileError, read_bytes_limited, read_json
 from observer_gym.estimation.observer import modules_needed
+from observer_gym.train.core.observer_env import observer_env_options
+from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV, MAX_CSV_BYTES, read_csv
 from observer_gym.train.experiments.benchmark.report import (
     SCORES_JSON,
@@ -33,8 +35,6 @@ from observer_gym.train.experiments.benchmark.report import (
 )
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.experiments.camera_scale import camera_scale
-from observer_gym.train.experiments.observer_env import observer_env_options
-from observer_gym.train.experiments.tasks import task_for
 from observer_gym.train.reports.outputs import NOT_INSTALLED
 
 
@@ -103,7 +103,7 @@ def _needs_rl(env_id: str, observer: Any, controller: Any) -> bool:
     needs no more than the core install and a built-in controller."""
     if not isinstance(observer, str) or not isinstance(controller, str):
         return True
-    setup = task_for(env_id).OBSERVERS.get(observer)
+    setup = task_of(system_for_id(env_id)).OBSERVERS.get(observer)
     if setup is None:
         return True
     pipeline = None if setup[1] is None else setup[1].get("observer")
@@ -225,7 +225,9 @@ def check_folder(folder: str | Path, *, same_packages: bool = True) -> str:
     if not all(isinstance(entry[key], str) for key in ("observer", "controller")):
         raise FolderCheckError(f"{path}: observer and controller must be names")
     # derived from the observer's name: a recorded table that differs is a difference
-    entry["observer_env_options"] = observer_env_options(suite.env_id, entry["observer"])
+    entry["observer_env_options"] = observer_env_options(
+        system_for_id(suite.env_id), entry["observer"]
+    )
     problem = _agent_options_problem(entry["controller"], entry.get("agent_env_options", {}))
     if problem:
         raise FolderCheckError(f"{path}: {problem}")

@@ -477,7 +477,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``publish`` or ``generate`` (see the module docstring); the exit code."""
     import os
 
-    from observer_gym.train.cli.args import error_line
+    from observer_gym.train.core.messages import error_line
 
     args = _parser().parse_args(argv)
     paths = [*args.runs, args.into] if args.command == "publish" else [args.root, args.out]

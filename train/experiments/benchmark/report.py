@@ -140,7 +140,7 @@ def scores_document(
 def table_markdown(suite: SystemSuite, document: Mapping[str, Any]) -> str:
     """The run's table: per level the metric's mean, the references and the score with
     its 95 % interval; the aggregate last."""
-    from observer_gym.train.experiments.systems import system_entry
+    from observer_gym.train.core.systems import system_entry
 
     label, unit, scale, digits, better = system_entry(suite.system).task.COMPARE_METRICS[
         suite.metric.name

@@ -7,11 +7,12 @@ import shlex
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+from observer_gym.envs import system_for_id
+from observer_gym.train.core.observer_env import observer_env_options
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec, entry_identities
-from observer_gym.train.experiments.observer_env import observer_env_options
 
 __all__ = ["BenchmarkRequest", "command_line"]
 
@@ -61,7 +62,7 @@ class BenchmarkRequest(NamedTuple):
     def observer_env_options(self) -> dict[str, Any]:
         """The env options the observer needs (set by make_env wherever it runs; e.g.
         BallCatcher's ``endpoint-measurements``: ``hole_measurements``), recorded."""
-        return observer_env_options(self.suite.env_id, self.observer)
+        return observer_env_options(system_for_id(self.suite.env_id), self.observer)
 
     @property
     def official(self) -> bool:

@@ -186,7 +186,7 @@ _REFS = ("oracle", "raw", "idle", "episodes")
 def parse_suite(data: Any, system: System, version: str, path: str) -> SystemSuite:
     """The :class:`SystemSuite` of ``data`` (a suite file's JSON), checked; ValueError
     naming ``path``, the key and what is allowed."""
-    from observer_gym.train.experiments.systems import system_entry  # imports every layer
+    from observer_gym.train.core.systems import system_entry  # imports every layer
 
     read = _Reader(path)
     if not isinstance(data, Mapping):

@@ -40,7 +40,7 @@ DEFAULT_EPISODES = 60
 
 def main(argv: list[str] | None = None) -> int:
     # the package's parser: a mistake is one line (exit code 2), not argparse's usage
-    from observer_gym.train.cli.args import Parser
+    from observer_gym.train.core.args import Parser
 
     parser = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", required=True, help=f"one of {', '.join(SYSTEMS)}")
@@ -57,6 +57,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=None, help="weight file (.pt)")
     args = parser.parse_args(argv)
+    from observer_gym.extras import TORCH_MODULES, ExtraNotInstalled, require_rl
+
+    try:
+        require_rl(PROG, TORCH_MODULES)
+    except ExtraNotInstalled as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 2
     env_id = args.env.removeprefix("observer_gym/")
     if env_id not in SYSTEMS:
         print(

@@ -78,7 +78,7 @@ def _frames(collect_frames: Any, env_id: str, episodes: int, seed: int, cache: P
 
 def main(argv: list[str] | None = None) -> int:
     # the package's parser: a mistake is one line (exit code 2), not argparse's usage
-    from observer_gym.train.cli.args import Parser, nonnegative_int
+    from observer_gym.train.core.args import Parser, nonnegative_int
 
     parser = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", required=True, help=f"one of {', '.join(SYSTEMS)}")
@@ -99,6 +99,13 @@ def main(argv: list[str] | None = None) -> int:
         "--cache", type=Path, default=None, help="the collected frames, kept and reused (.npz)"
     )
     args = parser.parse_args(argv)
+    from observer_gym.extras import TORCH_MODULES, ExtraNotInstalled, require_rl
+
+    try:
+        require_rl(PROG, TORCH_MODULES)
+    except ExtraNotInstalled as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 2
     env_id = args.env.removeprefix("observer_gym/")
     if env_id not in SYSTEMS:
         return _fail(f"no learned detector for {args.env!r} yet; allowed: {', '.join(SYSTEMS)}")

@@ -15,12 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
-from observer_gym.train.cli.args import (
-    int_at_least,
-    nonnegative_int,
-    positive_float,
-    positive_int,
-)
+from observer_gym.train.core.args import int_at_least, nonnegative_int, positive_float, positive_int
 
 
 class StudyArguments(NamedTuple):

@@ -1,8 +1,9 @@
-"""The env an observer gives: ``make_env(env_id, observer, env_kwargs)``.
+"""The env an observer gives: ``make_env(system, observer, env_kwargs)``, for a system
+resolved once by its caller (:func:`observer_gym.envs.system_for_id`).
 
 The same env serves ``observer-gym run`` and ``compare`` (with a controller on it) and
 ``train`` (with an agent on it). ``observer`` is one of the env's task's ``OBSERVERS``,
-or an observer from outside the package (:mod:`observer_gym.train.experiments.entries`: an import
+or an observer from outside the package (:mod:`observer_gym.train.core.entries`: an import
 path or an installed entry point's name).
 """
 
@@ -16,64 +17,66 @@ import gymnasium as gym
 import numpy as np
 
 import observer_gym.envs  # noqa: F401  (registers the envs)
-from observer_gym.envs.registration import system_for_id
+from observer_gym.envs.registration import System
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.observer import env_options_of, modules_needed
 from observer_gym.extras import require_rl
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.entry_guard import CheckedPipeline
-from observer_gym.train.experiments.tasks import task_for
+from observer_gym.train.core import entries
+from observer_gym.train.core.entry_guard import CheckedPipeline
+from observer_gym.train.core.tasks import task_of
 
 
-def observer_setup(env_id: str, observer: str) -> tuple[str, Mapping[str, Any] | None, Any]:
-    """``(obs_mode, pipeline_options, plugin)`` of ``observer`` for ``env_id``: a task
+def observer_setup(system: System, observer: str) -> tuple[str, Mapping[str, Any] | None, Any]:
+    """``(obs_mode, pipeline_options, plugin)`` of ``observer`` for ``system``: a task
     observer's env mode and default-pipeline options (None for one without a pipeline,
     "pixels") and plugin None; an outside observer's mode, None and its
-    :class:`~observer_gym.train.experiments.entries.Plugin`. ValueError naming what is allowed for
+    :class:`~observer_gym.train.core.entries.Plugin`. ValueError naming what is allowed for
     any other name."""
-    observers = task_for(env_id).OBSERVERS
+    observers = task_of(system).OBSERVERS
     if observer in observers:
         obs_mode, pipeline_options = observers[observer]
         return obs_mode, pipeline_options, None
     plugin = entries.find_plugin("observer", observer)
     if plugin is None:
-        raise ValueError(entries.unknown_message("observer", observer, env_id, list(observers)))
+        raise ValueError(
+            entries.unknown_message("observer", observer, system.env_id, list(observers))
+        )
     assert plugin.obs_mode is not None  # an observer plugin's is "rgb" or "measurements"
     return plugin.obs_mode, None, plugin
 
 
-def require_observer_modules(env_id: str, observer: str) -> None:
+def require_observer_modules(system: System, observer: str) -> None:
     """:class:`~observer_gym.extras.ExtraNotInstalled` naming the install line if the task
     observer ``observer`` runs a pipeline that needs what this installation lacks (the
     learned observers need PyTorch: ``pip install 'observer-gym[rl]'``); nothing for the
     others, outside observers and unknown names (which :func:`observer_setup` refuses).
     Imports nothing it checks for."""
-    setup = task_for(env_id).OBSERVERS.get(observer)
+    setup = task_of(system).OBSERVERS.get(observer)
     if setup is None or setup[1] is None:
         return
-    needed = modules_needed(system_for_id(env_id), setup[1].get("observer"))
+    needed = modules_needed(system, setup[1].get("observer"))
     if needed:
         require_rl(f"observer {observer!r}", needed)
 
 
-def observer_env_options(env_id: str, observer: str) -> dict[str, Any]:
+def observer_env_options(system: System, observer: str) -> dict[str, Any]:
     """The env options a task observer's pipeline needs to run (its system's estimation
     ``ENV_OPTIONS``, :func:`~observer_gym.estimation.observer.env_options_of`: e.g.
     BallCatcher's ``endpoint-measurements`` reads the hole's pixels,
     ``hole_measurements=True``); {} for the others and outside entries."""
-    setup = task_for(env_id).OBSERVERS.get(observer)
+    setup = task_of(system).OBSERVERS.get(observer)
     if setup is None or setup[1] is None:
         return {}
-    return env_options_of(system_for_id(env_id), setup[1].get("observer"))
+    return env_options_of(system, setup[1].get("observer"))
 
 
 def with_observer_env_options(
-    env_id: str, observer: str, env_kwargs: Mapping[str, Any] | None
+    system: System, observer: str, env_kwargs: Mapping[str, Any] | None
 ) -> dict[str, Any]:
     """``env_kwargs`` with the options ``observer`` needs; a given option that contradicts
     one of them raises ValueError naming both."""
     given = dict(env_kwargs or {})
-    for key, value in observer_env_options(env_id, observer).items():
+    for key, value in observer_env_options(system, observer).items():
         if key in given and given[key] != value:
             raise ValueError(
                 f"observer {observer!r} needs the env option {key}={value!r}; "
@@ -99,7 +102,7 @@ def check_gym_make_options(options: Mapping[str, Any]) -> None:
 
 
 def make_env(
-    env_id: str,
+    system: System,
     observer: str,
     env_kwargs: Mapping[str, Any] | None = None,
     observer_options: Mapping[str, Any] | None = None,
@@ -110,16 +113,16 @@ def make_env(
     default pipeline with its options and ``observer_options``; an outside observer's
     factory called with ``observer_options``). ``env_kwargs`` go to ``gym.make``, with
     the env options the observer needs (:func:`observer_env_options`)."""
-    obs_mode, _, _ = observer_setup(env_id, observer)
-    env_kwargs = with_observer_env_options(env_id, observer, env_kwargs)
+    obs_mode, _, _ = observer_setup(system, observer)
+    env_kwargs = with_observer_env_options(system, observer, env_kwargs)
     check_gym_make_options(env_kwargs)
-    env = gym.make(env_id, obs_mode=obs_mode, **env_kwargs)
-    return wrap_observer(env, env_id, observer, observer_options)
+    env = gym.make(system.env_id, obs_mode=obs_mode, **env_kwargs)
+    return wrap_observer(env, system, observer, observer_options)
 
 
 def wrap_observer(
     env: gym.Env,
-    env_id: str,
+    system: System,
     observer: str,
     observer_options: Mapping[str, Any] | None = None,
 ) -> gym.Env:
@@ -127,7 +130,7 @@ def wrap_observer(
     ``observer``'s pipeline (see :func:`make_env`), or unchanged for "oracle" and an
     observer without a pipeline; ``env`` is closed if this fails."""
     try:
-        _, pipeline_options, plugin = observer_setup(env_id, observer)
+        _, pipeline_options, plugin = observer_setup(system, observer)
         if plugin is not None:
             pipeline = entries.build(plugin, env.unwrapped, observer_options)
             base: Any = env.unwrapped  # an observer-gym env: it has the state layout

@@ -1,7 +1,7 @@
 """Controllers from outside the package, as the experiments drive them.
 
 - :class:`CheckedController`: what an outside factory (an import path or an entry point,
-  :mod:`observer_gym.train.experiments.entries`) returned, with every action it gives checked
+  :mod:`observer_gym.train.core.entries`) returned, with every action it gives checked
   against
   the env's action space, so a wrong shape, NaN or a non-numeric action ends the episode
   with one line naming the entry, not somewhere inside the env.
@@ -23,8 +23,8 @@ import gymnasium as gym
 import numpy as np
 
 from observer_gym.extras import require_rl
-from observer_gym.train.experiments import entries
-from observer_gym.train.experiments.entry_guard import entry_fault, read_only
+from observer_gym.train.core import entries
+from observer_gym.train.core.entry_guard import entry_fault, read_only
 
 
 def checked_action(action: Any, space: gym.spaces.Box, who: str) -> np.ndarray:
@@ -50,7 +50,7 @@ class CheckedController:
     """An outside controller with the protocol the experiments use (``name``, ``reset``,
     ``predict``, ``observe_info``), its actions checked by :func:`checked_action`, shown
     read-only copies of the observation and info
-    (:func:`~observer_gym.train.experiments.entry_guard.read_only`), whatever it raises
+    (:func:`~observer_gym.train.core.entry_guard.read_only`), whatever it raises
     (``sys.exit`` too) one line naming it. Its other attributes (``failures``, design
     values) are the wrapped object's."""
 
@@ -134,7 +134,7 @@ class PolicyFile:
     """
 
     def __init__(self, algo: str, path: Path, env: gym.Env):
-        from observer_gym.train.rl.hyperparams import algorithm_class  # deferred: torch
+        from observer_gym.train.core.algorithms import algorithm_class  # deferred: torch
 
         self.name, self.algo, self.run_dir = f"{algo}:{path}", algo, str(path)
         check_policy_file(self.name, path)

@@ -30,7 +30,7 @@ import numpy as np
 
 from observer_gym.envs.target_follower.config import TargetFollowerConfig
 from observer_gym.envs.target_follower.layout import IMAGE, IMAGE_RATE, StateIndex
-from observer_gym.train.reports.metrics import rmse
+from observer_gym.train.core.metrics import rmse
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),

@@ -8,7 +8,7 @@ never settles, statistics over no episode) are None, so they stay valid JSON.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -124,7 +124,7 @@ def episode_metrics(
     }
 
 
-def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def summarize(episodes: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Summary of :func:`episode_metrics` dicts: settling statistics over the settled
     episodes, means of the other metrics, totals of failures and terminations."""
     if not episodes:

@@ -2,7 +2,7 @@
 estimates out.
 
 An outside observer's pipeline (:class:`CheckedPipeline`) and an outside controller
-(:class:`~observer_gym.train.experiments.controller_entries.CheckedController`) are shown
+(:class:`~observer_gym.train.core.controller_entries.CheckedController`) are shown
 each step's observation and info as :func:`read_only` copies: arrays that are copies
 with ``writeable=False``, mappings as read-only mappings. Writing into one is refused in
 one line naming the entry; an entry that sets an array writeable again changes only its
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.estimation.observer import Estimate, checked_estimate
-from observer_gym.train.experiments import entries
+from observer_gym.train.core import entries
 
 # |P_ij - P_ji| <= SYMMETRY_RTOL * sqrt(P_ii P_jj): a covariance symmetric to the
 # rounding of a filter's update (a Joseph-form update keeps ~1e-12), not to a wrong sign.

@@ -57,6 +57,8 @@ from collections.abc import Callable, Iterator, Mapping
 from importlib import metadata
 from typing import Any, NamedTuple
 
+from observer_gym.train.core.messages import OneLineWarning
+
 OBSERVER_GROUP = "observer_gym.observers"
 CONTROLLER_GROUP = "observer_gym.controllers"
 GROUPS = {"observer": OBSERVER_GROUP, "controller": CONTROLLER_GROUP}
@@ -111,8 +113,6 @@ def entry_points(kind: str) -> dict[str, metadata.EntryPoint]:
         if problem is None:
             found[ep.name] = ep
             continue
-        from observer_gym.train.reports.outputs import OneLineWarning  # deferred: light import
-
         distribution = ep.dist.name if ep.dist is not None else "an unknown distribution"
         warnings.warn(
             f"the {kind} entry point '{printable(ep.name)}' of {distribution} is ignored: "

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.envs.ball_table.layout import BALL_POS
-from observer_gym.train.reports import metrics
+from observer_gym.train.core import metrics
 
 # observer_gym.estimation.ball_table's observers other than the default (kf), each from
 # the camera's frames and from the measurements (the learned ones read frames through
@@ -60,7 +60,7 @@ COMPARE_METRICS: dict[str, tuple[str, str, float, int, str]] = {
 
 
 def episode_metrics(record: Mapping[str, Any]) -> dict[str, Any]:
-    """:func:`observer_gym.train.reports.metrics.episode_metrics` of a run record."""
+    """:func:`observer_gym.train.core.metrics.episode_metrics` of a run record."""
     return metrics.episode_metrics(
         record["time_s"],
         record["state"],

@@ -4,7 +4,7 @@ For each record of :data:`observer_gym.envs.SYSTEMS`, :func:`system_entries` gat
 env id, the observers of its task (what ``run`` and ``compare`` take as ``--observer``),
 the pipelines of ``observer_gym.estimation.<system>``, the controllers of
 ``observer_gym.controllers.<system>`` and the task module
-``observer_gym.train.experiments.tasks.<system>``.
+``observer_gym.train.core.tasks.<system>``.
 Reading them imports every layer (about 1.5 s); the command line reads them when it
 checks a request or shows ``--help``, not to parse its arguments.
 """
@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping
-from types import ModuleType
 from typing import NamedTuple
 
 from observer_gym.controllers import controllers_of
 from observer_gym.envs import SYSTEMS, System, system_for_id
 from observer_gym.estimation.observer import observers_of_system
-from observer_gym.train.experiments.tasks import task_of
+from observer_gym.train.core.tasks import Task, task_of
 
 
 class SystemEntry(NamedTuple):
@@ -29,7 +28,7 @@ class SystemEntry(NamedTuple):
     observers: tuple[str, ...]  # the task's OBSERVERS: oracle, kf, ..., pixels
     pipelines: tuple[str, ...]  # observer_gym.estimation.<system>.OBSERVERS
     controllers: tuple[str, ...]  # observer_gym.controllers.<system>.CONTROLLERS
-    task: ModuleType  # observer_gym.train.experiments.tasks.<system>
+    task: Task  # observer_gym.train.core.tasks.<system>
 
     @property
     def env_id(self) -> str:

@@ -11,10 +11,9 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from types import ModuleType
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
-from observer_gym.envs import System, system_for_id
+from observer_gym.envs import System
 
 
 class Task(Protocol):
@@ -42,10 +41,21 @@ class Task(Protocol):
     - ``plot(records, observer, out_dir)``: writes the plots; returns their file names.
     """
 
-    OBSERVERS: Mapping[str, tuple[str, Mapping[str, Any] | None]]
-    ESTIMATE_OBSERVERS: Mapping[str, str]
-    CONFIG: Mapping[str, Any]
-    SUMMARY_ROWS: Mapping[str, tuple[str, str, float, int]]
+    # read-only, as a module's constants are read: a task's own may be any Mapping
+    @property
+    def OBSERVERS(self) -> Mapping[str, tuple[str, Mapping[str, Any] | None]]: ...
+
+    @property
+    def ESTIMATE_OBSERVERS(self) -> Mapping[str, str]: ...
+
+    @property
+    def CONFIG(self) -> Mapping[str, Any]: ...
+
+    @property
+    def SUMMARY_ROWS(self) -> Mapping[str, tuple[str, str, float, int]]: ...
+
+    @property
+    def COMPARE_METRICS(self) -> Mapping[str, tuple[str, str, float, int, str]]: ...
 
     def episode_metrics(self, record: Mapping[str, Any]) -> dict[str, Any]: ...
 
@@ -56,12 +66,14 @@ class Task(Protocol):
     ) -> list[str]: ...
 
 
-def task_of(system: System) -> ModuleType:
-    """The task module of ``system``: ``observer_gym.train.experiments.tasks.<system name>``."""
-    return importlib.import_module(system.module("task"))
+def task_of(system: System) -> Task:
+    """The task module of ``system``: ``observer_gym.train.core.tasks.<system name>``."""
+    return cast(Task, importlib.import_module(system.module("task")))
 
 
-def task_for(env_id: str) -> ModuleType:
-    """The task module of the system registered as ``env_id`` (with or without the
-    ``observer_gym/`` namespace); ValueError listing the known envs otherwise."""
-    return task_of(system_for_id(env_id))
+if TYPE_CHECKING:  # mypy holds each of the package's tasks to Task (.ci/typecheck.py)
+    from observer_gym.train.core.tasks import ball_catcher, ball_table, target_follower
+
+    BALL_CATCHER: Task = ball_catcher
+    BALL_TABLE: Task = ball_table
+    TARGET_FOLLOWER: Task = target_follower

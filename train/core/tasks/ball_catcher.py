@@ -17,7 +17,7 @@ import numpy as np
 from observer_gym.envs.ball_catcher import MISS_REASONS
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.ball_catcher.layout import BALL_POS, BALL_VEL, BOX_POS
-from observer_gym.train.reports.metrics import rmse
+from observer_gym.train.core.metrics import rmse
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),
