@@ -51,7 +51,11 @@ disturbance restarted, their correlations with the tilt dropped.
 
 Each frame is fused at its capture time (as ``kf-latency``, through
 :class:`~observer_gym.estimation.latency.CaptureTimeFusion`) and the estimate predicted to
-the step's time.
+the step's time. The table's angular acceleration moves the ball about the arm's axes as
+in ``kf``'s model, the tilt_y axis 17 mm below the top (ROTATION_HEIGHTS_M, models.
+KF_ROTATION_HEIGHTS_M): without it, at 0.1 s of latency, the LQR on this estimate swung
+in a limit cycle (24 mm from the centre, 31 mrad RMS tilt; 9.2 mm and 14 mrad with it),
+the unmodelled swing read as the table centre's motion (docs/your_method.md).
 
 Pixel noise: from rgb, the image stage's measured errors (corners of the red top 0.18-0.31
 px RMS, outline 0.15 px, ball centre 0.06 px on 400 rendered frames, fixed camera and head
@@ -92,6 +96,7 @@ from observer_gym.estimation.ball_table.frames import FrameReader
 from observer_gym.estimation.ball_table.fusion import Fused, FusedObserver
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector, model_corners_table
 from observer_gym.estimation.ball_table.models import (
+    KF_ROTATION_HEIGHTS_M,
     ROLLING_ACCEL_FACTOR,
     RollingBallModel,
     TiltLagModel,
@@ -120,6 +125,7 @@ CENTRE = slice(8, 11)
 ARM = slice(11, 14)
 N_STATES = 14
 MEASUREMENT_FLOOR_PX = 0.003
+ROTATION_HEIGHTS_M = KF_ROTATION_HEIGHTS_M
 # The table centre's motion under the arm (world x, y, z), measured with
 # ``python benchmarks/ball_table_centre_motion.py`` (the LQR on the truth, pushes at 0.5
 # Hz, 10 episodes of 500 steps): its offset from home has RMS 0.137, 0.012 and 0.099 mm
@@ -391,6 +397,7 @@ class PixelEKF:
             tilt_model.rate(self._lag_tilt, self.tilt_cmd),
             self._lag_tilt - lag_before,
             dt_s,
+            ROTATION_HEIGHTS_M,
         )
         ball_next, _ = self.ball_model.clamp_to_border(Phi_b @ x[BALL] + Gamma_b @ accel + turned)
         # d(ball')/d(mid tilt); d(mid)/d(theta) = (I + Phi_t) / 2; the tilt's noise w
