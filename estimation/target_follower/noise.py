@@ -232,6 +232,7 @@ class NoiseRule:
         delivery-time filter."""
         R = np.diag(self.detection_var_px2(z_px[2]))
         if image_rate_pxps is not None:
+            rate_cov = np.zeros((3, 3)) if rate_cov is None else rate_cov
             R = R + self.frame_age_cov(image_rate_pxps, rate_cov)
         return self.r_scale * R
 
