@@ -37,7 +37,8 @@ FAMILIES = {
 _EKF_OVERCLAIMS = (
     "BallTable's pixel EKF claims several times its error once any frame arrives late "
     "(0.10 at 0 s with 0.01 s jitter, 0.17 at 0.08 and 0.15 s; 0.65 at 0 s without "
-    "jitter): its cause is not found yet (docs/results/consistency.md, 'Latency')"
+    "jitter): its ball's sigma_w of 0.5 m/s^2 predicted over the delay "
+    "(docs/results/consistency.md, 'Latency with jitter')"
 )
 OUTSIDE: dict[tuple[str, str], str] = {
     ("BallTable-v0/ekf", f"{latency:g}"): _EKF_OVERCLAIMS for latency in LATENCIES_S
