@@ -55,7 +55,12 @@ the step's time. The table's angular acceleration moves the ball about the arm's
 in ``kf``'s model, the tilt_y axis 17 mm below the top (ROTATION_HEIGHTS_M, models.
 KF_ROTATION_HEIGHTS_M): without it, at 0.1 s of latency, the LQR on this estimate swung
 in a limit cycle (24 mm from the centre, 31 mrad RMS tilt; 9.2 mm and 14 mrad with it),
-the unmodelled swing read as the table centre's motion (docs/your_method.md).
+the unmodelled swing read as the table centre's motion (docs/your_method.md). In
+measurements mode, unless a calibration error is declared, the ball's process noise is
+kf's measured model error (a floor and terms that follow the table's motion; noise.py,
+"Q"), not sigma_w = 0.5 m/s^2 at every step: predicted over a frame's age that constant
+claimed five to ten times the error (NEES/dof 0.10-0.17 at 0-0.15 s of latency with
+jitter; 0.52-0.61 with kf's; docs/results/consistency.md, "Latency with jitter").
 
 Pixel noise: from rgb, the image stage's measured errors (corners of the red top 0.18-0.31
 px RMS, outline 0.15 px, ball centre 0.06 px on 400 rendered frames, fixed camera and head
