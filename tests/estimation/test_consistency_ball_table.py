@@ -16,12 +16,12 @@ and 2.19 at 0.1 s, which was a limit cycle (seeds 0-4: the table's tilt_y swingi
 with the tilt_y axis's lever arm in kf's model it settles (0.1-9 mrad, 8.6 mm). ekf's
 0.1 s cell is that limit cycle too (40-50 mrad): with the same lever arm in ekf's model
 it settles and reads 0.20 (its sigma_w, 0.5 m/s^2, then claims too much); ekf has it
-since issue 45, and kf's measured model error with it (0.52 at 0.1 s; 0.17 with the lever
-arm alone). ekf has the table centre's
-translation and its pixel floor is what its model leaves out, 0.003 px (before: 0.26,
-0.45, 1.19, 0.18 and 0.59); under calibration error (0 px) it reads 0.63 at 1 degree of
-rotation error and 0.70 at 2 % focal error (754 and 4.2 in the consistency study before
-the translation states: a pose error read as tilt).
+since issue 45, and kf's measured model error with it (0.52 at 0.1 s; 0.17 with the
+lever arm alone). ekf has the table centre's translation and its pixel floor is what its
+model leaves out, 0.003 px (before: 0.26, 0.45, 1.19, 0.18 and 0.59); under calibration
+error (0 px) it reads 0.93 at 1 degree of rotation error and 1.10 at 2 % focal error
+(0.63 and 0.70 before the lever arm; 754 and 4.2 in the consistency study before the
+translation states: a pose error read as tilt).
 With R x 100 at 0 px the ratio falls (the tests below): kf and kf-latency to 0.32 (0.36,
 0.322, 0.17), just below the band's 1/3, because at 0 px R governs only the ball's
 position and the tilt: the ball's velocity is the pushes' (Q) and the tilt rate's
