@@ -341,21 +341,7 @@ class TiltBallFilters:
         # the table's angular acceleration: the lag model's tilt rates at both ends
         rate_after = self.tilt_model.rate(self._lag_tilt, self.tilt_cmd)
         if self.measured_model_error:
-            # the model's error from the table's motion over the interval, std s_i per axis
-            # (an acceleration; noise.py, "Q"), claimed as it comes and as it persists:
-            s2 = motion_accel_var(
-                (rate_after - rate_before) / dt_s, 0.5 * (rate_after + rate_before)
-            )
-            # as it persists, driving w2 (correlation time 1 / beta): Q += D Q2 D, Q2 the
-            # discrete Q of w2 alone at a stationary std of 1 m/s^2, D = diag(s)
-            scale = np.sqrt(np.tile(s2, 3))
-            Q = Q + scale[:, None] * _unit_w2_q(model, dt_s) * scale[None, :]
-            # as it comes, a white acceleration held over the interval: Q += s^2 G G^T,
-            # G = (dt^2 / 2, dt) on each axis's (p, v)
-            g = np.array([0.5 * dt_s**2, dt_s])
-            for axis in (0, 1):
-                idx = [axis, 2 + axis]
-                Q[np.ix_(idx, idx)] += s2[axis] * np.outer(g, g)
+            Q = Q + motion_model_error_q(model, dt_s, rate_before, rate_after)
         if self._offset_prior is not None:
             Phi, Gamma, Q = with_gravity_offset(Phi, Gamma, Q)
         kf.predict(Phi, Q, Gamma, u)
@@ -488,6 +474,27 @@ def with_gravity_offset(
     Q_b = np.zeros((n + 2, n + 2))
     Q_b[:n, :n] = Q
     return Phi_b, Gamma_b, Q_b
+
+
+def motion_model_error_q(
+    model: RollingBallModel, dt_s: float, rate_before: np.ndarray, rate_after: np.ndarray
+) -> np.ndarray:
+    """What ``kf``'s measured model error adds to the rolling model's Q (6, 6) over
+    ``dt_s``, from the lag model's tilt rates at the interval's two ends: the error's
+    std s_i per axis (an acceleration; noise.py, "Q"), claimed as it comes and as it
+    persists."""
+    s2 = motion_accel_var((rate_after - rate_before) / dt_s, 0.5 * (rate_after + rate_before))
+    # as it persists, driving w2 (correlation time 1 / beta): D Q2 D, Q2 the discrete Q
+    # of w2 alone at a stationary std of 1 m/s^2, D = diag(s)
+    scale = np.sqrt(np.tile(s2, 3))
+    Q = scale[:, None] * _unit_w2_q(model, dt_s) * scale[None, :]
+    # as it comes, a white acceleration held over the interval: s^2 G G^T, G = (dt^2 / 2,
+    # dt) on each axis's (p, v)
+    g = np.array([0.5 * dt_s**2, dt_s])
+    for axis in (0, 1):
+        idx = [axis, 2 + axis]
+        Q[np.ix_(idx, idx)] += s2[axis] * np.outer(g, g)
+    return Q
 
 
 def _unit_w2_q(model: RollingBallModel, dt_s: float) -> np.ndarray:

@@ -123,7 +123,9 @@ class Table1Noise:
         self.R0 = checked_r_scale(r_scale) * np.diag(np.asarray(params.r0, dtype=float))
         self.p0 = params.p0
 
-    def reported(self, P: np.ndarray, X_i: np.ndarray) -> np.ndarray:
+    def reported(
+        self, P: np.ndarray, X_i: np.ndarray, image_rate_pxps: np.ndarray | None = None
+    ) -> np.ndarray:
         return P
 
     def R(self, z_px, image_rate_pxps=None, rate_cov=None) -> np.ndarray:

@@ -173,7 +173,8 @@ class TargetFollowerObserver:
         kf = vse.kf if vse.valid else None  # the main track's filter, while valid
         if kf is not None:
             self._last_image = kf.x[:3].copy()
-            P = vse.noise.reported(kf.P, kf.x)
+            # the image of the frames' capture: plus what it did over their age
+            P = vse.noise.reported(kf.P, kf.x, kf.x[3:] + vse.robot_rate)
             mean, cov = state_estimate(kf.x[:3], kf.x[3:], P, robot, True, visible)
         else:
             mean, cov = lost_estimate(

@@ -328,13 +328,15 @@ def test_the_pixel_models_jacobians_are_its_derivatives():
 
 def test_ekf_predicts_as_kf_does():
     """The same process model: with nothing measured, the EKF's mean follows the
-    prediction of kf without kf's measured model errors (``measured_model_error``: the
-    tilt_y axis's extra height, which ekf does not have) (tilt through the arm's lag, the
-    ball with the trapezoid's gravity)."""
+    prediction of kf with kf's measured model errors (``measured_model_error``: the
+    tilt_y axis's extra height, which ekf has too since issue 45; the rest of it sets
+    only kf's covariance) (tilt through the arm's lag, the ball with the trapezoid's
+    gravity and the table's angular acceleration)."""
     env = gym.make(ENV_ID, obs_mode="measurements").unwrapped
     try:
-        params = BallTableObserverParams(ball=ball_process_params(env.config, RGB_BALL_STD_M))
-        assert not params.measured_model_error
+        params = BallTableObserverParams(
+            ball=ball_process_params(env.config, RGB_BALL_STD_M), measured_model_error=True
+        )
         kf = default_pipeline(env, "kf", params=params)
         ekf = default_pipeline(env, "ekf")
         obs, info = env.reset(seed=0)

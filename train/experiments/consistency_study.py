@@ -7,7 +7,8 @@ perfect detector's pixels (``*-measurements``), under each system's reference co
 From the sweeps' episodes it tabulates, per observer and value, the cell's NEES/dof (the
 episodes' summed mean NEES over their summed dof, :func:`~observer_gym.train.reports.consistency.
 nees_flag`) with its 95 % chi-square band, and the median episode NIS/dof; and plots both
-against each option with a 95 % bootstrap interval over the episodes.
+against each option with a 95 % bootstrap interval over the episodes. The latency sweep
+(0 to 0.2 s) runs with a latency jitter of 0.01 s (:data:`OPTION_ENV_KWARGS`).
 
     python -m observer_gym.train.experiments.consistency_study --out docs/results/consistency \\
         --episodes 10 --workers 2
@@ -107,11 +108,15 @@ SYSTEMS: dict[str, SystemStudy] = {
 # The sensor options and their values (the first is each system's default).
 OPTIONS: dict[str, tuple[float, ...]] = {
     "measurement_noise_px": (0.0, 0.5, 1.0, 2.0, 4.0),
-    "latency_s": (0.0, 0.05, 0.1, 0.2),
+    "latency_s": (0.0, 0.05, 0.1, 0.15, 0.2),
     "frame_drop_prob": (0.0, 0.2, 0.5),
     "calib_rotation_error_deg": (0.0, 0.5, 1.0, 2.0),
     "calib_focal_error": (0.0, 0.02, 0.05),
 }
+# Env options an option's sweep keeps beside the system's: the latency sweep's frames
+# arrive with a Gaussian latency jitter (s; tests/estimation/test_consistency_latency.py
+# checks the same).
+OPTION_ENV_KWARGS: dict[str, Mapping[str, Any]] = {"latency_s": {"latency_jitter_s": 0.01}}
 
 
 class FrameStudy(NamedTuple):
@@ -318,7 +323,7 @@ def _sweep(
         seed=seed,
         workers=workers,
         steps=study.steps,
-        env_kwargs=dict(study.env_kwargs),
+        env_kwargs={**study.env_kwargs, **OPTION_ENV_KWARGS.get(key, {})},
         progress=sys.stderr.isatty(),
     )
 
