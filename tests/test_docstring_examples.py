@@ -66,7 +66,21 @@ def test_every_public_entry_point_has_an_example():
     assert not missing, f"no >>> example in the docstring of {missing}"
 
 
-@pytest.mark.parametrize("name", sorted(EXAMPLES))
+# the compare's and the sweep's examples run several episodes (2.8 s and 1.3 s idle): slow; the
+# examples of run and evaluate, which run episodes too, stay in the default run
+SLOW_EXAMPLES = {
+    "observer_gym.train.experiments.api.compare",
+    "observer_gym.train.experiments.api.sweep",
+}
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(name, marks=pytest.mark.slow) if name in SLOW_EXAMPLES else name
+        for name in sorted(EXAMPLES)
+    ],
+)
 def test_example_runs(name, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # an example that writes a file writes it here
     test = EXAMPLES[name]

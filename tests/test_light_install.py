@@ -25,6 +25,10 @@ import pytest
 
 from observer_gym.extras import RL_INSTALL
 
+# one child interpreter runs every env, a compare and the demo (5.5 s idle): the slow step;
+# CI's plain-install step (.ci/run) checks the built wheel in a venv without torch
+pytestmark = pytest.mark.slow
+
 # run in the child: block the [rl] modules, then the checks; prints one JSON line
 CHILD = textwrap.dedent(
     """

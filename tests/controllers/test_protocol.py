@@ -33,11 +33,15 @@ def test_every_controller_is_checked():
     assert all(CONTROLLER_ENVS[name][0] == env_id for name, env_id in CONTROLLERS.items())
 
 
+SLOW_EPISODES = {"mpc", "lqr", "pid"}
+
+
 @pytest.mark.parametrize(
     "name",
-    [  # mpc's episodes: 20 s at load 7, slow (MPC's closed loop stays in the default run:
-        # test_ball_table_ekf_calibration.py)
-        pytest.param(name, marks=pytest.mark.slow) if name == "mpc" else name
+    [  # BallTable's 500-step episodes (mpc 20 s at load 7, lqr and pid 2 s idle): slow; their
+        # closed loops stay in the default run (test_ball_table_ekf_calibration.py,
+        # test_closed_loop.py, tests/train/test_run.py's oracle episodes)
+        pytest.param(name, marks=pytest.mark.slow) if name in SLOW_EPISODES else name
         for name in CONTROLLERS
     ],
 )

@@ -22,6 +22,7 @@ CASES = [(env_id, mode) for env_id in ENV_IDS for mode in OBS_MODES]
 # SB3 recommends a [-1, 1] action space; our envs keep physical units (radians) and the
 # training code rescales them, so this one warning is expected on the raw env.
 SB3_RESCALE_HINT = "symmetric and normalized Box action space"
+SLOW_RGB = {("observer_gym/BallTable-v0", "rgb"), ("observer_gym/BallCatcher-v1", "rgb")}
 
 
 def knobs(env_id: str):
@@ -81,7 +82,12 @@ def _assert_same(trace_a, trace_b):
                 np.testing.assert_array_equal(x, y)
 
 
-@pytest.mark.parametrize(("env_id", "obs_mode"), CASES)
+@pytest.mark.parametrize(
+    ("env_id", "obs_mode"),
+    [  # 400 rendered steps of BallTable and BallCatcher (4 s and 2.5 s idle): slow
+        pytest.param(*case, marks=pytest.mark.slow) if case in SLOW_RGB else case for case in CASES
+    ],
+)
 def test_same_seed_same_observations_for_200_steps(make_env, env_id, obs_mode):
     kwargs = {"obs_mode": obs_mode, **knobs(env_id).disturbed}
     if obs_mode == "measurements":

@@ -40,6 +40,7 @@ def _connected_client_ids() -> set[int]:
     }
 
 
+@pytest.mark.slow  # many envs (6 s idle)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")
 def test_make_and_close_many_envs_leaks_no_clients_and_no_memory():
     open_before = _connected_client_ids()

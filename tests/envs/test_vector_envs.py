@@ -7,6 +7,7 @@ import functools
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from gymnasium.vector import AsyncVectorEnv
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -35,6 +36,8 @@ def _in_process_trajectory(seed: int, n_steps: int) -> list[np.ndarray]:
         env.close()
 
 
+# spawned SB3 workers (5 s idle): slow; the AsyncVectorEnv spawn test stays in the default run
+@pytest.mark.slow
 def test_sb3_subproc_vec_env_with_spawn_matches_in_process_env():
     vec_env = make_vec_env(
         SPAWN_ENV_ID,

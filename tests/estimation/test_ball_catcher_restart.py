@@ -176,7 +176,8 @@ def closed_loop_at_heavy_image_noise(observer, seed):
         env.close()
 
 
-@pytest.mark.parametrize("observer", ["kf", "ekf"])
+# 1.5 s each (idle): kf in the default run, ekf slow
+@pytest.mark.parametrize("observer", ["kf", pytest.param("ekf", marks=pytest.mark.slow)])
 def test_both_filters_recover_and_stay_consistent_at_the_heaviest_image_noise(observer):
     """image_noise_std=64, seeds 0-1: the catch is made, and from FROM_S (0.2 s) on the
     error is below 1 cm and within ~3 claimed std (NEES <= 14.2), 15 ms before the plane

@@ -206,8 +206,16 @@ CELLS = {
 }
 
 
-@pytest.mark.parametrize("observer", ["selfcal", "endpoint"])
-@pytest.mark.parametrize("condition", sorted(CELLS))
+@pytest.mark.parametrize(
+    ("condition", "observer"),
+    [  # the lab and field levels in the default run; the other cells (0.3-0.8 s each idle) slow
+        (condition, observer)
+        if condition in ("lab", "field")
+        else pytest.param(condition, observer, marks=pytest.mark.slow)
+        for observer in ("selfcal", "endpoint")
+        for condition in sorted(CELLS)
+    ],
+)
 def test_median_nees_per_dof_over_the_flight_is_within_the_band(observer, condition):
     """As tests/estimation/test_consistency_ball_catcher.py's cells (3 throws, intercept on
     the observer's own estimate), for the self-calibrating observers, plus the suite's

@@ -398,6 +398,9 @@ def test_ekf_keeps_the_ball_when_the_table_is_hidden():
     assert errors["ekf"].max() < 5e-4 and errors["kf"].max() > errors["ekf"].max()
 
 
+# long pixel episodes (4.4 s idle): slow; the pixel EKF's closed loop on frames stays in the
+# default run (tests/controllers/test_closed_loop.py)
+@pytest.mark.slow
 def test_ekf_from_pixels_beats_the_pnp_pipeline_on_position():
     """From rendered frames (6 s): the EKF's position and tilt errors are below kf's (no
     PnP of a square seen nearly head-on), its velocity error like kf's, far below raw's;

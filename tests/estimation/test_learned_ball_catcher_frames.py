@@ -151,7 +151,9 @@ CLOSED_LOOP_BOUNDS = {
 }
 
 
-@pytest.mark.parametrize("observer", ["learned", "learned-kf"])
+@pytest.mark.parametrize(  # the network alone on frames: slow (learned-kf runs it too)
+    "observer", [pytest.param("learned", marks=pytest.mark.slow), "learned-kf"]
+)
 def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(observer):
     rmse_bound, median_bound, (low, high) = CLOSED_LOOP_BOUNDS[observer]
     result = _closed_loop(observer)
@@ -160,6 +162,8 @@ def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(observer):
     assert low <= result.median_nees_per_dof <= high, result
 
 
+@pytest.mark.slow  # two frame-detector trainings (1.6-2.4 s idle); the learned observers'
+# measurement trainings are checked for it in the default run (test_learned_ball_table.py)
 def test_training_is_reproducible_from_its_seed():
     """The same data and seed give the same tensors (a tiny run: 5 throws of 6 steps, one
     epoch); the crops hold the ball where their labels say."""

@@ -12,8 +12,8 @@ from types import ModuleType
 import gymnasium as gym
 import numpy as np
 import pytest
+from closed_loop import closed_loop as shared_closed_loop
 
-from observer_gym.controllers import make_controller
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_table import learned_detector as ball_table
 from observer_gym.estimation.learned.frame_detector import LearnedDetector
@@ -126,26 +126,24 @@ def closed_loop(system: str, observer: str, seed: int = NEW_SEED) -> tuple[float
     controller on ``observer``'s estimate from frames, one episode of ``seed``."""
     env_id, _, controller_name, steps = SYSTEMS[system]
     entries = CLOSED_LOOP_BOUNDS[system, observer][0]
-    env = VisionObserver(gym.make(env_id, obs_mode="rgb"), observer=observer)
     errors, nees = [], []
-    try:
-        controller = make_controller(controller_name, env)
-        estimate, info = env.reset(seed=seed)
-        for _ in range(steps):
-            action, _ = controller.predict(estimate, deterministic=True)
-            estimate, _, terminated, truncated, info = env.step(action)
-            e = (info["estimate"]["mean"] - info["state"])[entries]
-            P = info["estimate"]["covariance"][entries, entries]
-            errors.append(e)
-            nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
-            if terminated or truncated:
-                break
-    finally:
-        env.close()
+    loop = shared_closed_loop(
+        lambda: gym.make(env_id, obs_mode="rgb"), controller_name, [seed], steps, observer=observer
+    )
+    for step in loop:
+        e = (step.info["estimate"]["mean"] - step.info["state"])[entries]
+        P = step.info["estimate"]["covariance"][entries, entries]
+        errors.append(e)
+        nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
+        if step.terminated or step.truncated:
+            break
+    loop.close()
     return float(np.sqrt(np.mean(np.sum(np.square(errors), axis=1)))), float(np.median(nees))
 
 
-@pytest.mark.parametrize("observer", ["learned", "learned-kf"])
+@pytest.mark.parametrize(  # the network alone on frames: slow (learned-kf runs it too)
+    "observer", [pytest.param("learned", marks=pytest.mark.slow), "learned-kf"]
+)
 def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(system, observer):
     _, bound, (low, high) = CLOSED_LOOP_BOUNDS[system, observer]
     error, nees = closed_loop(system, observer)
@@ -187,6 +185,8 @@ def test_a_cache_of_other_frames_is_refused_not_overwritten(tmp_path, capsys):
     assert err.count("\n") == 1 and cache.read_bytes() == before and not out.exists()
 
 
+@pytest.mark.slow  # two frame-detector trainings (1.6-2.4 s idle); the learned observers'
+# measurement trainings are checked for it in the default run (test_learned_ball_table.py)
 def test_training_is_reproducible_from_its_seed():
     """The same data and seed give the same tensors (a tiny run: 5 episodes of 4 steps,
     one epoch)."""

@@ -427,11 +427,13 @@ def fresh_command(tmp_path_factory) -> dict[str, tuple[int, list[str]]]:
     }
 
 
+@pytest.mark.slow  # fresh_command: a forked child per argv (6.6 s idle)
 @pytest.mark.parametrize("case", FOUND_BEFORE_HEAVY)
 def test_mistakes_are_found_before_the_heavy_imports(case, fresh_command):
     assert fresh_command[case] == (2, [])
 
 
+@pytest.mark.slow  # fresh_command: a forked child per argv (6.6 s idle)
 @pytest.mark.parametrize("argv", HELP)
 def test_help_imports_no_heavy_module(argv, fresh_command):
     assert fresh_command[" ".join([*argv, "--help"])] == (0, [])

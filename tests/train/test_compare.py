@@ -197,7 +197,7 @@ def without_files(pairs: list[dict]) -> list[dict]:
     return [{k: v for k, v in p.items() if k != "files"} for p in pairs]
 
 
-@pytest.mark.slow  # spawned workers (27 s at load 7); test_run.py's twin stays in the default run
+@pytest.mark.slow  # spawned workers (27 s at load 7); test_outside_entries.py's twin stays
 def test_two_workers_give_the_results_of_one(compared, tmp_path, no_plots):
     _, results = compared
     again = run_comparison(

@@ -48,6 +48,8 @@ def imported_alone() -> dict[str, str | None]:
     return json.loads(result.stdout)
 
 
+@pytest.mark.slow  # a forked child per module (17 s idle); test_no_import_cycle below
+# (static, 0.4 s) finds the cycles that break an import alone, in the default run
 @pytest.mark.parametrize("module", sorted(MODULES))
 def test_each_module_imports_alone(module, imported_alone):
     assert imported_alone[module] is None, imported_alone[module]

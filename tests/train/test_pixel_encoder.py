@@ -163,6 +163,8 @@ def test_the_recorded_command_leaves_out_where_the_frames_were_kept():
 @pytest.mark.skipif(
     not (ENCODERS_DIR / "ball_table.pt").is_file(), reason="no shipped BallTable encoder"
 )
+# rendered frames through the shipped encoder (3.6 s idle): slow
+@pytest.mark.slow
 def test_the_shipped_ball_table_encoder_reads_the_ball_from_fresh_frames():
     """On frames it never saw (a new seed, LQR on the truth with noise), with the ball
     within 3 cm of the centre, the encoder's ball position is within 2x its report's

@@ -166,6 +166,8 @@ def test_kf_measurements_lqr_episode(tmp_path):
     check_outputs(tmp_path, results, {"path.png", "error.png", "estimate.png"})
 
 
+# worker processes (6 s idle): slow; test_outside_entries.py's one worker against two stays
+@pytest.mark.slow
 def test_two_workers_give_the_results_of_one(tmp_path):
     def run(workers: int) -> dict:
         return run_experiment(

@@ -58,6 +58,9 @@ def _parameters(model) -> list[np.ndarray]:
     return [p.detach().cpu().numpy().copy() for p in model.policy.parameters()]
 
 
+# ppo_run, a 2,000-step PPO run in two spawned workers (13 s idle), is slow with the three
+# tests that read it; conftest.py's tiny_run is a training in the default run
+@pytest.mark.slow
 def test_run_writes_what_it_promises(ppo_run):
     config = json.loads((ppo_run / "config.json").read_text())
     state = json.loads((ppo_run / "state.json").read_text())
@@ -78,6 +81,7 @@ def test_run_writes_what_it_promises(ppo_run):
     assert latest_checkpoint(ppo_run / "checkpoints")["timesteps"] == 2048
 
 
+@pytest.mark.slow  # ppo_run; test_shipped.py loads an agent in the default run
 def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
     """Agent.load (VecNormalize statistics + model + action map) against SB3's own
     loader and VecNormalize's formula on the saved arrays, on observations of the
@@ -110,6 +114,7 @@ def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # ppo_run
 def test_evaluate_scores_like_run(ppo_run, tmp_path):
     """evaluate = run with the agent as the controller: same results.json numbers."""
     evaluated = evaluate_agent(ppo_run, 2, tmp_path / "eval", seed=5, steps=60, progress=False)
@@ -171,7 +176,9 @@ def test_resume_continues_the_timestep_count(tmp_path):
 @pytest.mark.parametrize(
     ("how", "n_envs"),
     [  # SIGTERM to the trainer; SIGINT to it and its workers
-        ("kill", 1),
+        # a real PPO training in a subprocess (13 s idle); test_signal_in_write.py stops
+        # a checkpoint write, test_kill_safe.py a killed run, in the default run
+        pytest.param("kill", 1, marks=pytest.mark.slow),
         pytest.param("ctrl-c", 2, marks=pytest.mark.slow),  # 2 workers (62 s at load 7)
     ],
 )
