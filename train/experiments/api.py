@@ -208,6 +208,8 @@ def run(
     controller_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> RunResult:
     """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env``
     (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with
@@ -251,6 +253,8 @@ def run(
             cli_args=cli_args,
             observer_options=observer_options,
             controller_options=controller_options,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     return _run_result(results, results_text(results))
 
