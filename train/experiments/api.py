@@ -289,12 +289,16 @@ def compare(
     controller_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> ComparisonResult:
     """Every (observer, controller) pair on the same episodes (``seeds``, or ``episodes``
     from ``seed``: the module docstring), with intervals, paired
     differences from the oracle and NEES/NIS
     (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
-    processes or as Ray tasks (``backend="ray"``), with the same records.
+    processes or as Ray tasks (``backend="ray"``), with the same records. ``video_dir``:
+    an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every pair whose
+    observer reads camera images (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -330,6 +334,8 @@ def compare(
             cli_args=cli_args,
             observer_options=observer_options,
             controller_options=controller_options,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     pairs = [
         PairResult(

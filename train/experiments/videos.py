@@ -27,11 +27,13 @@ from observer_gym.train.reports.video import (
 
 @dataclasses.dataclass(frozen=True)
 class VideoPlan:
-    """The folder the videos go to and the episodes filmed (indices in the run: episode
-    i resets with the run's i-th seed)."""
+    """The folder the videos go to, the episodes filmed (indices in the run: episode i
+    resets with the run's i-th seed) and the observers filmed (those that read camera
+    images)."""
 
     folder: Path
     episodes: tuple[int, ...]
+    observers: frozenset[str]
 
 
 def plan_videos(
@@ -41,9 +43,10 @@ def plan_videos(
     env_id: str,
     observers: Sequence[str],
 ) -> VideoPlan | None:
-    """The checked plan, None without ``video_dir``. Raises, before anything runs:
+    """The checked plan, None without ``video_dir``. Of several observers (compare,
+    sweep) those that read camera images are filmed. Raises, before anything runs:
     :class:`~observer_gym.extras.ExtraNotInstalled` without the ``[video]`` extra,
-    ValueError for an observer that reads no images or an episode index outside
+    ValueError when no observer reads images or for an episode index outside
     0..episodes-1, :class:`~observer_gym.train.reports.outputs.WriteError` for a folder
     that cannot be written."""
     if video_dir is None:
@@ -51,24 +54,28 @@ def plan_videos(
             raise ValueError("video episodes were given without a video folder (--video DIR)")
         return None
     require_video()
-    for observer in observers:
-        check_video_observer(observer_setup(env_id, observer)[0], observer)
+    modes = {observer: observer_setup(env_id, observer)[0] for observer in observers}
+    filmed = frozenset(o for o, mode in modes.items() if mode == "rgb")
+    if not filmed:
+        first = next(iter(modes))
+        check_video_observer(modes[first], first)  # raises: it names the choice
     chosen = chosen_episodes(video_episodes, episodes)
-    return VideoPlan(check_video_folder(video_dir), chosen)
+    return VideoPlan(check_video_folder(video_dir), chosen, filmed)
 
 
 def with_videos(
     specs: Sequence[EpisodeSpec], plan: VideoPlan | None, episodes: int, prefix: str = ""
 ) -> list[EpisodeSpec]:
     """``specs`` (groups of ``episodes`` consecutive episodes, one group per pair or cell)
-    with a :class:`~observer_gym.train.reports.video.VideoRequest` on the chosen episode
-    of each group; ``prefix`` begins the file names (a sweep's cell)."""
+    with a :class:`~observer_gym.train.reports.video.VideoRequest` on the chosen episodes
+    of each group whose observer is filmed; ``prefix`` begins the file names (a sweep's
+    cell)."""
     if plan is None:
         return list(specs)
     marked = []
     for k, spec in enumerate(specs):
         episode = k % episodes
-        if episode in plan.episodes:
+        if episode in plan.episodes and spec.observer in plan.observers:
             stem = prefix + video_stem(
                 spec.env_id, spec.observer, spec.controller, episode, spec.seed
             )
