@@ -379,12 +379,16 @@ def sweep(
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
     on_cell: Callable[[str], None] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
     resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`);
     ``episodes`` from ``seed``, or ``seeds`` (consecutive): the module docstring.
     ``progress`` draws a bar over the episodes; ``on_cell`` is called with one line for
     each cell as it finishes (the command prints it on stderr when no bar can be drawn).
+    ``video_dir``: an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every
+    cell run now whose observer reads camera images (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -423,6 +427,8 @@ def sweep(
             observer_options=observer_options,
             controller_options=controller_options,
             on_cell=on_cell,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     text = sweep_text(
         result.results, result.out_dir, result.cells_run, result.cells_reused, result.wall_time_s
