@@ -456,11 +456,14 @@ def evaluate(
     workers: int = 1,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> RunResult:
     """Episodes of the agent trained in the folder ``model`` (one seed's run; or a shipped
     agent by name, ``"ppo:ball_table-estimate"`` or ``"ball_table-estimate"``) on its env
     with its training options, reading what it was trained on or ``observer``
-    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`).
+    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`); ``video_dir``: MP4s
+    of the episodes ``video_episodes`` as :func:`run`'s.
 
     Example, a shipped agent (PPO on the kf's estimate of BallTable):
         >>> import tempfile
@@ -490,5 +493,7 @@ def evaluate(
             workers=workers,
             progress=progress,
             cli_args=cli_args,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     return _run_result(results, results_text(results, "evaluate"))

@@ -70,10 +70,14 @@ class VideoRequest:
 
 def video_stem(env_id: str, observer: str, controller: str, episode: int, seed: int) -> str:
     """A file-name stem for episode ``episode`` (its index in the run) of a pair: the
-    names with what a file name cannot hold replaced by ``-``."""
+    names (an agent ``ALGO:PATH`` as ``ALGO-FOLDER``) with what a file name cannot hold
+    replaced by ``-``, cut to 120 characters."""
     short = env_id.rsplit("/", 1)[-1]
-    text = f"{short}_{observer}_{controller}_episode{episode}_seed{seed}"
-    return re.sub(r"[^A-Za-z0-9._=-]+", "-", text)
+    if ":" in controller:  # an agent, ALGO:PATH: its algorithm and folder's name
+        algo, path = controller.split(":", 1)
+        controller = f"{algo}-{Path(path).name}"
+    names = re.sub(r"[^A-Za-z0-9._=-]+", "-", f"{short}_{observer}_{controller}")
+    return f"{names[:120]}_episode{episode}_seed{seed}"
 
 
 def check_video_folder(folder: str | os.PathLike) -> Path:
