@@ -51,6 +51,14 @@ class DeliveredFrame:
     detection_px: np.ndarray | None  # the observer's detection in this camera, (u, v)
 
     @property
+    def calibration_differs(self) -> bool:
+        """Whether the world's camera is not the nominal one (a calibration error)."""
+        return not (
+            np.array_equal(self.K, self.K_true)
+            and np.array_equal(self.T_world_cam, self.T_world_cam_true)
+        )
+
+    @property
     def age_ms(self) -> float:
         """Capture to delivery, in milliseconds."""
         return 1e3 * (self.delivery_time_s - self.capture_time_s)

@@ -4,12 +4,13 @@
 reset and after every step, :meth:`EpisodeVideo.add` takes the step's ``info`` and draws
 each delivered frame (:func:`~observer_gym.train.reports.episode_frames.delivered_frames`)
 with OpenCV: the observer's detection (yellow ring), the truth projected through the true
-camera (cyan cross), the estimate projected through the nominal calibration (magenta
-dot) with its 2-sigma ellipse (the covariance through the projection's Jacobian), the
+camera (cyan cross) and, when the env sets a calibration error, through the nominal
+calibration too (cyan ring: the two differ by the calibration error's effect in pixels),
+the estimate projected through the nominal calibration (magenta dot) with its 2-sigma
+ellipse (the covariance through the projection's Jacobian), the
 frame's capture-to-delivery age in ms and the frames dropped since the camera's last one
 (red); beside the image a strip of the estimate's error and the controller's action over
-the last :data:`STRIP_STEPS` steps. With a calibration error set, the estimate (nominal
-camera) and the truth (true camera) fall apart by it.
+the last :data:`STRIP_STEPS` steps.
 
 The frames go to ffmpeg (imageio-ffmpeg, the ``[video]`` extra) as they come: nothing
 holds more than one frame and the strip's last steps, so memory stays flat however long
@@ -49,6 +50,8 @@ TRUTH_RGB = (0, 255, 255)
 DETECTION_RGB = (255, 255, 0)
 DROPPED_RGB = (255, 40, 40)
 TEXT_RGB = (255, 255, 255)
+ESTIMATE_DOT_PX = 3  # the estimate's dot's radius in the video's pixels
+TRUTH_CROSS_PX = 20  # the truth's cross's size in the video's pixels
 STRIP_STEPS = 200  # the strip shows the error and the action over this many last steps
 STRIP_WIDTH_PX = 320
 # The estimate error the strip plots, per system: the state entries, their unit and scale
@@ -266,7 +269,13 @@ class EpisodeVideo:
                 self.projection, frame.state, frame.K_true, frame.T_world_cam_true
             )
             if truth is not None and inside(truth.uv_px):
-                cv2.drawMarker(image, at(truth.uv_px), TRUTH_RGB, cv2.MARKER_CROSS, 6 * scale, 1)
+                cv2.drawMarker(
+                    image, at(truth.uv_px), TRUTH_RGB, cv2.MARKER_CROSS, TRUTH_CROSS_PX, 2
+                )
+            if frame.calibration_differs:  # where the nominal calibration puts the truth
+                seen = marker_pixels(self.projection, frame.state, frame.K, frame.T_world_cam)
+                if seen is not None and inside(seen.uv_px):
+                    cv2.circle(image, at(seen.uv_px), 4 * scale, TRUTH_RGB, 1, cv2.LINE_AA)
         if frame.detection_px is not None and inside(frame.detection_px):
             cv2.circle(image, at(frame.detection_px), 5 * scale, DETECTION_RGB, 1, cv2.LINE_AA)
         if self.projection is not None and frame.estimate is not None:
@@ -276,7 +285,7 @@ class EpisodeVideo:
             if marker is not None and inside(marker.uv_px):
                 if marker.covariance_px2 is not None:
                     self._ellipse(image, marker.uv_px, marker.covariance_px2, scale)
-                cv2.circle(image, at(marker.uv_px), 2 * scale, ESTIMATE_RGB, -1)
+                cv2.circle(image, at(marker.uv_px), ESTIMATE_DOT_PX, ESTIMATE_RGB, -1)
         lines = [
             f"t {frame.delivery_time_s:6.2f} s  cam {frame.camera_id}",
             f"age {frame.age_ms:5.1f} ms",
@@ -377,11 +386,11 @@ class EpisodeVideo:
         )
         for row, (text, colour) in enumerate(legend):
             y = height - 10 - 16 * (len(legend) - 1 - row)
-            cv2.circle(strip, (STRIP_WIDTH_PX - 130, y - 4), 4, colour, -1)
+            cv2.circle(strip, (STRIP_WIDTH_PX - 190, y - 4), 4, colour, -1)
             cv2.putText(
                 strip,
                 text,
-                (STRIP_WIDTH_PX - 120, y),
+                (STRIP_WIDTH_PX - 180, y),
                 cv2.FONT_HERSHEY_SIMPLEX,
                 0.4,
                 TEXT_RGB,
