@@ -366,7 +366,7 @@ class EpisodeVideo:
             colours = [(0, 200, 255), (255, 160, 0), (200, 200, 200), (120, 255, 120)]
             for k in range(actions.shape[1]):
                 fraction = np.clip((actions[:, k] - low[k % low.size]) / span[k % span.size], 0, 1)
-                ys = height - 8 - (half - 30) * fraction
+                ys = height - 58 - (half - 84) * fraction  # above the legend
                 points = np.column_stack([xs(actions.shape[0]), ys]).astype(np.int32)
                 cv2.polylines(strip, [points], False, colours[k % len(colours)], 1, cv2.LINE_AA)
             cv2.putText(
@@ -381,16 +381,16 @@ class EpisodeVideo:
             )
         legend = (
             ("estimate, 2-sigma", ESTIMATE_RGB),
-            ("truth", TRUTH_RGB),
+            ("truth (ring: through the nominal camera)", TRUTH_RGB),
             ("detection", DETECTION_RGB),
         )
         for row, (text, colour) in enumerate(legend):
             y = height - 10 - 16 * (len(legend) - 1 - row)
-            cv2.circle(strip, (STRIP_WIDTH_PX - 190, y - 4), 4, colour, -1)
+            cv2.circle(strip, (12, y - 4), 4, colour, -1)
             cv2.putText(
                 strip,
                 text,
-                (STRIP_WIDTH_PX - 180, y),
+                (22, y),
                 cv2.FONT_HERSHEY_SIMPLEX,
                 0.4,
                 TEXT_RGB,
