@@ -67,7 +67,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300, help="steps of a speed episode")
     parser.add_argument("--repeats", type=int, default=3, help="speed pairs to take medians of")
     parser.add_argument(
-        "--long", default="500,2000", help="episode lengths (steps) of the memory rows"
+        "--long",
+        default="500,2000",
+        help="episode lengths (steps) of the memory rows ('' for none)",
     )
     args = parser.parse_args()
     print(f"load average at the start: {os.getloadavg()}")
@@ -89,7 +91,7 @@ def main() -> None:
         print("\nPeak Python heap (tracemalloc) of one episode:")
         print("| steps | without (MiB) | with --video (MiB) | video's share (MiB) | MP4 (MB) |")
         print("|---|---|---|---|---|")
-        for steps in (int(s) for s in args.long.split(",")):
+        for steps in (int(s) for s in args.long.split(",") if s.strip()):
             without = peak_mib(steps, None)
             with_video = peak_mib(steps, folder)
             size_mb = (folder / f"long{steps}.mp4").stat().st_size / 1e6
