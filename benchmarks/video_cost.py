@@ -10,8 +10,9 @@ episodes through :func:`~observer_gym.train.experiments.episode.run_episode` (wh
 
 - **Speed**: ``--repeats`` pairs of one ``--steps``-step episode without and one with
   ``--video``, alternated so that a change of the machine's load touches both; the median
-  steps per second of each. The load average (``os.getloadavg``) is printed before and
-  after.
+  steps per second of each, by the wall clock and by CPU time (this process's and its
+  finished children's, ffmpeg's: less moved by the other programs on the machine). The
+  load average (``os.getloadavg``) is printed before and after.
 - **Memory**: for each episode length of ``--long``, the peak of the Python heap
   (``tracemalloc``: NumPy's arrays included) during the episode, without and with video.
   The episode's own record grows with its length either way (it keeps every step's
@@ -47,10 +48,18 @@ def spec(steps: int, folder: Path | None, name: str = "v") -> EpisodeSpec:
     )  # fmt: skip
 
 
-def steps_per_s(steps: int, folder: Path | None) -> float:
-    tic = time.perf_counter()
+def cpu_s() -> float:
+    """CPU seconds of this process and of its finished children (ffmpeg)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+def steps_per_s(steps: int, folder: Path | None) -> tuple[float, float]:
+    """Steps per wall-clock second and per CPU second (this process and ffmpeg's)."""
+    tic, tic_cpu = time.perf_counter(), cpu_s()
     record = run_episode(spec(steps, folder))
-    return len(record["actions"]) / (time.perf_counter() - tic)
+    count = len(record["actions"])
+    return count / (time.perf_counter() - tic), count / (cpu_s() - tic_cpu)
 
 
 def peak_mib(steps: int, folder: Path | None) -> float:
@@ -80,13 +89,19 @@ def main() -> None:
         for _ in range(args.repeats):
             plain.append(steps_per_s(args.steps, None))
             filmed.append(steps_per_s(args.steps, folder))
-        a, b = statistics.median(plain), statistics.median(filmed)
         print(f"\nBallTable-v0, kf + lqr, {args.steps}-step episodes, median of {args.repeats}:")
-        print("| run | steps/s (median) | each |")
-        print("|---|---|---|")
-        print(f"| without --video | {a:.1f} | {', '.join(f'{x:.1f}' for x in plain)} |")
-        print(f"| with --video | {b:.1f} | {', '.join(f'{x:.1f}' for x in filmed)} |")
-        print(f"with/without: {b / a:.2f}")
+        print("| run | steps/s (median) | each | steps per CPU s (median) | each |")
+        print("|---|---|---|---|---|")
+        medians = {}
+        for name, runs in (("without --video", plain), ("with --video", filmed)):
+            wall, cpu = [r[0] for r in runs], [r[1] for r in runs]
+            medians[name] = (statistics.median(wall), statistics.median(cpu))
+            print(
+                f"| {name} | {medians[name][0]:.1f} | {', '.join(f'{x:.1f}' for x in wall)} "
+                f"| {medians[name][1]:.1f} | {', '.join(f'{x:.1f}' for x in cpu)} |"
+            )
+        (a, a_cpu), (b, b_cpu) = medians["without --video"], medians["with --video"]
+        print(f"with/without: {b / a:.2f} (wall clock), {b_cpu / a_cpu:.2f} (CPU)")
 
         print("\nPeak Python heap (tracemalloc) of one episode:")
         print("| steps | without (MiB) | with --video (MiB) | video's share (MiB) | MP4 (MB) |")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -193,6 +194,19 @@ def test_a_full_disk_is_one_write_error_and_leaves_no_file(tmp_path, monkeypatch
     with pytest.raises(OSError, match=r"could not write .*x\.mp4: .*No space left"):
         run_episode(spec)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_temp_left_by_a_killed_run_is_removed_by_the_next(tmp_path):
+    from observer_gym.train.reports.outputs import OutputFolderWarning
+    from observer_gym.train.reports.video import check_video_folder
+
+    dead = tmp_path / ".x.mp4.tmp-999999999"  # no such process
+    alive = tmp_path / f".y.mp4.tmp-{os.getpid()}"  # this one's: still writing
+    dead.write_bytes(b"half")
+    alive.write_bytes(b"half")
+    with pytest.warns(OutputFolderWarning, match=r"removed 1 temp file\(s\)"):
+        check_video_folder(tmp_path)
+    assert not dead.exists() and alive.exists()
 
 
 def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:

@@ -41,7 +41,7 @@ from observer_gym.train.reports.episode_frames import (
     marker_pixels,
     projection_for,
 )
-from observer_gym.train.reports.outputs import WriteError
+from observer_gym.train.reports.outputs import WriteError, remove_stale_temps
 from observer_gym.train.reports.signals import signals_deferred
 
 # The overlays' colours (RGB, as the frames are)
@@ -86,7 +86,9 @@ def video_stem(env_id: str, observer: str, controller: str, episode: int, seed: 
 def check_video_folder(folder: str | os.PathLike) -> Path:
     """Create ``folder`` if needed and check that files can be made in it; WriteError
     naming it (one line) if not. Before any episode runs, so a run into a folder it
-    cannot write is refused at once."""
+    cannot write is refused at once. Removes the temps there of writers that are gone (a
+    run killed with SIGKILL: :func:`~observer_gym.train.reports.outputs.remove_stale_temps`,
+    with a warning naming them)."""
     path = Path(folder)
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -95,6 +97,7 @@ def check_video_folder(folder: str | os.PathLike) -> Path:
         probe.unlink()
     except OSError as exc:
         raise WriteError(f"cannot write videos into {path}: {exc.strerror or exc}") from exc
+    remove_stale_temps(path)
     return path
 
 
