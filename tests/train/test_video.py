@@ -131,6 +131,38 @@ def test_the_truth_through_the_true_camera_and_the_nominal_one_differ_with_a_cal
     assert near(image[v, u + arm], video_module.TRUTH_RGB), image[v, u + arm]
 
 
+def test_dropped_frames_are_marked_on_the_next_frame(tmp_path):
+    env = make_env(ENV, "kf", {"frame_drop_prob": 0.3})
+    captures = []
+    try:
+        controller = build_controller("lqr", env)
+        controller.reset()
+        with EpisodeVideo(VideoRequest(str(tmp_path), "drops"), env) as video:
+            obs, info = env.reset(seed=1)
+            video.add(info, 0)
+            captures += [f["capture_time_s"] for f in info["frames"]]
+            for step in range(1, 41):
+                action, _ = controller.predict(obs)
+                obs, _, _, _, info = env.step(action)
+                video.add(info, step, action)
+                captures += [f["capture_time_s"] for f in info["frames"]]
+    finally:
+        env.close()
+    frames = decoded(tmp_path / "drops.mp4")
+    assert len(frames) == len(captures)
+    period_s = 1 / 50
+    after_drop = [
+        k for k in range(1, len(captures)) if captures[k] - captures[k - 1] > 1.5 * period_s
+    ]
+    assert after_drop and len(after_drop) < len(captures) - 1  # some frames dropped, not all
+    height = frames[0].shape[0]
+    # the red border's bottom-left corner, on the frames after a drop and only there
+    marked = [
+        k for k, frame in enumerate(frames) if near(frame[height - 2, 1], video_module.DROPPED_RGB)
+    ]
+    assert marked == after_drop
+
+
 def test_recording_changes_nothing_in_the_episode(tmp_path):
     spec = EpisodeSpec.of(ENV, "kf", "lqr", seed=5, max_steps=25)
     plain = run_episode(spec)
