@@ -32,17 +32,19 @@ training never drew (10**6 on, 1 px, the ``intercept`` controller on its estimat
 0.1 s to the crossing), the figures and bounds are in
 tests/estimation/test_learned_ball_catcher.py and docs/observers.md.
 
-**Training data** (:func:`collect`): throws of the env in measurements mode caught by the
-``intercept`` controller, each episode's sensor drawn from :data:`TRAINING_RANGES` from
-the training seed: pixel noise 0-2 px, latency 0-10 ms, latency jitter 0-3 ms, capture
-jitter 0-2 ms, drops 0-10 %, camera preset "alternating" or "random_offsets" (the options
-the benchmark's levels vary, ideal to field, docs/benchmark.md). Only the steps of the
-ball's free flight (``info["ball_in_flight"]``: before its first touch of the box) are
-samples: after the touch no model holds and the estimate there is not claimed. DAgger
-rounds (``act_with``: the controller acts on the network fitted so far) are supported as
-for BallTable, but add only throws of new seeds: the ball's free flight, and so every
-sample, does not depend on the actions (the perfect detector models no occlusion by the
-box), so the shipped weights are one round.
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.ball_catcher.collect`): throws
+of the env in measurements mode caught by the ``intercept`` controller, each episode's
+sensor drawn from :data:`TRAINING_RANGES` from the training seed: pixel noise 0-2 px,
+latency 0-10 ms, latency jitter 0-3 ms, capture jitter 0-2 ms, drops 0-10 %, camera
+preset "alternating" or "random_offsets" (the options the benchmark's levels vary, ideal
+to field, docs/benchmark.md). Only the steps of the ball's free flight
+(``info["ball_in_flight"]``: before its first touch of the box) are samples: after the
+touch no model holds and the estimate there is not claimed. DAgger rounds (``act_with``:
+the controller acts on the network fitted so far) are supported as for BallTable, but add
+only throws of new seeds: the ball's free flight, and so every sample, does not depend on
+the actions (the perfect detector models no occlusion by the box), so the shipped weights
+are one round.
 
 **Outside the training ranges** the network has seen nothing, and neither its estimate
 nor its covariance is to be trusted there: more pixel noise, latency above 10 ms or its
@@ -62,8 +64,8 @@ detector's report.
 
 Trained by (the held-out figures are in ``learned.json`` and docs/observers.md)::
 
-    python -m observer_gym.estimation.learned.train --env BallCatcher-v1 --episodes 2500 \\
-        --rounds 1
+    python -m observer_gym.train.experiments.learned_observers.train \\
+        --env BallCatcher-v1 --episodes 2500 --rounds 1
 """
 
 from __future__ import annotations
@@ -74,7 +76,6 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.ball_catcher import BallCatcherEnv
-from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
@@ -88,7 +89,6 @@ __all__ = [
     "WEIGHTS",
     "LearnedFeatures",
     "LearnedObserver",
-    "collect",
 ]
 
 WEIGHTS = Path(__file__).with_name("learned.pt")
@@ -265,53 +265,3 @@ def image_centre_px(env: BallCatcherEnv) -> tuple[float, float]:
     """((width - 1) / 2, (height - 1) / 2) of the env's images (px)."""
     width, height = env.rig.image_size_px
     return 0.5 * (width - 1), 0.5 * (height - 1)
-
-
-def collect(
-    episodes: int, seed: int, act_with: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (N, 65), truth (N, 6): the ball's position and velocity, episode (N,))
-    from ``episodes`` throws (see the module docstring), the free-flight steps only,
-    reproducible from ``seed``. The ``intercept`` controller acts on the truth, or with
-    ``act_with`` (a :class:`~observer_gym.estimation.learned.network.GaussianMLP`) on that
-    network's estimate and covariance (a DAgger round)."""
-    import gymnasium as gym
-
-    from observer_gym.controllers import make_controller
-    from observer_gym.controllers.ball_catcher import InterceptController
-
-    rng = np.random.default_rng(seed)
-    xs, ys, eps = [], [], []
-    for episode in range(episodes):
-        options = draw_options(rng)
-        env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements", **options)
-        try:
-            unwrapped = env.unwrapped
-            assert isinstance(unwrapped, BallCatcherEnv)
-            controller = make_controller("intercept", env)
-            assert isinstance(controller, InterceptController)
-            pixels = FrameReader(unwrapped.config, owner="collect")
-            features = LearnedFeatures(unwrapped.num_cameras, image_centre_px(unwrapped))
-            _, info = env.reset(seed=int(rng.integers(2**31)))
-            while True:
-                for frame in info["frames"]:
-                    uv = pixels.detect(frame)
-                    features.add(int(frame["camera_id"]), float(frame["capture_time_s"]), uv)
-                x = features.vector(float(info["time_s"]))
-                if info["ball_in_flight"]:
-                    xs.append(x)
-                    ys.append(np.asarray(info["state"][BALL], dtype=float))
-                    eps.append(episode)
-                if act_with is None:
-                    acted_on = np.asarray(info["state"], dtype=float)
-                else:
-                    ball, ball_covariance = act_with.predict(x)
-                    acted_on, covariance = state_estimate(ball, ball_covariance, info)
-                    controller.observe_info({"estimate": {"covariance": covariance}})
-                action, _ = controller.predict(acted_on, deterministic=True)
-                _, _, terminated, truncated, info = env.step(action)
-                if terminated or truncated:
-                    break
-        finally:
-            env.close()
-    return np.array(xs), np.array(ys), np.array(eps)

@@ -13,23 +13,25 @@ observers' frame reader (estimation/ball_catcher/frames.py) takes it in its plac
 the ``learned`` network and ``learned-kf``'s filter downstream are those of the
 measurements: the detector is the only part that reads pixels.
 
-**Training data** (:func:`collect_frames`, with
-:func:`~observer_gym.estimation.learned.frame_data.collect_lockstep`): throws run in rgb
-and in measurements mode in lockstep; every frame delivered (each camera's, 50 frames/s)
-is an input, the perfect detector's noise-free pixel of the same frame its label. The
-``intercept`` controller acts on the true state plus white velocity noise whose std is
-drawn per episode from :data:`ACTION_NOISE_RANGE_MPS`, so the box and arm are seen in
-and away from their usual places; image noise is drawn per episode from
-:data:`FRAME_RANGES`. The network trains on :data:`CROP_PX`-square crops, two per
-frame: one placed at random around the ball's centre (uniform within the crop; only
-when the label has the ball in the image) and one anywhere in the frame (mostly without
-the ball: white background, box, arm), and runs on the whole frame (its convolutions are
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.ball_catcher.collect_frames`,
+with
+:func:`~observer_gym.train.experiments.learned_observers.frame_data.collect_lockstep`):
+throws run in rgb and in measurements mode in lockstep; every frame delivered (each
+camera's, 50 frames/s) is an input, the perfect detector's noise-free pixel of the same
+frame its label. The ``intercept`` controller acts on the true state plus white velocity
+noise whose std is drawn per episode from :data:`ACTION_NOISE_RANGE_MPS`, so the box and
+arm are seen in and away from their usual places; image noise is drawn per episode from
+:data:`FRAME_RANGES`. The network trains on :data:`CROP_PX`-square crops, two per frame:
+one placed at random around the ball's centre (uniform within the crop; only when the
+label has the ball in the image) and one anywhere in the frame (mostly without the ball:
+white background, box, arm), and runs on the whole frame (its convolutions are
 translation-equivariant). The label is the projected centre whether or not the ball is
-hidden (the perfect detector models no occlusion by the box or arm); such frames are
-few and stay in the data. Calibration error, another field of view or image size are
-not in the data. Trained by::
+hidden (the perfect detector models no occlusion by the box or arm); such frames are few
+and stay in the data. Calibration error, another field of view or image size are not in
+the data. Trained by::
 
-    python -m observer_gym.estimation.learned.train_detector --env BallCatcher-v1
+    python -m observer_gym.train.experiments.learned_observers.train_detector --env BallCatcher-v1
 
 which writes :data:`WEIGHTS` and its report ``learned_detector.json`` (held out: crops
 of the last fifth of the episodes; the full-frame figures on a seed the training never
@@ -38,7 +40,6 @@ drew are in tests/estimation/test_learned_ball_catcher_frames.py and docs/observ
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -55,7 +56,6 @@ __all__ = [
     "FRAME_RANGES",
     "WEIGHTS",
     "LearnedBallDetector",
-    "collect_frames",
     "fit",
     "save",
 ]
@@ -72,75 +72,6 @@ ACTION_NOISE_RANGE_MPS = (0.0, 0.3)
 FRAME_RANGES: dict[str, tuple[float, float]] = {"image_noise_std": (0.0, 8.0)}
 # the labels are the projected centre without noise
 ENV_KWARGS: dict[str, Any] = {"measurement_noise_px": 0.0}
-
-
-def _crop(
-    image: np.ndarray, uv_px: np.ndarray | None, x0: int, y0: int, width: int, height: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(crop (3, height, width), the ball's (u, v) in it (zeros if not in it), detected
-    (1,))."""
-    crop = np.ascontiguousarray(image[y0 : y0 + height, x0 : x0 + width].transpose(2, 0, 1))
-    if uv_px is None:
-        return crop, np.zeros(2), np.zeros(1)
-    uv = np.asarray(uv_px, float) - (x0, y0)
-    inside = bool(np.all(uv >= 0.0) and uv[0] <= width - 1 and uv[1] <= height - 1)
-    return crop, uv if inside else np.zeros(2), np.array([float(inside)])
-
-
-def frame_samples(crop_px: int | None) -> Any:
-    """collect_lockstep's ``samples_of``: every frame delivered in the step (paired with
-    the measurement env's same frame), as two crops (module docstring) or, with
-    ``crop_px`` None, whole (3, 240, 320) with its full-frame label."""
-
-    def samples_of(
-        obs: Any, info: dict, measurement: Any, measured_info: dict, rng: np.random.Generator
-    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        out = []
-        for frame, measured in zip(info["frames"], measured_info["frames"], strict=True):
-            if (frame["camera_id"], frame["capture_time_s"]) != (
-                measured["camera_id"],
-                measured["capture_time_s"],
-            ):
-                raise RuntimeError("the lockstep envs delivered different frames")
-            image, uv = frame["image"], measured["uv_px"]
-            height, width = image.shape[:2]
-            if crop_px is None:
-                out.append(_crop(image, uv, 0, 0, width, height))
-                continue
-            if uv is not None:  # the ball uniformly within the crop, the crop in the frame
-                x0 = math.floor(uv[0] - rng.uniform(0.0, crop_px))
-                y0 = math.floor(uv[1] - rng.uniform(0.0, crop_px))
-                x0, y0 = min(max(x0, 0), width - crop_px), min(max(y0, 0), height - crop_px)
-                out.append(_crop(image, uv, x0, y0, crop_px, crop_px))
-            x0 = int(rng.integers(width - crop_px + 1))
-            y0 = int(rng.integers(height - crop_px + 1))
-            out.append(_crop(image, uv, x0, y0, crop_px, crop_px))
-        return out
-
-    return samples_of
-
-
-def collect_frames(
-    episodes: int, seed: int, steps: int = EPISODE_STEPS, crop_px: int | None = CROP_PX
-) -> FrameDataset:
-    """A :class:`~observer_gym.estimation.learned.frame_training.FrameDataset` of
-    ``episodes`` lockstep throws (see the module docstring), reproducible from ``seed``:
-    values the ball's (u, v) in px of the crop (or, ``crop_px`` None, of the whole
-    frame), detected (N, 1)."""
-    from observer_gym.estimation.learned.frame_data import collect_lockstep
-
-    return collect_lockstep(
-        "observer_gym/BallCatcher-v1",
-        episodes,
-        seed,
-        steps=steps,
-        stride=STRIDE,
-        ranges=FRAME_RANGES,
-        controller="intercept",
-        noise_range=ACTION_NOISE_RANGE_MPS,
-        env_kwargs=ENV_KWARGS,
-        samples_of=frame_samples(crop_px),
-    )
 
 
 def fit(data: FrameDataset, seed: int, epochs: int) -> tuple[PointHeatmapNet, dict[str, Any]]:

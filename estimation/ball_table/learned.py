@@ -14,21 +14,22 @@ carry latency and drops; the history carries the rates.
 tanh), trained with the Gaussian negative log-likelihood, so each entry's variance is
 learned with its mean; the covariance it reports is diagonal.
 
-**Training data** (:func:`collect`): episodes of the env in measurements mode with the
-LQR plus white action noise (0.005 rad), each episode's sensor drawn uniformly from
-:data:`TRAINING_RANGES` (pixel noise, latency and its jitter, drops, pushes) from the
-training seed. Four rounds of 60 episodes (DAgger, Ross, Gordon and Bagnell 2011): in
-the first the LQR acts on the true state and a network is fitted; in each later one it
-acts on the estimate of the network fitted so far, which takes the ball where the
-network's own errors lead, and the next network is fitted on every round's data. After
-the first round alone, the network erred by 6 mm on its held-out episodes, but the LQR
-on its estimate made it err by 56 mm (RMS, 3 episodes at 1 px): it had seen no data where
-its own errors took the ball. After four rounds: 3.5 and 2.9 mm, velocity 47 and 36 mm/s,
-tilt 6 and 8 mrad, median NEES/dof 2.2 (the LQR on the truth: 2.1 and 1.5 mm, NEES/dof
-0.46). ``kf`` on the same measurements errs by about 0.02-1.5 mm (docs/observers.md).
-Outside those ranges (more noise, longer latency, calibration error, head motion,
-occluders) the network has seen nothing: its estimate and its covariance are not to be
-trusted there.
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes
+of the env in measurements mode with the LQR plus white action noise (0.005 rad), each
+episode's sensor drawn uniformly from :data:`TRAINING_RANGES` (pixel noise, latency and
+its jitter, drops, pushes) from the training seed. Four rounds of 60 episodes (DAgger,
+Ross, Gordon and Bagnell 2011): in the first the LQR acts on the true state and a network
+is fitted; in each later one it acts on the estimate of the network fitted so far, which
+takes the ball where the network's own errors lead, and the next network is fitted on
+every round's data. After the first round alone, the network erred by 6 mm on its
+held-out episodes, but the LQR on its estimate made it err by 56 mm (RMS, 3 episodes at 1
+px): it had seen no data where its own errors took the ball. After four rounds: 3.5 and
+2.9 mm, velocity 47 and 36 mm/s, tilt 6 and 8 mrad, median NEES/dof 2.2 (the LQR on the
+truth: 2.1 and 1.5 mm, NEES/dof 0.46). ``kf`` on the same measurements errs by about
+0.02-1.5 mm (docs/observers.md). Outside those ranges (more noise, longer latency,
+calibration error, head motion, occluders) the network has seen nothing: its estimate and
+its covariance are not to be trusted there.
 
 **From rendered frames** (``obs_mode="rgb"``, the observer names without
 ``-measurements``) the learned detector
@@ -38,7 +39,7 @@ in the perfect detector's place; the network above is the same, not retrained on
 detector's errors, so what those cost is measured, not hidden
 (tests/estimation/test_learned_frames.py). Trained by::
 
-    python -m observer_gym.estimation.learned.train --env BallTable-v0
+    python -m observer_gym.train.experiments.learned_observers.train --env BallTable-v0
 
 which writes ``estimation/ball_table/learned.pt`` and its report ``learned.json``
 (command, data size, held-out errors, sha256; the file is refused if it differs).
@@ -70,7 +71,6 @@ __all__ = [
     "WEIGHTS",
     "LearnedFeatures",
     "LearnedObserver",
-    "collect",
 ]
 
 WEIGHTS = Path(__file__).with_name("learned.pt")
@@ -207,52 +207,3 @@ class LearnedObserver:
         mean, covariance = self.net.predict(self.features.vector(now_s, action))
         assert mean.shape == (STATE_DIM,)
         return Estimate(mean, covariance, used, measurement, now_s)
-
-
-def collect(
-    episodes: int, seed: int, steps: int = EPISODE_STEPS, act_with: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (N, 58), truth (N, 8), episode (N,)) from ``episodes`` training episodes
-    of up to ``steps`` steps (see the module docstring), reproducible from ``seed``. With
-    ``act_with`` (a :class:`~observer_gym.estimation.learned.network.GaussianMLP`) the
-    LQR acts on that network's estimate instead of the truth: the states the network's own
-    errors lead to (the data of a DAgger round)."""
-    import gymnasium as gym
-
-    from observer_gym.controllers import make_controller
-
-    rng = np.random.default_rng(seed)
-    xs, ys, eps = [], [], []
-    for episode in range(episodes):
-        options: dict[str, Any] = {
-            key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()
-        }
-        env = gym.make("observer_gym/BallTable-v0", obs_mode="measurements", **options)
-        try:
-            controller = make_controller("lqr", env)
-            box = env.action_space
-            if not isinstance(box, spaces.Box):
-                raise ValueError(f"BallTable's action space is a Box, got {box}")
-            features = LearnedFeatures()
-            obs, info = env.reset(seed=int(rng.integers(2**31)))
-            action = None
-            for _ in range(steps):
-                capture_s = features.newest_capture_s(info)
-                if capture_s is not None:
-                    features.new_frame(obs, capture_s)
-                xs.append(features.vector(float(info["time_s"]), action))
-                ys.append(np.asarray(info["state"], dtype=float))
-                eps.append(episode)
-                if act_with is None:
-                    acted_on = info["state"]
-                else:
-                    acted_on, _ = act_with.predict(xs[-1])
-                planned, _ = controller.predict(acted_on, deterministic=True)
-                noise = rng.normal(0.0, ACTION_NOISE_RAD, 2)
-                action = np.clip(planned + noise, box.low, box.high)
-                obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
-                if terminated or truncated:
-                    break
-        finally:
-            env.close()
-    return np.array(xs), np.array(ys), np.array(eps)

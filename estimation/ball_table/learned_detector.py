@@ -9,16 +9,18 @@ the env's measurement layout (:func:`measurement_of`), so the ``learned`` networ
 ``learned-kf``'s filters downstream are those of the measurements: the detector is the
 only part that reads pixels.
 
-**Training data** (:func:`collect_frames`, with
-:func:`~observer_gym.estimation.learned.frame_data.collect_lockstep`): episodes run in
-rgb and in measurements mode in lockstep; the rgb frame is the input, the measurement
-(no noise) its label. The LQR acts on the true state plus white tilt noise whose std is
-drawn per episode from :data:`ACTION_NOISE_RANGE_RAD`, so the ball is seen both near the
-centre and rolling across the table; pushes and image noise are drawn per episode from
-:data:`FRAME_RANGES`; every :data:`STRIDE`-th frame is kept. Calibration error, head
-motion and occluders are not in the data. Trained by::
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect_frames`,
+with
+:func:`~observer_gym.train.experiments.learned_observers.frame_data.collect_lockstep`):
+episodes run in rgb and in measurements mode in lockstep; the rgb frame is the input, the
+measurement (no noise) its label. The LQR acts on the true state plus white tilt noise
+whose std is drawn per episode from :data:`ACTION_NOISE_RANGE_RAD`, so the ball is seen
+both near the centre and rolling across the table; pushes and image noise are drawn per
+episode from :data:`FRAME_RANGES`; every :data:`STRIDE`-th frame is kept. Calibration
+error, head motion and occluders are not in the data. Trained by::
 
-    python -m observer_gym.estimation.learned.train_detector --env BallTable-v0
+    python -m observer_gym.train.experiments.learned_observers.train_detector --env BallTable-v0
 
 which writes :data:`WEIGHTS` and its report ``learned_detector.json``.
 """
@@ -41,7 +43,6 @@ __all__ = [
     "NET_SIZE_PX",
     "VALUE_PARTS",
     "WEIGHTS",
-    "collect_frames",
     "labels_of",
     "measurement_of",
 ]
@@ -79,22 +80,3 @@ def measurement_of(detection: Detection) -> dict[str, np.ndarray]:
         BALL_PX: values[8:11] if ball else np.zeros(3, np.float32),
         DETECTED: np.array([table, ball], dtype=np.int8),
     }
-
-
-def collect_frames(episodes: int, seed: int, steps: int = EPISODE_STEPS) -> Any:
-    """A :class:`~observer_gym.estimation.learned.frame_training.FrameDataset` of
-    ``episodes`` lockstep episodes (see the module docstring), reproducible from ``seed``."""
-    from observer_gym.estimation.learned.frame_data import collect_lockstep
-
-    return collect_lockstep(
-        "observer_gym/BallTable-v0",
-        episodes,
-        seed,
-        steps=steps,
-        stride=STRIDE,
-        ranges=FRAME_RANGES,
-        controller="lqr",
-        noise_range=ACTION_NOISE_RANGE_RAD,
-        labels_of=labels_of,
-        net_size_px=NET_SIZE_PX,
-    )

@@ -2,12 +2,12 @@
 camera frame at its full resolution and gives where one point (a ball's centre) is, in
 pixels with a variance, and its probability of being in the image.
 
-It is the learned detector of a system whose object is too small for the resize to
-128 x 96 of :mod:`~observer_gym.estimation.learned.frame_detector` (BallCatcher's ball,
-4-12 px across at 320 x 240, would be 2-5 px there). Like that one, it is trained on the
-perfect detector's pixels of the same frames (lockstep episodes,
-:func:`~observer_gym.estimation.learned.frame_data.collect_lockstep`), and a weight file
-has its report beside it and is refused if changed
+It is the learned detector of a system whose object is too small for the resize to 128 x
+96 of :mod:`~observer_gym.estimation.learned.frame_detector` (BallCatcher's ball, 4-12 px
+across at 320 x 240, would be 2-5 px there). Like that one, it is trained on the perfect
+detector's pixels of the same frames (lockstep episodes,
+:func:`~observer_gym.train.experiments.learned_observers.frame_data.collect_lockstep`),
+and a weight file has its report beside it and is refused if changed
 (:func:`~observer_gym.estimation.learned.network.checked_report`).
 
 **Network** (:class:`PointHeatmapNet`, CenterNet-style, Zhou et al. 2019): two

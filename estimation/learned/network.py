@@ -166,7 +166,8 @@ def checked_report(path: Path) -> dict[str, Any]:
     if not path.is_file() or not report_path.is_file():
         raise ValueError(
             f"learned observer weights {path} (and their report {report_path.name}) not "
-            "found; train them with python -m observer_gym.estimation.learned.train"
+            "found; train them with python -m "
+            "observer_gym.train.experiments.learned_observers.train"
         )
     report = read_json(report_path, allow_nan=True)  # JSONFileError (a ValueError) names it
     if not isinstance(report, dict):

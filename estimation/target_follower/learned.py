@@ -24,26 +24,27 @@ reliability threshold (4800 px^2); otherwise the last valid X_i with zero rates 
 covariance 4800 I (state_layout.lost_estimate, as ``kf`` reports a lost track).
 ``target_visible`` is 1 when this step's new frame had a detection.
 
-**Training data** (:func:`collect`): episodes of 300 steps (30 s) of the env in
-measurements mode with the VTC plus white action noise (:data:`ACTION_NOISE`), each
-episode's sensor and world drawn uniformly from :data:`TRAINING_RANGES` from the training
-seed. Those are the options the benchmark's levels vary for measurements
-(train/experiments/benchmark/suites/v1/target_follower.json; "field": 5 px, 50 ms with
-10 ms latency jitter and 2 ms capture jitter, 10 % drops, pushes at 0.5 Hz, an occluder
-at 0.1 Hz): the ranges run from 0 to the field level's value. Rounds (DAgger, Ross,
-Gordon and Bagnell 2011): in the first the VTC acts on the true state, in each later one
-on the estimate of the network fitted to the rounds before; each network is fitted on
-every round's data. Samples are kept where the target is in front of the camera (the
-truth's ``tracking_valid``) and a frame of the history had a detection (elsewhere the
-observer reports itself lost). Four rounds of :data:`EPISODES` = 100 episodes: 101 898
-samples, 99 s of wall time on one core (load average 6); the weights, 37 -> 2 x 64 tanh
--> 6 + 6, are 34 367 bytes. Held out (the last 80 episodes, of the last round): RMSE
-4.07, 2.48, 1.14 px and 12.5, 7.3, 2.2 px/s, NEES/dof 1.11. On seeds the training never
-drew, the VTC on this estimate, 3 episodes of 300 steps at 2 px: 1.12, 1.00, 0.82 px and
-7.2, 4.9, 1.7 px/s, median NEES/dof 0.57 (``kf`` on the same detections: 0.91, 0.91,
-0.62 px and 5.7, 5.3, 1.3 px/s); at 5 px 2.38, 2.09, 1.53 px, NEES/dof 1.77
-(tests/estimation/test_learned_target_follower.py). After the first round alone
-(``--rounds 1``, 19 s) its held-out d_x erred by 0.71 px, but with the VTC on its
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.target_follower.collect`):
+episodes of 300 steps (30 s) of the env in measurements mode with the VTC plus white
+action noise (:data:`ACTION_NOISE`), each episode's sensor and world drawn uniformly from
+:data:`TRAINING_RANGES` from the training seed. Those are the options the benchmark's
+levels vary for measurements (train/experiments/benchmark/suites/v1/target_follower.json;
+"field": 5 px, 50 ms with 10 ms latency jitter and 2 ms capture jitter, 10 % drops,
+pushes at 0.5 Hz, an occluder at 0.1 Hz): the ranges run from 0 to the field level's
+value. Rounds (DAgger, Ross, Gordon and Bagnell 2011): in the first the VTC acts on the
+true state, in each later one on the estimate of the network fitted to the rounds before;
+each network is fitted on every round's data. Samples are kept where the target is in
+front of the camera (the truth's ``tracking_valid``) and a frame of the history had a
+detection (elsewhere the observer reports itself lost). Four rounds of :data:`EPISODES` =
+100 episodes: 101 898 samples, 99 s of wall time on one core (load average 6); the
+weights, 37 -> 2 x 64 tanh -> 6 + 6, are 34 367 bytes. Held out (the last 80 episodes, of
+the last round): RMSE 4.07, 2.48, 1.14 px and 12.5, 7.3, 2.2 px/s, NEES/dof 1.11. On
+seeds the training never drew, the VTC on this estimate, 3 episodes of 300 steps at 2 px:
+1.12, 1.00, 0.82 px and 7.2, 4.9, 1.7 px/s, median NEES/dof 0.57 (``kf`` on the same
+detections: 0.91, 0.91, 0.62 px and 5.7, 5.3, 1.3 px/s); at 5 px 2.38, 2.09, 1.53 px,
+NEES/dof 1.77 (tests/estimation/test_learned_target_follower.py). After the first round
+alone (``--rounds 1``, 19 s) its held-out d_x erred by 0.71 px, but with the VTC on its
 estimate, the same 3 episodes at 2 px, by 2.02 px (x_i 1.56, y_i 1.40), and the target
 stayed 15.9 px from the centre on average (9.6 after four rounds): it had seen no data
 where its own errors took the robot.
@@ -64,7 +65,7 @@ errors (tests/estimation/test_learned_frames.py measures what they cost).
 
 Trained by::
 
-    python -m observer_gym.estimation.learned.train --env TargetFollower-v0
+    python -m observer_gym.train.experiments.learned_observers.train --env TargetFollower-v0
 
 which writes ``estimation/target_follower/learned.pt`` and its report ``learned.json``
 (command, data size, held-out errors after each round, sha256; the file is refused if it
@@ -79,12 +80,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from observer_gym.envs.target_follower import STATE_DIM, StateIndex, TargetFollowerEnv
+from observer_gym.envs.target_follower import STATE_DIM, TargetFollowerEnv
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VSEParams
 from observer_gym.estimation.target_follower.frames import FrameDetection, FrameReader
-from observer_gym.estimation.target_follower.learned_detector import ACTION_NOISE
 from observer_gym.estimation.target_follower.state_layout import (
     RobotStep,
     lost_estimate,
@@ -100,7 +100,6 @@ __all__ = [
     "LearnedEstimator",
     "LearnedFeatures",
     "LearnedObserver",
-    "collect",
 ]
 
 WEIGHTS = Path(__file__).with_name("learned.pt")
@@ -186,7 +185,8 @@ class LearnedFeatures:
 
 class LearnedEstimator:
     """The features and the network's estimate in the state layout, step by step: what
-    :class:`LearnedObserver` reports and what :func:`collect`'s DAgger rounds act on."""
+    :class:`LearnedObserver` reports and what the DAgger rounds of
+    :func:`~observer_gym.train.experiments.learned_observers.target_follower.collect` act on."""
 
     def __init__(self, net: Any) -> None:
         self.net = net
@@ -271,59 +271,3 @@ class LearnedObserver:
         assert mean.shape == (STATE_DIM,)
         z = None if frame is None else frame.z_px
         return Estimate(mean, cov, z is not None, z, robot.time_s)
-
-
-def collect(
-    episodes: int, seed: int, steps: int = EPISODE_STEPS, act_with: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (N, 37), truth (N, 6), episode (N,)) from ``episodes`` training episodes
-    of up to ``steps`` steps (see the module docstring), reproducible from ``seed``. With
-    ``act_with`` (a :class:`~observer_gym.estimation.learned.network.GaussianMLP`) the
-    VTC acts on that network's estimate (:class:`LearnedEstimator`) instead of the truth:
-    the states the network's own errors lead to (the data of a DAgger round)."""
-    import warnings
-
-    import gymnasium as gym
-
-    from observer_gym.controllers import make_controller
-
-    rng = np.random.default_rng(seed)
-    noise_std = np.asarray(ACTION_NOISE)
-    xs, ys, eps = [], [], []
-    for episode in range(episodes):
-        options: dict[str, Any] = {
-            key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()
-        }
-        env = gym.make("observer_gym/TargetFollower-v0", obs_mode="measurements", **options)
-        try:
-            base: Any = env.unwrapped
-            controller = make_controller("vtc", env)
-            low, high = env.action_space.low, env.action_space.high  # type: ignore[attr-defined]
-            frames = FrameReader(base, owner="collect")
-            estimator = LearnedEstimator(act_with)
-            delta_y_m = base.calibration["delta_y_m"]
-            obs, info = env.reset(seed=int(rng.integers(2**31)))
-            action = None
-            for _ in range(steps):
-                robot = RobotStep.from_info(info, action, delta_y_m)
-                frame = frames.newest(obs, info)
-                truth = np.asarray(info["state"], dtype=float)
-                if act_with is None:
-                    estimator.features.add(frame, robot)
-                    acted_on = truth
-                else:
-                    acted_on, _, _ = estimator.step(frame, robot)
-                if truth[StateIndex.TRACKING_VALID] >= 0.5 and estimator.features.any_detected:
-                    xs.append(estimator.features.vector(robot.time_s))
-                    ys.append(truth[:N_OUT])
-                    eps.append(episode)
-                with warnings.catch_warnings():  # the VTC's first singular stop warns
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    planned, _ = controller.predict(acted_on, deterministic=True)
-                action = np.clip(planned + rng.normal(0.0, noise_std), low, high)
-                obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
-                if terminated or truncated:
-                    break
-        finally:
-            env.close()
-    return np.array(xs), np.array(ys), np.array(eps)

@@ -9,16 +9,18 @@ has the blob detector's interface, so the observers' frame reader
 (estimation/target_follower/frames.py) takes it in its place, and the ``learned`` network
 and ``learned-kf``'s filter downstream are those of the measurements.
 
-**Training data** (:func:`collect_frames`, with
-:func:`~observer_gym.estimation.learned.frame_data.collect_lockstep`): episodes run in
-rgb and in measurements mode in lockstep; the rgb frame is the input, the measurement
-(no noise) its label. The VTC acts on the true state plus white noise on (v, omega,
-omega_t), its std :data:`ACTION_NOISE` times a factor drawn per episode from
-:data:`ACTION_NOISE_RANGE`; pushes, occluders and
-image noise are drawn per episode from :data:`FRAME_RANGES`; every :data:`STRIDE`-th frame
-is kept. Trained by::
+**Training data**
+(:func:`~observer_gym.train.experiments.learned_observers.target_follower.collect_frames`,
+with
+:func:`~observer_gym.train.experiments.learned_observers.frame_data.collect_lockstep`):
+episodes run in rgb and in measurements mode in lockstep; the rgb frame is the input, the
+measurement (no noise) its label. The VTC acts on the true state plus white noise on (v,
+omega, omega_t), its std :data:`ACTION_NOISE` times a factor drawn per episode from
+:data:`ACTION_NOISE_RANGE`; pushes, occluders and image noise are drawn per episode from
+:data:`FRAME_RANGES`; every :data:`STRIDE`-th frame is kept. Trained by::
 
-    python -m observer_gym.estimation.learned.train_detector --env TargetFollower-v0
+    python -m observer_gym.train.experiments.learned_observers.train_detector \\
+        --env TargetFollower-v0
 
 which writes :data:`WEIGHTS` and its report ``learned_detector.json``.
 """
@@ -39,7 +41,6 @@ __all__ = [
     "VALUE_PARTS",
     "WEIGHTS",
     "LearnedTargetDetector",
-    "collect_frames",
     "labels_of",
 ]
 
@@ -51,7 +52,7 @@ EPISODES = 100
 EPISODE_STEPS = 300  # 30 s at the default 10 frames/s
 STRIDE = 2
 # white noise on the VTC's (v, omega, omega_t) while collecting training episodes: m/s,
-# rad/s, rad/s; the learned observer's episodes (learned.py) take it as it is, this
+# rad/s, rad/s; the learned observer's episodes take it as it is, this
 # detector's times a factor drawn per episode from ACTION_NOISE_RANGE
 ACTION_NOISE = (0.05, 0.1, 0.05)
 ACTION_NOISE_RANGE = (0.0, 3.0)  # times ACTION_NOISE
@@ -92,23 +93,3 @@ class LearnedTargetDetector:
         detected. ``K`` is not read: the network learnt the nominal camera."""
         detection = self.network.detect(image)
         return detection.values if bool(detection.detected[0]) else None
-
-
-def collect_frames(episodes: int, seed: int, steps: int = EPISODE_STEPS) -> Any:
-    """A :class:`~observer_gym.estimation.learned.frame_training.FrameDataset` of
-    ``episodes`` lockstep episodes (see the module docstring), reproducible from ``seed``."""
-    from observer_gym.estimation.learned.frame_data import collect_lockstep
-
-    return collect_lockstep(
-        "observer_gym/TargetFollower-v0",
-        episodes,
-        seed,
-        steps=steps,
-        stride=STRIDE,
-        ranges=FRAME_RANGES,
-        controller="vtc",
-        noise_range=ACTION_NOISE_RANGE,
-        labels_of=labels_of,
-        net_size_px=NET_SIZE_PX,
-        noise_scale=np.asarray(ACTION_NOISE),
-    )

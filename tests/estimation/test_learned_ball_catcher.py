@@ -37,11 +37,11 @@ from observer_gym.estimation.ball_catcher.learned import (
     WEIGHTS,
     LearnedFeatures,
     LearnedObserver,
-    collect,
 )
 from observer_gym.estimation.learned.network import load_network
 from observer_gym.estimation.learned.training import Dataset, fit
 from observer_gym.train.cli import main
+from observer_gym.train.experiments.learned_observers.ball_catcher import collect
 
 ENV = "observer_gym/BallCatcher-v1"
 THROWS = 10  # the default tests' throws; the slow test's: 100

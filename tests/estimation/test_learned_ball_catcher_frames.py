@@ -26,7 +26,6 @@ from observer_gym.envs.ball_catcher.layout import STATE_DIM
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher import OBSERVERS
 from observer_gym.estimation.ball_catcher import learned_detector as ball_catcher
-from observer_gym.estimation.learned.frame_data import collect_lockstep
 from observer_gym.estimation.learned.frame_training import FrameDataset
 from observer_gym.estimation.learned.heatmap_detector import (
     LearnedPointDetector,
@@ -34,6 +33,8 @@ from observer_gym.estimation.learned.heatmap_detector import (
     fit_point_detector,
     point_report,
 )
+from observer_gym.train.experiments.learned_observers import ball_catcher as ball_catcher_data
+from observer_gym.train.experiments.learned_observers.frame_data import collect_lockstep
 
 ENV = "observer_gym/BallCatcher-v1"
 NEW_SEED = 10**6  # the training draws its episode seeds from seed 0's generator
@@ -43,7 +44,7 @@ THROWS = 3
 @functools.cache
 def _new_frames():
     """Whole frames (3, 240, 320) of 3 lockstep throws of a new seed, every frame delivered."""
-    return ball_catcher.collect_frames(3, NEW_SEED, crop_px=None)
+    return ball_catcher_data.collect_frames(3, NEW_SEED, crop_px=None)
 
 
 def test_the_detector_reads_whole_frames_of_a_new_seed_within_its_measured_error():
@@ -162,8 +163,8 @@ def test_the_closed_loop_on_frames_keeps_the_measured_error_and_nees(observer):
 def test_training_is_reproducible_from_its_seed():
     """The same data and seed give the same tensors (a tiny run: 5 throws of 6 steps, one
     epoch); the crops hold the ball where their labels say."""
-    data = ball_catcher.collect_frames(5, 3, steps=6)
-    again = ball_catcher.collect_frames(5, 3, steps=6)
+    data = ball_catcher_data.collect_frames(5, 3, steps=6)
+    again = ball_catcher_data.collect_frames(5, 3, steps=6)
     assert all(np.array_equal(a, b) for a, b in zip(data, again, strict=True))
     assert data.frames.shape[1:] == (3, ball_catcher.CROP_PX, ball_catcher.CROP_PX)
     seen = data.detected[:, 0] > 0.5

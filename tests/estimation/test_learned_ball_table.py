@@ -22,11 +22,11 @@ from observer_gym.estimation.ball_table.learned import (
     PER_FRAME,
     WEIGHTS,
     LearnedFeatures,
-    collect,
 )
 from observer_gym.estimation.learned.network import load_network
-from observer_gym.estimation.learned.train import main as train_main
 from observer_gym.estimation.learned.training import Dataset, fit
+from observer_gym.train.experiments.learned_observers.ball_table import collect
+from observer_gym.train.experiments.learned_observers.train import main as train_main
 
 ENV = "observer_gym/BallTable-v0"
 

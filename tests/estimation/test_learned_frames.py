@@ -18,8 +18,12 @@ from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_table import learned_detector as ball_table
 from observer_gym.estimation.learned.frame_detector import LearnedDetector
 from observer_gym.estimation.learned.frame_training import detector_report
-from observer_gym.estimation.learned.train_detector import main as train_detector
 from observer_gym.estimation.target_follower import learned_detector as target_follower
+from observer_gym.train.experiments.learned_observers import ball_table as ball_table_data
+from observer_gym.train.experiments.learned_observers import (
+    target_follower as target_follower_data,
+)
+from observer_gym.train.experiments.learned_observers.train_detector import main as train_detector
 
 NEW_SEED = 10**6  # the training draws its episode seeds from seed 0's generator
 
@@ -27,6 +31,11 @@ NEW_SEED = 10**6  # the training draws its episode seeds from seed 0's generator
 SYSTEMS: dict[str, tuple[str, ModuleType, str, int]] = {
     "BallTable-v0": ("observer_gym/BallTable-v0", ball_table, "lqr", 250),
     "TargetFollower-v0": ("observer_gym/TargetFollower-v0", target_follower, "vtc", 150),
+}
+# system -> its training data's collection (train/experiments/learned_observers/)
+COLLECTIONS: dict[str, ModuleType] = {
+    "BallTable-v0": ball_table_data,
+    "TargetFollower-v0": target_follower_data,
 }
 
 # The detector on 3 lockstep episodes of 60 steps of a new seed (frames 0, 2, ...), as
@@ -47,8 +56,7 @@ def system(request):
 
 @pytest.fixture(scope="module")
 def new_frames(system):
-    _, module, _, _ = SYSTEMS[system]
-    return module.collect_frames(3, NEW_SEED, steps=60)
+    return COLLECTIONS[system].collect_frames(3, NEW_SEED, steps=60)
 
 
 def test_the_detector_reads_frames_of_a_new_seed_within_its_measured_error(system, new_frames):
@@ -186,8 +194,8 @@ def test_training_is_reproducible_from_its_seed():
 
     from observer_gym.estimation.learned.frame_training import fit_detector
 
-    data = ball_table.collect_frames(5, 3, steps=4)
-    again = ball_table.collect_frames(5, 3, steps=4)
+    data = ball_table_data.collect_frames(5, 3, steps=4)
+    again = ball_table_data.collect_frames(5, 3, steps=4)
     assert all(np.array_equal(a, b) for a, b in zip(data, again, strict=True))
     first, _ = fit_detector(data, ball_table.VALUE_PARTS, seed=1, epochs=1)
     second, _ = fit_detector(data, ball_table.VALUE_PARTS, seed=1, epochs=1)

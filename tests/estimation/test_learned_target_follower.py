@@ -30,10 +30,10 @@ from observer_gym.estimation.target_follower.learned import (
     PER_FRAME,
     WEIGHTS,
     LearnedFeatures,
-    collect,
 )
 from observer_gym.estimation.target_follower.state_layout import RobotStep
 from observer_gym.train import cli
+from observer_gym.train.experiments.learned_observers.target_follower import collect
 
 ENV = "observer_gym/TargetFollower-v0"
 

@@ -1,9 +1,9 @@
 """Train a system's learned observer and write its weights and report.
 
-    python -m observer_gym.estimation.learned.train --env BallTable-v0 [--episodes N]
-        [--rounds 4] [--seed 0] [--epochs 60] [--out FILE.pt]
+    python -m observer_gym.train.experiments.learned_observers.train --env BallTable-v0
+        [--episodes N] [--rounds 4] [--seed 0] [--epochs 60] [--out FILE.pt]
 
-Collects the system's training episodes (its ``learned.collect``) in ``--rounds`` rounds
+Collects the system's training episodes (its ``collect`` in this package) in ``--rounds`` rounds
 (DAgger: the controller on the truth, then on the estimate of the network fitted to the
 rounds before), fits the Gaussian network on all of them
 (:func:`~observer_gym.estimation.learned.training.fit`, the last fifth of the episodes
@@ -13,7 +13,10 @@ this command, the data's size, the held-out per-entry RMSE and NEES/dof (after e
 round), the wall time. The same command gives the same weights (the same tensors; a file
 written under another name differs in its bytes, as ``torch.save`` names its archive after
 the file). ``--episodes`` defaults to the system's ``EPISODES`` (else 60) and the
-network's width is its ``HIDDEN`` (else 128).
+network's width is its ``HIDDEN`` (else 128), both in its ``estimation/<system>/learned.py``.
+The shipped weights' reports record the command under its former name,
+``python -m observer_gym.estimation.learned.train``: the same arguments give the same
+weights here.
 A mistake is one line on stderr and exit code 2.
 """
 
@@ -23,14 +26,14 @@ import sys
 import time
 from pathlib import Path
 
-PROG = "python -m observer_gym.estimation.learned.train"
-# The systems with a learned observer: env id -> its module (features, collect, WEIGHTS)
-# (and optionally EPISODES, the default of --episodes, else 60; HIDDEN, the network's width,
-# else 128)
+PROG = "python -m observer_gym.train.experiments.learned_observers.train"
+# The systems with a learned observer: env id -> (its observer's module: WEIGHTS,
+# TRAINING_RANGES, and optionally EPISODES, the default of --episodes, else 60; HIDDEN, the
+# network's width, else 128), (its collection's module: collect)
 SYSTEMS = {
-    "BallTable-v0": "observer_gym.estimation.ball_table.learned",
-    "TargetFollower-v0": "observer_gym.estimation.target_follower.learned",
-    "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned",
+    "BallTable-v0": ("ball_table.learned", "ball_table"),
+    "TargetFollower-v0": ("target_follower.learned", "target_follower"),
+    "BallCatcher-v1": ("ball_catcher.learned", "ball_catcher"),
 }
 DEFAULT_EPISODES = 60
 
@@ -64,7 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import importlib
 
-    system = importlib.import_module(SYSTEMS[env_id])
+    observer, collection = SYSTEMS[env_id]
+    system = importlib.import_module(f"observer_gym.estimation.{observer}")
+    collect = importlib.import_module(f"{__package__}.{collection}").collect
     default_episodes = getattr(system, "EPISODES", DEFAULT_EPISODES)
     if args.episodes is None:
         args.episodes = default_episodes
@@ -87,11 +92,11 @@ def main(argv: list[str] | None = None) -> int:
     tic = time.perf_counter()
     # round 1: the controller on the truth; each later round (DAgger): on the network
     # fitted to every round before, the data of all rounds kept
-    data = Dataset(*system.collect(args.episodes, args.seed))
+    data = Dataset(*collect(args.episodes, args.seed))
     net, report = fit(data, args.seed, epochs=args.epochs, hidden=hidden)
     rounds = [report["held_out"]]
     for k in range(1, args.rounds):
-        x, y, episode = system.collect(args.episodes, args.seed + k, act_with=net)
+        x, y, episode = collect(args.episodes, args.seed + k, act_with=net)
         data = Dataset(
             np.concatenate([data.features, x]),
             np.concatenate([data.truth, y]),

@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from observer_gym.controllers import make_controller
 from observer_gym.estimation.learned.frame_detector import resized
 from observer_gym.estimation.learned.frame_training import FrameDataset
 
@@ -79,8 +80,6 @@ def collect_lockstep(
             ``labels_of`` and ``net_size_px``; it may draw from the generator it is given
             (the collection's, so the data stay reproducible from ``seed``).
     """
-    from observer_gym.controllers import make_controller
-
     if samples_of is None:
         if labels_of is None or net_size_px is None:
             raise ValueError("collect_lockstep needs samples_of, or labels_of and net_size_px")

@@ -1,10 +1,10 @@
 """Train a system's learned detector (the network that reads frames for the ``learned``
 and ``learned-kf`` observers) and write its weights and report.
 
-    python -m observer_gym.estimation.learned.train_detector --env BallTable-v0
+    python -m observer_gym.train.experiments.learned_observers.train_detector --env BallTable-v0
         [--episodes N] [--seed 0] [--epochs N] [--out FILE.pt] [--cache FILE.npz]
 
-Collects the system's lockstep frames (its ``learned_detector.collect_frames``), fits the
+Collects the system's lockstep frames (its ``collect_frames`` in this package), fits the
 network (:func:`~observer_gym.estimation.learned.frame_training.fit_detector`, or the
 system's own ``fit``: BallCatcher's full-resolution heat-map detector,
 :mod:`~observer_gym.estimation.learned.heatmap_detector`; the last fifth of the episodes
@@ -16,7 +16,9 @@ detected-flag accuracy, the wall times. The same command gives the same tensors.
 reads them back when it holds the same system, episodes and seed, so a refit costs only
 the fit; it does not change the weights, and is left out of the recorded command. A file
 that holds other frames is refused, not overwritten. A mistake is one line on stderr and
-exit code 2.
+exit code 2. The shipped weights' reports record the command under its former name,
+``python -m observer_gym.estimation.learned.train_detector``: the same arguments give the
+same tensors here.
 """
 
 from __future__ import annotations
@@ -27,15 +29,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-PROG = "python -m observer_gym.estimation.learned.train_detector"
-# The systems with a learned detector: env id -> its module (collect_frames, CAMERA_PX,
+PROG = "python -m observer_gym.train.experiments.learned_observers.train_detector"
+# The systems with a learned detector: env id -> (its detector's module: CAMERA_PX,
 # EPISODES, FRAME_RANGES, WEIGHTS, and VALUE_PARTS for frame_detector's network; a system
 # with a network of its own gives fit(data, seed, epochs) -> (net, report), save(net,
-# path, report) and its default EPOCHS)
+# path, report) and its default EPOCHS), (its collection's module: collect_frames)
 SYSTEMS = {
-    "BallTable-v0": "observer_gym.estimation.ball_table.learned_detector",
-    "TargetFollower-v0": "observer_gym.estimation.target_follower.learned_detector",
-    "BallCatcher-v1": "observer_gym.estimation.ball_catcher.learned_detector",
+    "BallTable-v0": ("ball_table.learned_detector", "ball_table"),
+    "TargetFollower-v0": ("target_follower.learned_detector", "target_follower"),
+    "BallCatcher-v1": ("ball_catcher.learned_detector", "ball_catcher"),
 }
 DEFAULT_EPOCHS = 20
 
@@ -45,9 +47,9 @@ def _fail(message: str) -> int:
     return 2
 
 
-def _frames(system: Any, env_id: str, episodes: int, seed: int, cache: Path | None) -> Any:
+def _frames(collect_frames: Any, env_id: str, episodes: int, seed: int, cache: Path | None) -> Any:
     """The system's collected frames: read from ``cache`` if it exists, else collected
-    (and written to ``cache``).
+    with ``collect_frames(episodes, seed)`` (and written to ``cache``).
 
     Raises:
         ValueError: ``cache`` holds the frames of another (env, episodes, seed), or is no
@@ -67,7 +69,7 @@ def _frames(system: Any, env_id: str, episodes: int, seed: int, cache: Path | No
                     f"not {key.tolist()}: name another file, or remove it to collect again"
                 )
             return FrameDataset(*(saved[name] for name in FrameDataset._fields))
-    data = system.collect_frames(episodes, seed)
+    data = collect_frames(episodes, seed)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         np.savez(cache, key=key, **data._asdict())
@@ -100,7 +102,9 @@ def main(argv: list[str] | None = None) -> int:
     env_id = args.env.removeprefix("observer_gym/")
     if env_id not in SYSTEMS:
         return _fail(f"no learned detector for {args.env!r} yet; allowed: {', '.join(SYSTEMS)}")
-    system = importlib.import_module(SYSTEMS[env_id])
+    detector, collection = SYSTEMS[env_id]
+    system = importlib.import_module(f"observer_gym.estimation.{detector}")
+    collect_frames = importlib.import_module(f"{__package__}.{collection}").collect_frames
     episodes = system.EPISODES if args.episodes is None else args.episodes
     default_epochs = getattr(system, "EPOCHS", DEFAULT_EPOCHS)
     epochs = default_epochs if args.epochs is None else args.epochs
@@ -116,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
 
     tic = time.perf_counter()
     try:
-        data = _frames(system, env_id, episodes, args.seed, args.cache)
+        data = _frames(collect_frames, env_id, episodes, args.seed, args.cache)
     except ValueError as exc:
         return _fail(str(exc))
     collect_s = time.perf_counter() - tic
