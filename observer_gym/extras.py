@@ -21,16 +21,24 @@ import sys
 from collections.abc import Iterable
 
 RL_INSTALL = "pip install 'observer-gym[rl]'"
+# ``--video`` (observer_gym.train.reports.video) streams frames to ffmpeg through these
+VIDEO_INSTALL = "pip install 'observer-gym[video]'"
+VIDEO_MODULES = ("imageio", "imageio_ffmpeg")
 # what a trained agent (stable-baselines3) needs; a learned observer needs torch only
 AGENT_MODULES = ("stable_baselines3", "torch")
 TORCH_MODULES = ("torch",)
 # the distributions' names, as a user installs them
-_SHOWN = {"torch": "PyTorch", "stable_baselines3": "stable-baselines3"}
+_SHOWN = {
+    "torch": "PyTorch",
+    "stable_baselines3": "stable-baselines3",
+    "imageio_ffmpeg": "imageio-ffmpeg",
+}
 
 
 class ExtraNotInstalled(ImportError):
-    """What was asked for needs the ``[rl]`` extra (PyTorch, stable-baselines3), which is
-    not installed; the message names the install line.
+    """What was asked for needs an extra (``[rl]``: PyTorch, stable-baselines3;
+    ``[video]``: imageio, imageio-ffmpeg) that is not installed; the message names the
+    install line.
 
     An ImportError, as the failed import itself would be (code that tolerates a missing
     optional dependency catches ImportError), not a ValueError: the request is valid, the
@@ -59,10 +67,21 @@ def require_rl(what: str, modules: Iterable[str] = AGENT_MODULES) -> None:
     ``what`` (``"observer 'learned'"``, ``"observer-gym train"``) begins the message:
     "observer 'learned' needs PyTorch, which is not installed: pip install
     'observer-gym[rl]'"."""
+    _require(what, modules, RL_INSTALL)
+
+
+def require_video(what: str = "--video") -> None:
+    """Raise :class:`ExtraNotInstalled` unless the ``[video]`` extra (imageio,
+    imageio-ffmpeg) is installed: "--video needs imageio-ffmpeg, which is not installed:
+    pip install 'observer-gym[video]'"."""
+    _require(what, VIDEO_MODULES, VIDEO_INSTALL)
+
+
+def _require(what: str, modules: Iterable[str], install: str) -> None:
     missing = missing_modules(modules)
     if missing:
         names = " and ".join(_SHOWN.get(module, module) for module in missing)
         verb = "is" if len(missing) == 1 else "are"
         raise ExtraNotInstalled(
-            f"{what} needs {names}, which {verb} not installed: {RL_INSTALL}", name=missing[0]
+            f"{what} needs {names}, which {verb} not installed: {install}", name=missing[0]
         )

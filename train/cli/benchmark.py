@@ -24,6 +24,7 @@ from observer_gym.train.cli.args import (
     progress_display,
     recorded_args,
 )
+from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import PER_ENV, env_name, folder_path, positive_int
 from observer_gym.train.core.messages import error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
@@ -98,6 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="show no progress (default: a bar on a terminal, else one line per finished "
         "level on stderr)",
     )
+    add_video_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -150,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check_pairs(args.env, [args.observer], [args.controller], {})
+        videos = video_options(args)
     except ValueError as exc:
         return _error(exc)
 
@@ -159,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         check_out_dir,
         run_benchmark,
     )
+    from observer_gym.train.experiments.videos import plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError
 
     try:
@@ -176,6 +180,13 @@ def run(args: argparse.Namespace) -> int:
         )
         if args.out.exists():
             check_out_dir(args.out, request)
+        if videos:
+            plan_videos(
+                **videos,
+                episodes=request.episodes,
+                env_id=request.suite.env_id,
+                observers=[request.observer],
+            )
     except ValueError as exc:
         return _error(exc)
     progress = progress_display(PROG, args.no_progress)
@@ -186,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
             progress=progress.bar,
             cli_args=recorded_args(args),
             on_level=progress.lines,
+            **videos,
         )
     except KeyboardInterrupt:
         print(

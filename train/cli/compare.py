@@ -24,6 +24,7 @@ from observer_gym.train.cli.args import (
     add_output_arguments,
     recorded_args,
 )
+from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
@@ -113,6 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser, "a gym.make option of the env for every pair, repeatable (e.g. push_rate_hz=0.5)"
     )
     add_output_arguments(parser, "compare")
+    add_video_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -159,12 +161,14 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check_pairs(args.env, args.observers, args.controllers, dict(args.env_option))
+        videos = video_options(args)
     except ValueError as exc:
         return _error(exc)
 
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.compare import check_comparison
+    from observer_gym.train.experiments.videos import plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError, check_folder_kind
 
     options = {
@@ -184,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
         check_comparison(**options)
         if args.out is not None:
             check_folder_kind(args.out, "compare")
+        if videos:
+            plan_videos(**videos, episodes=len(seeds), env_id=args.env, observers=args.observers)
     except ValueError as exc:
         return _error(str(exc))
     try:
@@ -196,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
             out_dir=args.out,
             progress=not args.no_progress,
             cli_args=recorded_args(args),
+            **videos,
         )
     except OutputFolderError as exc:  # another command wrote the folder since the check
         return _error(str(exc))

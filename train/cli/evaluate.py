@@ -13,6 +13,7 @@ from observer_gym.train.cli.args import (
     command_error,
     recorded_args,
 )
+from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import folder_path, nonnegative_int, positive_int
 from observer_gym.train.core.messages import error_line
 
@@ -52,12 +53,14 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=positive_int, default=1, metavar="W", help="processes to run in"
     )
     add_output_arguments(parser, "evaluate")
+    add_video_arguments(parser)
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:
     from observer_gym.envs import system_for_id
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
     from observer_gym.train.experiments.request import check_controller
+    from observer_gym.train.reports.video import check_video_observer
     from observer_gym.train.rl.run_dir import (
         agent_folder,
         is_multi_seed,
@@ -79,6 +82,9 @@ def _evaluate_run(args: argparse.Namespace) -> int:
             check_controller(f"{config['algo']}:{run_dir}", system_for_id(env_id), observer)
             obs_mode = observer_mode(env_id, observer)
             check_env_options(env_id, obs_mode, config["env_kwargs"])
+            if args.video is not None:
+                check_video_observer(obs_mode, observer)
+        videos = video_options(args)
     except (ValueError, ImportError) as exc:  # no agent there, or an observer it cannot read
         return command_error("evaluate", exc)
 
@@ -96,6 +102,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         "workers": args.workers,
         "progress": not args.no_progress,
         "cli_args": recorded_args(args),
+        **videos,
     }
     try:
         if multi_seed:

@@ -15,6 +15,7 @@ from observer_gym.train.cli.args import (
     controller_name,
     recorded_args,
 )
+from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
@@ -96,6 +97,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
         "robot_profile=fast); the observer sets obs_mode",
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+    add_video_arguments(parser)
 
 
 def _run_run(args: argparse.Namespace) -> int:
@@ -108,6 +110,7 @@ def _run_run(args: argparse.Namespace) -> int:
         check_controller(args.controller, system_for_id(env_id), args.observer)
         obs_mode = observer_mode(env_id, args.observer)
         check_env_options(env_id, obs_mode, dict(args.env_option))
+        videos = video_options(args)
     except ValueError as exc:  # an observer, controller or env option the env does not take
         return command_error("run", exc)
 
@@ -129,6 +132,7 @@ def _run_run(args: argparse.Namespace) -> int:
             controller_options=dict(args.controller_option),
             progress=not args.no_progress,
             cli_args=recorded_args(args),
+            **videos,
         )
     except EpisodeError as exc:  # an episode failed part-way: nothing written
         print(error_line("observer-gym run", exc), file=sys.stderr)

@@ -26,6 +26,7 @@ from observer_gym.train.cli.args import (
     recorded_args,
 )
 from observer_gym.train.cli.compare import check_pairs, name_list
+from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
     add_env_option_argument,
@@ -130,6 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="show no progress (default: a bar on a terminal, else one line per finished "
         "cell on stderr)",
     )
+    add_video_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -153,12 +155,14 @@ def run(args: argparse.Namespace) -> int:
         check_pairs(args.env, args.observers, args.controllers, env_options)
         modes = [observer_mode(args.env, o) for o in args.observers]
         check_grid(args.env, args.vary, env_options, modes)
+        videos = video_options(args)
     except ValueError as exc:
         return _error(exc)
 
     # deferred: PyBullet's worlds, the controllers, SciPy, matplotlib
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.sweep_plan import check_sweep
+    from observer_gym.train.experiments.videos import plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError
 
     options = {
@@ -179,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
     }
     try:
         check_sweep(**options, out_dir=args.out)
+        if videos:
+            plan_videos(**videos, episodes=args.episodes, env_id=args.env, observers=args.observers)
     except ValueError as exc:
         return _error(exc)
     progress = progress_display("observer-gym sweep", args.no_progress)
@@ -194,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
             progress=progress.bar,
             cli_args=recorded_args(args),
             on_cell=progress.lines,
+            **videos,
         )
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (observer_gym.train.cli.main)
         print(

@@ -208,6 +208,8 @@ def run(
     controller_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> RunResult:
     """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env``
     (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with
@@ -251,6 +253,8 @@ def run(
             cli_args=cli_args,
             observer_options=observer_options,
             controller_options=controller_options,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     return _run_result(results, results_text(results))
 
@@ -285,12 +289,16 @@ def compare(
     controller_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> ComparisonResult:
     """Every (observer, controller) pair on the same episodes (``seeds``, or ``episodes``
     from ``seed``: the module docstring), with intervals, paired
     differences from the oracle and NEES/NIS
     (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
-    processes or as Ray tasks (``backend="ray"``), with the same records.
+    processes or as Ray tasks (``backend="ray"``), with the same records. ``video_dir``:
+    an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every pair whose
+    observer reads camera images (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -326,6 +334,8 @@ def compare(
             cli_args=cli_args,
             observer_options=observer_options,
             controller_options=controller_options,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     pairs = [
         PairResult(
@@ -369,12 +379,16 @@ def sweep(
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
     on_cell: Callable[[str], None] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
     resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`);
     ``episodes`` from ``seed``, or ``seeds`` (consecutive): the module docstring.
     ``progress`` draws a bar over the episodes; ``on_cell`` is called with one line for
     each cell as it finishes (the command prints it on stderr when no bar can be drawn).
+    ``video_dir``: an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every
+    cell run now whose observer reads camera images (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -413,6 +427,8 @@ def sweep(
             observer_options=observer_options,
             controller_options=controller_options,
             on_cell=on_cell,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     text = sweep_text(
         result.results, result.out_dir, result.cells_run, result.cells_reused, result.wall_time_s
@@ -440,11 +456,14 @@ def evaluate(
     workers: int = 1,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> RunResult:
     """Episodes of the agent trained in the folder ``model`` (one seed's run; or a shipped
     agent by name, ``"ppo:ball_table-estimate"`` or ``"ball_table-estimate"``) on its env
     with its training options, reading what it was trained on or ``observer``
-    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`).
+    (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`); ``video_dir``: MP4s
+    of the episodes ``video_episodes`` as :func:`run`'s.
 
     Example, a shipped agent (PPO on the kf's estimate of BallTable):
         >>> import tempfile
@@ -474,5 +493,7 @@ def evaluate(
             workers=workers,
             progress=progress,
             cli_args=cli_args,
+            video_dir=video_dir,
+            video_episodes=video_episodes,
         )
     return _run_result(results, results_text(results, "evaluate"))

@@ -31,6 +31,7 @@ from observer_gym.train.experiments.episode import (
     run_episodes,
 )
 from observer_gym.train.experiments.request import Request, resolve_request
+from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
 from observer_gym.train.reports.aggregate import across_seeds
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.reports.compare_stats import (
@@ -233,10 +234,10 @@ class PairRuns(NamedTuple):
         return {pair: self.records[k * n : (k + 1) * n] for k, pair in enumerate(self.pairs)}
 
 
-def run_pairs(request: Request, progress: bool = True) -> PairRuns:
+def run_pairs(request: Request, progress: bool = True, videos: VideoPlan | None = None) -> PairRuns:
     """Run episode i of every (observer, controller) pair of ``request`` with
     ``seeds[i]``, all in one batch: locally in ``workers`` processes or as Ray tasks (the
-    same records)."""
+    same records); with ``videos``, the chosen episodes write their videos."""
     pairs = [(o, c) for c in request.controllers for o in request.observers]
     specs = [
         EpisodeSpec.of(
@@ -252,6 +253,7 @@ def run_pairs(request: Request, progress: bool = True) -> PairRuns:
         for observer, controller in pairs
         for seed in request.seeds
     ]
+    specs = with_videos(specs, videos, len(request.seeds))
     tic_s = time.perf_counter()
     if request.backend == "ray":
         from observer_gym.train.experiments.ray_backend import (
@@ -280,6 +282,8 @@ def run_comparison(
     cli_args: Mapping[str, Any] | None = None,
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Run every (observer, controller) pair on ``seeds``; write tables, plots, results.
 
@@ -315,6 +319,9 @@ def run_comparison(
         progress: show a progress bar over episodes.
         cli_args: the command line's arguments, recorded in results.json; when given,
             table.md starts with the command line that regenerates it.
+        video_dir: write videos of the episodes ``video_episodes`` (indices, default the
+            first) of every pair whose observer reads camera images into this folder
+            (:mod:`observer_gym.train.experiments.videos`); the results are the same.
 
     Returns:
         What ``results.json`` holds (JSON types): ``config``, ``versions``,
@@ -331,6 +338,9 @@ def run_comparison(
         observer_options, controller_options,
     )  # fmt: skip
     task, seeds = request.task, list(request.seeds)
+    videos = plan_videos(
+        video_dir, video_episodes, len(seeds), request.env_id, request.observer_names
+    )
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "compare")
@@ -338,7 +348,7 @@ def run_comparison(
     with output_folder(
         out_dir, "compare", check=lambda folder: check_folder_kind(folder, "compare")
     ):
-        runs = run_pairs(request, progress)
+        runs = run_pairs(request, progress, videos)
         observed = {entry.name: entry.record() for entry in request.observers}
         analysis = analyse_pairs(
             task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records, observed

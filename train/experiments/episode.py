@@ -40,6 +40,7 @@ from observer_gym.train.reports.outputs import (
 )
 from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.reports.progress import progress_bar
+from observer_gym.train.reports.video import EpisodeVideo, VideoRequest
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import parse_agent_spec
 
@@ -86,6 +87,9 @@ class EpisodeSpec:
     # the observer and controller if given as Python objects (entries.as_name), by name:
     # they travel with the spec to a worker
     objects: Mapping[tuple[str, str], Any] = dataclasses.field(default_factory=dict)
+    # where this episode's video goes (observer_gym.train.reports.video), None for none;
+    # the video only reads what the episode produces, so the record is the same
+    video: VideoRequest | None = None
 
     @classmethod
     def of(
@@ -245,6 +249,7 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         actions: list[np.ndarray] = []
         rewards: list[float] = []
         terminated = truncated = False
+        video = None if spec.video is None else EpisodeVideo(spec.video, env)
         try:
             obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
             # The ground truth as the env gave it, copied before any entry sees the step
@@ -252,6 +257,8 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
             states = [np.array(info["state"], dtype=float)]
             observe_info(info)
             samples = [info]
+            if video is not None:
+                video.add(info, 0)
             while not (terminated or truncated) and (
                 spec.max_steps is None or len(actions) < spec.max_steps
             ):
@@ -262,10 +269,17 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
                 actions.append(np.asarray(action, dtype=float))
                 rewards.append(float(reward))
                 samples.append(info)
+                if video is not None:
+                    video.add(info, len(actions), actions[-1])
+            if video is not None:
+                video.finish()
         except ValueError as exc:  # an observer's or controller's fault: which episode, when
             raise EpisodeError(
                 f"{exc} (episode seed {spec.seed}, after {len(actions)} steps)"
             ) from None
+        finally:
+            if video is not None:
+                video.abort()  # after finish() a no-op; else the temps go
         record: dict[str, Any] = {
             # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
             "time_s": np.round([s["time_s"] for s in samples], 9),

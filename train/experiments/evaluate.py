@@ -49,6 +49,8 @@ def evaluate_agent(
     workers: int = 1,
     progress: bool = True,
     cli_args: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed``, ``seed + 1``, ...) of the agent trained
     in ``run_dir`` on its env with its training env options, reading ``observer``'s output
@@ -57,7 +59,8 @@ def evaluate_agent(
     ``run_experiment``'s results; the agent is the final model, or the latest checkpoint
     of a run that has not finished. A run that was killed
     (:func:`~observer_gym.train.rl.run_dir.read_state`) is reported with an
-    :class:`~observer_gym.train.reports.outputs.OutputFolderWarning` naming the checkpoint used."""
+    :class:`~observer_gym.train.reports.outputs.OutputFolderWarning` naming the checkpoint used.
+    ``video_dir``, ``video_episodes``: videos of episodes, as :func:`run_experiment`'s."""
     config = read_config(run_dir)
     _, _, trained_steps = model_files(run_dir)  # a clear error now if there is nothing to load
     state = read_state(run_dir)
@@ -80,6 +83,8 @@ def evaluate_agent(
         progress=progress,
         env_kwargs=config["env_kwargs"],
         cli_args=cli_args,
+        video_dir=video_dir,
+        video_episodes=video_episodes,
     )
 
 
@@ -148,12 +153,15 @@ def evaluate_seeds(
     progress: bool = True,
     cli_args: Mapping[str, Any] | None = None,
     reps: int | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> SeedsEvaluation:
     """Score the agent of every seed of the multi-seed run in ``seeds_dir`` on the same
     ``episodes`` episodes (seeds ``seed``, ``seed + 1``, ...): :func:`evaluate_agent` of
     each into ``out_dir/seed_<s>/`` (its results.json and plots), then across seeds the
     mean and the IQM with its 95 % interval (rliable's method) of each agent's mean of the task's
     primary metric, written to ``out_dir/across_seeds.json`` and ``across_seeds.md``.
+    With ``video_dir``, each seed's videos go to ``video_dir/seed_<s>/``.
 
     Raises:
         ValueError: no multi-seed run in ``seeds_dir``, or a seed's run that cannot be
@@ -185,6 +193,8 @@ def evaluate_seeds(
                 workers=workers,
                 progress=progress,
                 cli_args=cli_args,
+                video_dir=None if video_dir is None else Path(video_dir) / f"{SEED_PREFIX}{s}",
+                video_episodes=video_episodes,
             )
         per_seed = {s: metric_mean(task, r["episodes"], metric) for s, r in results.items()}
         evaluation = SeedsEvaluation(

@@ -9,7 +9,7 @@ The episodes themselves are :mod:`observer_gym.train.experiments.episode`'s.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ from observer_gym.train.core import entries
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, check_entries, run_episodes
 from observer_gym.train.experiments.request import Request, check_pair, resolve_request
+from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
 from observer_gym.train.reports.consistency import (
     NEES_COLUMN,
     consistency_text,
@@ -51,6 +52,8 @@ def run_experiment(
     cli_args: Mapping[str, Any] | None = None,
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` closed-loop episodes; write results and plots.
 
@@ -87,6 +90,9 @@ def run_experiment(
         cli_args: the command line's arguments, recorded in the config.
         observer_options, controller_options: keyword arguments of the observer's pipeline
             and of the controller's factory (or design), recorded in the config.
+        video_dir: write a video of the episodes ``video_episodes`` (indices, default the
+            first) into this folder (:mod:`observer_gym.train.experiments.videos`); the
+            results are the same with and without.
 
     Returns:
         What ``results.json`` holds (JSON types).
@@ -108,6 +114,7 @@ def run_experiment(
         steps, env_kwargs, observer_options, controller_options,
     )  # fmt: skip
     observer_entry, controller_entry = request.observers[0], request.controllers[0]
+    videos = plan_videos(video_dir, video_episodes, episodes, env_id, [observer])
     check_entries(
         env_id, observer, controller, env_kwargs, observer_entry.options,
         controller_entry.options, seed,
@@ -117,7 +124,7 @@ def run_experiment(
     # and again once the folder is this run's alone (another command may have written it)
     with output_folder(out_dir, "run", check=lambda folder: check_folder_kind(folder, "run")):
         return _run_into(
-            out_dir, request, reset_options, cli_args, progress,
+            out_dir, request, reset_options, cli_args, progress, videos,
         )  # fmt: skip
 
 
@@ -127,6 +134,7 @@ def _run_into(
     reset_options: Mapping[str, Any] | None,
     cli_args: Mapping[str, Any] | None,
     progress: bool,
+    videos: VideoPlan | None = None,
 ) -> dict[str, Any]:
     """:func:`run_experiment`'s episodes and outputs, its request checked."""
     observer, controller = request.observers[0], request.controllers[0]
@@ -145,6 +153,7 @@ def _run_into(
         )
         for seed in seeds
     ]
+    specs = with_videos(specs, videos, len(seeds))
     tic_s = time.perf_counter()
     records = run_episodes(specs, request.workers, progress)
     wall_time_s = time.perf_counter() - tic_s

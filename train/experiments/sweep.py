@@ -42,7 +42,7 @@ from typing import Any
 
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
-from observer_gym.train.core.args import point_text
+from observer_gym.train.core.args import point_text, value_text
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes, run_episode
 from observer_gym.train.experiments.sweep_cells import SweepWarning, cell_file, finished_cells
@@ -55,6 +55,8 @@ from observer_gym.train.experiments.sweep_plan import (
     check_out_dir,
     check_sweep,
 )
+from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
+from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
     compare_metrics,
@@ -136,14 +138,19 @@ def run_cells(
     cells: Sequence[Cell],
     progress: bool = True,
     on_cell: Callable[[str], None] | None = None,
+    videos: VideoPlan | None = None,
 ) -> dict[str, dict]:
     """Run every episode of ``cells`` in one batch; write each cell to
     ``out_dir/cells/<id>.json`` (atomically) as soon as its last episode is in, then call
     ``on_cell`` with one line saying so (:func:`cell_line`), if given. Returns the cell
-    files' contents by id. An error or Ctrl-C stops it; the cells written stay."""
+    files' contents by id. An error or Ctrl-C stops it; the cells written stay. With
+    ``videos``, the chosen episodes of each cell write their videos (file names begin
+    with the cell's grid point)."""
     specs, owner = [], []
     for k, cell in enumerate(cells):
-        for i, spec in enumerate(plan.specs(cell)):
+        point = "".join(f"{safe_name(f'{key}-{value_text(v)}')}__" for key, v in cell.point.items())
+        cell_specs = with_videos(plan.specs(cell), videos, len(plan.seeds), prefix=point)
+        for i, spec in enumerate(cell_specs):
             specs.append(spec)
             owner.append((k, i))
     if not specs:
@@ -300,6 +307,8 @@ def run_sweep(
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
     on_cell: Callable[[str], None] | None = None,
+    video_dir: str | Path | None = None,
+    video_episodes: Sequence[int] | None = None,
 ) -> SweepResult:
     """Run every cell (grid point x observer x controller) of a sweep on the same seeds,
     resuming from the cells ``out_dir`` already holds; write its outputs.
@@ -339,6 +348,10 @@ def run_sweep(
         cli_args: the command line's arguments, recorded in timing.json.
         on_cell: called with one line for each cell as it finishes (:func:`cell_line`;
             the command prints it when no bar can be drawn).
+        video_dir: write videos of the episodes ``video_episodes`` (indices, default the
+            first) of every cell run now whose observer reads camera images into this
+            folder (:mod:`observer_gym.train.experiments.videos`; cells reused from an
+            earlier run are not run again, so they get none).
 
     Raises:
         ValueError: a bad input, or an ``out_dir`` holding another sweep
@@ -356,6 +369,7 @@ def run_sweep(
         env_id, vary, observers, controllers, episodes, seed, out_dir, workers, backend,
         address, steps, env_kwargs, second_metric, observer_options, controller_options,
     )  # fmt: skip
+    videos = plan_videos(video_dir, video_episodes, episodes, plan.env_id, plan.observers)
     for note in world_draw_notes(plan.env_id, plan.grid):
         warnings.warn(note, SweepWarning, stacklevel=2)
     out_dir = Path(out_dir)
@@ -379,7 +393,7 @@ def run_sweep(
         cells = finished_cells(out_dir, plan)
         reused = len(cells)
         todo = [cell for cell in plan.cells if cell.id not in cells]
-        ran = run_cells(out_dir, plan, todo, progress, on_cell)
+        ran = run_cells(out_dir, plan, todo, progress, on_cell, videos)
         cells.update(ran)
         ran_s = time.perf_counter()
 
