@@ -56,6 +56,7 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
 from observer_gym.estimation.ball_table import learned_detector
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
+from observer_gym.estimation.learned.variance_scale import variance_scale
 from observer_gym.estimation.observer import (
     MAX_PIXEL_PX,
     Estimate,
@@ -172,6 +173,8 @@ class LearnedObserver:
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
+        obs_mode = "rgb" if from_frames else "measurements"
+        self.variance_scale = variance_scale(self.report, obs_mode, STATE_DIM)
         self.detector: LearnedDetector | None = None
         self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         if from_frames:
@@ -195,6 +198,13 @@ class LearnedObserver:
     def reset(self) -> None:
         self.features.reset()
 
+    def predict(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The network's (mean, covariance) of ``features``, its variances times the
+        report's variance scale for this observation mode
+        (:mod:`~observer_gym.estimation.learned.variance_scale`)."""
+        mean, covariance = self.net.predict(features)
+        return mean, covariance * self.variance_scale  # diagonal: scales each row's entry
+
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         used = False
         measurement = None
@@ -204,7 +214,7 @@ class LearnedObserver:
             self.features.new_frame(measurement, capture_s)
             used = True
         now_s = float(info["time_s"])
-        mean, covariance = self.net.predict(self.features.vector(now_s, action))
+        mean, covariance = self.predict(self.features.vector(now_s, action))
         assert mean.shape == (STATE_DIM,)
         return Estimate(mean, covariance, used, measurement, now_s)
 
