@@ -124,7 +124,8 @@ class LearnedKFObserver(TargetFollowerObserver):
         self.noise = LearnedNoise(env.sensor_spec, env.config, env.calibration, r_scale, True)
         self._frame: FrameDetection | None = None
         super().__init__(env, filter="kf", r_scale=r_scale)
-        self.vse = GatedEstimator(self.params, self.noise)  # kf's, with the network's R
+        self.gated = GatedEstimator(self.params, self.noise)  # kf's, with the network's R
+        self.vse = self.gated
 
     def reset(self) -> None:
         super().reset()
@@ -149,7 +150,7 @@ class LearnedKFObserver(TargetFollowerObserver):
         if new is None or new.z_px is None:
             return None
         # a frame whose window overlaps the last fused one's: seen, not fused
-        self.vse.skip_next = not self.gate.new_frame()
+        self.gated.skip_next = not self.gate.new_frame()
         features = self.learned.estimator.features
         # z = X_i, R_detection = diag(sigma^2 of X_i) = network(features at now = t_capture)
         mean, cov = self.learned.net.predict(features.vector(new.capture_time_s))
