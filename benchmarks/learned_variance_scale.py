@@ -26,6 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.envs.target_follower import StateIndex
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.learned.variance_scale import VARIANCE_SCALE_KEY
@@ -48,7 +49,15 @@ SYSTEMS: dict[str, tuple[str, str, int, dict[str, Any], slice]] = {
         {"measurement_noise_px": 2.0},
         slice(0, 6),
     ),
+    "BallCatcher-v1": (
+        "observer_gym.estimation.ball_catcher.learned",
+        "intercept",
+        10**6,  # one throw: until the episode ends
+        {"measurement_noise_px": 1.0},
+        BALL,
+    ),
 }
+FROM_S = 0.1  # BallCatcher: errors from this long after the launch to the box's plane
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -59,6 +68,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         options["measurement_noise_px"] = args.noise_px
     kwargs = {} if args.fuse_every is None else {"fuse_every": args.fuse_every}
     errors, variances, nees, new_frame = [], [], [], []
+    catches = 0
     for seed in range(args.seed, args.seed + args.episodes):
         env = VisionObserver(
             gym.make(f"observer_gym/{args.env}", obs_mode=args.obs_mode, **options),
@@ -69,11 +79,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             controller = make_controller(controller_name, env)
             estimate, info = env.reset(seed=seed)
             for _ in range(steps):
+                if hasattr(controller, "observe_info"):
+                    controller.observe_info(info)  # the intercept reads the throw's timing
                 action, _ = controller.predict(estimate, deterministic=True)
                 estimate, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
+                    catches += bool(info.get("caught", False))
                     break
                 state = info["state"]
+                if args.env == "BallCatcher-v1" and not (
+                    info["ball_in_flight"]
+                    and FROM_S <= info["time_s"] < info["throw"]["crossing_time_s"]
+                ):
+                    continue  # the free flight only
                 if args.env == "TargetFollower-v0" and (
                     state[StateIndex.TRACKING_VALID] < 0.5
                     or estimate[StateIndex.TRACKING_VALID] < 0.5
@@ -93,6 +111,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "nees_per_dof_median": float(np.median(nees)),
         "steps": len(e),
     }
+    if args.env == "BallCatcher-v1":
+        out["catches"] = catches
     if args.observer == "learned":
         module = import_module(module_name)
         report = json.loads(module.WEIGHTS.with_suffix(".json").read_text())

@@ -199,10 +199,11 @@ def test_learned_kf_is_as_precise_as_the_network_in_position():
 
 @pytest.mark.slow
 def test_catch_rate_over_100_throws():
-    """Seeds 10**6 ... 10**6 + 99: ``kf`` 68, ``learned-kf`` 49, ``learned`` 28 (the
-    Wilson 95 % intervals [0.58, 0.76], [0.39, 0.59], [0.20, 0.37]; measured position RMSE
-    5.2 / 12.5 / 12.4 mm along x, velocity 73 / 118 / 119 mm/s). Asserted: the order,
-    strictly, and learned at least 20."""
+    """Seeds 10**6 ... 10**6 + 99: ``kf`` 68, ``learned-kf`` 46, ``learned`` 28 (the
+    Wilson 95 % intervals [0.58, 0.76], [0.37, 0.56], [0.20, 0.37]; measured position RMSE
+    5.2 / 12.8 / 12.4 mm along x; learned-kf's NEES/dof 1.89). Fusing every step's output
+    learned-kf caught 49 at NEES/dof 5.8 (12.5 mm, velocity 118 mm/s). Asserted: the
+    order, strictly, and learned at least 20."""
     kf, learned_kf, learned = (
         _closed_loop(name, 100).catches for name in ("kf", "learned-kf", "learned")
     )
