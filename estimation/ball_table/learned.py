@@ -12,7 +12,10 @@ carry latency and drops; the history carries the rates.
 
 **Network**: :class:`~observer_gym.estimation.learned.network.GaussianMLP` (2 x 128
 tanh), trained with the Gaussian negative log-likelihood, so each entry's variance is
-learned with its mean; the covariance it reports is diagonal.
+learned with its mean; the covariance it reports is diagonal, each variance times the
+scale of its report for the observation mode
+(:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 2.5 and 2.8
+for the ball's position, fitted on validation episodes; from frames none).
 
 **Training data** (:func:`collect`): episodes of the env in measurements mode with the
 LQR plus white action noise (0.005 rad), each episode's sensor drawn uniformly from
