@@ -12,7 +12,10 @@ carry latency and drops; the history carries the rates.
 
 **Network**: :class:`~observer_gym.estimation.learned.network.GaussianMLP` (2 x 128
 tanh), trained with the Gaussian negative log-likelihood, so each entry's variance is
-learned with its mean; the covariance it reports is diagonal.
+learned with its mean; the covariance it reports is diagonal, each variance times the
+scale of its report for the observation mode
+(:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 2.5 and 2.8
+for the ball's position, fitted on validation episodes; from frames none).
 
 **Training data**
 (:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes
@@ -57,6 +60,7 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
 from observer_gym.estimation.ball_table import learned_detector
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
+from observer_gym.estimation.learned.variance_scale import variance_scale
 from observer_gym.estimation.observer import (
     MAX_PIXEL_PX,
     Estimate,
@@ -172,6 +176,8 @@ class LearnedObserver:
         from observer_gym.estimation.learned.network import load_network  # imports torch
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
+        obs_mode = "rgb" if from_frames else "measurements"
+        self.variance_scale = variance_scale(self.report, obs_mode, STATE_DIM)
         self.detector: LearnedDetector | None = None
         self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         if from_frames:
@@ -195,6 +201,13 @@ class LearnedObserver:
     def reset(self) -> None:
         self.features.reset()
 
+    def predict(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The network's (mean, covariance) of ``features``, its variances times the
+        report's variance scale for this observation mode
+        (:mod:`~observer_gym.estimation.learned.variance_scale`)."""
+        mean, covariance = self.net.predict(features)
+        return mean, covariance * self.variance_scale  # diagonal: scales each row's entry
+
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         used = False
         measurement = None
@@ -204,6 +217,6 @@ class LearnedObserver:
             self.features.new_frame(measurement, capture_s)
             used = True
         now_s = float(info["time_s"])
-        mean, covariance = self.net.predict(self.features.vector(now_s, action))
+        mean, covariance = self.predict(self.features.vector(now_s, action))
         assert mean.shape == (STATE_DIM,)
         return Estimate(mean, covariance, used, measurement, now_s)

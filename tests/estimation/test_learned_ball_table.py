@@ -131,7 +131,8 @@ def _closed_loop(observer: str) -> tuple[np.ndarray, float]:
 
 def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
     """``learned``: position RMSE within the report's held-out RMSE (measured 3.5 and 2.9
-    mm against its 6.1 and 6.0 mm), median NEES/dof within [1/3, 3] (measured 2.2)."""
+    mm against its 6.1 and 6.0 mm), median NEES/dof within [1/3, 3] (measured 0.77 with
+    the report's variance scale, 2.2 without)."""
     report = json.loads(WEIGHTS.with_suffix(".json").read_text())
     held_rmse = np.array(report["held_out"]["rmse"])
     rmse, nees = _closed_loop("learned")
@@ -139,26 +140,21 @@ def test_on_a_new_seed_its_error_and_nees_are_what_its_report_measured():
     assert 1 / 3 <= nees <= 3, nees
 
 
-def test_learned_kf_is_more_precise_than_the_network_and_than_kf():
-    """``learned-kf`` (the network as kf's measurement model), the same episodes: position
-    RMSE below the network's alone and below ``kf``'s on the same measurements (measured
-    2.67 and 1.43 mm against 3.53 and 2.85 (learned) and 3.19 and 1.63 (kf)); velocity
-    below the network's tenfold (4.7 and 5.9 mm/s against 47 and 36)."""
+def test_learned_kf_is_more_precise_than_the_network():
+    """``learned-kf`` (the network as kf's measurement model, one output fused in two
+    frames), the same episodes: position RMSE below the network's alone (measured 3.11 and
+    2.09 mm against 3.53 and 2.85); velocity below the network's tenfold. Fusing every
+    frame's output it was below ``kf``'s too (2.67 and 1.43 mm against 3.19 and 1.63),
+    with NEES/dof 5.8: the honest covariance costs y precision (docs/learned_observers.md)."""
     rmse, _ = _closed_loop("learned-kf")
     learned, _ = _closed_loop("learned")
-    kf, _ = _closed_loop("kf")
-    assert np.all(rmse[:2] < learned[:2]) and np.all(rmse[:2] < kf[:2]), (rmse, learned, kf)
+    assert np.all(rmse[:2] < learned[:2]), (rmse, learned)
     assert np.all(rmse[2:4] < 0.2 * learned[2:4]), (rmse, learned)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="measured 5.8: R takes each frame's network error as independent, but the "
-    "network reads the last four frames, and its own covariance claims about half its "
-    "error (learned_kf.py)",
-)
 def test_learned_kf_nees_in_the_band():
+    """Fusing one output in two frames with the scaled variance (learned_kf.py):
+    median NEES/dof in [1/3, 3] (measured 1.68; 5.8 fusing every frame unscaled)."""
     _, nees = _closed_loop("learned-kf")
     assert 1 / 3 <= nees <= 3, nees
 

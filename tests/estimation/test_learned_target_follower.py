@@ -188,33 +188,31 @@ def test_at_5_px_the_network_claims_its_error():
 
 
 def test_learned_kf_against_the_network_and_kf():
-    """``learned-kf`` (the network as kf's measurement model), the same episodes at 2 px:
-    its rates' RMSE (norm over the three) below 0.9 of the network's alone (measured 7.56
-    against 8.87 px/s), its image state's within the network's (1.64 against 1.71 px);
-    ``kf`` on the detections themselves stays ahead on the image state (1.43 px): the
-    network's X_i is a noisier measurement than the detection it reads."""
+    """``learned-kf`` (the network as kf's measurement model, one output fused in two
+    detected frames), the same episodes at 2 px: its rates' RMSE (norm over the three)
+    below the network's alone (measured 8.51 against 8.87 px/s), its image state's within
+    1.2 times the network's (1.96 against 1.71 px); ``kf`` on the detections themselves
+    stays ahead on the image state (1.43 px). Fusing every frame's output it was 7.56 and
+    1.64, NEES/dof 3.18 at 5 px: the honest covariance costs image precision
+    (learned_kf.py)."""
     rmse, _ = _closed_loop("learned-kf")
     learned, _ = _closed_loop("learned")
     kf, _ = _closed_loop("kf")
-    assert np.linalg.norm(rmse[3:]) < 0.9 * np.linalg.norm(learned[3:]), (rmse, learned)
-    assert np.linalg.norm(rmse[:3]) <= np.linalg.norm(learned[:3]), (rmse, learned)
+    assert np.linalg.norm(rmse[3:]) < np.linalg.norm(learned[3:]), (rmse, learned)
+    assert np.linalg.norm(rmse[:3]) <= 1.2 * np.linalg.norm(learned[:3]), (rmse, learned)
     assert np.linalg.norm(kf[:3]) < np.linalg.norm(rmse[:3]), (rmse, kf)
 
 
 def test_learned_kf_nees_in_the_band():
-    """``learned-kf``'s median NEES/dof within [1/3, 3] at 2 px (measured 1.06)."""
+    """``learned-kf``'s median NEES/dof within [1/3, 3] at 2 px (measured 0.73; 1.06 fusing
+    every frame's output)."""
     _, nees = _closed_loop("learned-kf")
     assert 1 / 3 <= nees <= 3, nees
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="measured 3.18 at 5 px: R takes each frame's network error as independent, "
-    "but the network reads the last four frames, so consecutive errors share three of "
-    "them (learned_kf.py)",
-)
 def test_learned_kf_nees_in_the_band_at_5_px():
+    """Fusing one output in two detected frames (learned_kf.py): median NEES/dof in
+    [1/3, 3] at 5 px (measured 1.99; 3.18 fusing every frame's)."""
     _, nees = _closed_loop("learned-kf", noise_px=5.0)
     assert 1 / 3 <= nees <= 3, nees
 

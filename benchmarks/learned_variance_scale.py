@@ -1,0 +1,158 @@
+"""Fit (``--write``) or measure a learned observer's post-hoc variance scale, and the
+autocorrelation of its network's error (estimation/learned/variance_scale.py).
+
+Runs the system's controller on an observer's estimate for ``--episodes`` episodes of
+validation seeds (``--seed`` onwards; the tests use 10**6 onwards: keep them apart) and
+prints the RMSE per state entry, the median NEES/dof (full covariance) and, for
+``learned``, the scale per entry (mean of error^2 / variance, against the unscaled
+network) and the autocorrelation of the normalised error at lags 1..k (new frames only).
+With ``--write``, the scale of ``learned`` goes into the weight file's report under
+``variance_scale`` for the obs mode, with this command and the seeds.
+
+    python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
+        --observer learned --seed 2000000 --episodes 6 --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from importlib import import_module
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_catcher.layout import BALL
+from observer_gym.envs.target_follower import StateIndex
+from observer_gym.estimation import VisionObserver
+from observer_gym.estimation.learned.variance_scale import VARIANCE_SCALE_KEY
+from observer_gym.train.reports.outputs import write_text_atomic
+
+# env id -> (learned module, controller, steps per episode, options of the episodes, the
+# state entries compared: the network's outputs)
+SYSTEMS: dict[str, tuple[str, str, int, dict[str, Any], slice]] = {
+    "BallTable-v0": (
+        "observer_gym.estimation.ball_table.learned",
+        "lqr",
+        300,
+        {"measurement_noise_px": 1.0},
+        slice(0, 8),
+    ),
+    "TargetFollower-v0": (
+        "observer_gym.estimation.target_follower.learned",
+        "vtc",
+        300,
+        {"measurement_noise_px": 2.0},
+        slice(0, 6),
+    ),
+    "BallCatcher-v1": (
+        "observer_gym.estimation.ball_catcher.learned",
+        "intercept",
+        10**6,  # one throw: until the episode ends
+        {"measurement_noise_px": 1.0},
+        BALL,
+    ),
+}
+FROM_S = 0.1  # BallCatcher: errors from this long after the launch to the box's plane
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    module_name, controller_name, steps, options, entries = SYSTEMS[args.env]
+    steps = args.steps or steps
+    options = {} if args.obs_mode == "rgb" else dict(options)
+    if args.noise_px is not None:
+        options["measurement_noise_px"] = args.noise_px
+    kwargs = {} if args.fuse_every is None else {"fuse_every": args.fuse_every}
+    errors, variances, nees, new_frame = [], [], [], []
+    catches = 0
+    for seed in range(args.seed, args.seed + args.episodes):
+        env = VisionObserver(
+            gym.make(f"observer_gym/{args.env}", obs_mode=args.obs_mode, **options),
+            observer=args.observer,
+            **kwargs,
+        )
+        try:
+            controller = make_controller(controller_name, env)
+            estimate, info = env.reset(seed=seed)
+            for _ in range(steps):
+                if hasattr(controller, "observe_info"):
+                    controller.observe_info(info)  # the intercept reads the throw's timing
+                action, _ = controller.predict(estimate, deterministic=True)
+                estimate, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    catches += bool(info.get("caught", False))
+                    break
+                state = info["state"]
+                if args.env == "BallCatcher-v1" and not (
+                    info["ball_in_flight"]
+                    and FROM_S <= info["time_s"] < info["throw"]["crossing_time_s"]
+                ):
+                    continue  # the free flight only
+                if args.env == "TargetFollower-v0" and (
+                    state[StateIndex.TRACKING_VALID] < 0.5
+                    or estimate[StateIndex.TRACKING_VALID] < 0.5
+                ):
+                    continue  # the image state is defined while the target is tracked
+                e = (info["estimate"]["mean"] - state)[entries]
+                P = info["estimate"]["covariance"][entries, entries]
+                errors.append(e)
+                variances.append(np.diag(P).copy())
+                nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
+                new_frame.append(bool(info["estimate"]["measurement_used"]))
+        finally:
+            env.close()
+    e, var = np.array(errors), np.array(variances)
+    out: dict[str, Any] = {
+        "rmse": np.sqrt(np.mean(e**2, axis=0)).tolist(),
+        "nees_per_dof_median": float(np.median(nees)),
+        "steps": len(e),
+    }
+    if args.env == "BallCatcher-v1":
+        out["catches"] = catches
+    if args.observer == "learned":
+        module = import_module(module_name)
+        report = json.loads(module.WEIGHTS.with_suffix(".json").read_text())
+        old = np.asarray(report.get(VARIANCE_SCALE_KEY, {}).get(args.obs_mode, np.ones(e.shape[1])))
+        raw_var = var / old
+        out["scale"] = np.mean(e**2 / raw_var, axis=0).tolist()
+        z = (e / np.sqrt(raw_var))[np.array(new_frame)]
+        z = z - z.mean(axis=0)
+        out["autocorrelation_lag_1_to_8"] = [
+            float(np.mean(np.sum(z[lag:] * z[:-lag], axis=0) / np.sum(z * z, axis=0)))
+            for lag in range(1, 9)
+        ]
+        if args.write:
+            path = module.WEIGHTS.with_suffix(".json")
+            report = json.loads(path.read_text())
+            entry = report.setdefault(VARIANCE_SCALE_KEY, {})
+            entry[args.obs_mode] = out["scale"]
+            entry.setdefault("commands", {})[args.obs_mode] = "python " + shlex.join(sys.argv)
+            path_text = json.dumps(report, indent=2) + "\n"
+            write_text_atomic(path, path_text)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", required=True, choices=sorted(SYSTEMS))
+    parser.add_argument("--obs-mode", default="measurements", choices=["measurements", "rgb"])
+    parser.add_argument("--observer", default="learned")
+    parser.add_argument("--seed", type=int, default=2 * 10**6)
+    parser.add_argument("--episodes", type=int, default=6)
+    parser.add_argument("--steps", type=int, default=0)
+    parser.add_argument("--fuse-every", type=int, default=None)
+    parser.add_argument("--noise-px", type=float, default=None)
+    parser.add_argument("--write", action="store_true")
+    args = parser.parse_args(argv)
+    if args.write and args.observer != "learned":
+        parser.error("--write fits the scale of --observer learned only")
+    print(json.dumps(run(args), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
