@@ -10,6 +10,7 @@ import pytest
 from consistency_cells import CONDITIONS, HIGH, LOW, median_nees
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs import system_for_id
 from observer_gym.envs.ball_catcher import geometry as geo
 from observer_gym.envs.camera import project_points
 from observer_gym.estimation import VisionObserver
@@ -236,14 +237,16 @@ def test_endpoint_needs_the_hole_reports(make_env):
 
 
 def test_the_observers_env_option_travels_and_a_contradiction_is_refused():
-    env = make_observer_env(ENV_ID, "endpoint-measurements", LAB)
+    env = make_observer_env(system_for_id(ENV_ID), "endpoint-measurements", LAB)
     try:
         assert env.unwrapped.config.hole_measurements is True
         assert "hole_uv_px" in env.unwrapped.observation_space.spaces
     finally:
         env.close()
     with pytest.raises(ValueError, match="needs the env option hole_measurements=True"):
-        make_observer_env(ENV_ID, "endpoint-measurements", {"hole_measurements": False})
+        make_observer_env(
+            system_for_id(ENV_ID), "endpoint-measurements", {"hole_measurements": False}
+        )
 
 
 @pytest.mark.parametrize(

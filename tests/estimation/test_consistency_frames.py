@@ -86,10 +86,12 @@ def test_later_options_take_the_default_cell_from_the_first_sweep(monkeypatch, t
         ("image_noise_std", list(noise)),
         ("latency_s", list(latency[1:])),
     ]
-    for _, _, _, observers, controllers, kwargs in calls:
+    for _, option, _, observers, controllers, kwargs in calls:
         assert observers == frame_study.observers and controllers == (system.controller,)
         assert kwargs["steps"] == system.steps
-        assert kwargs["env_kwargs"] == dict(system.env_kwargs)
+        # the latency sweep runs with the study's jitter (OPTION_ENV_KWARGS), the others not
+        extra = {"latency_jitter_s": 0.01} if option == "latency_s" else {}
+        assert kwargs["env_kwargs"] == {**system.env_kwargs, **extra}
     latency_table = text.split("latency_s\n")[1]
     row = next(line for line in latency_table.splitlines() if line.startswith("| kf "))
     # the default column: the first sweep's cell (1.1 pooled), not a run of its own
