@@ -73,6 +73,8 @@ OBSERVER_ROLES = {
     "kf": "detector + Kalman filter, each frame fused when it is delivered",
     "kf-latency": "detector + Kalman filter, each frame fused at its capture time and "
     "predicted to now (latency-aware)",
+    "kf-at-delivery": "detector + Kalman filter, each frame fused when it is delivered as if "
+    "captured then (no latency handling)",
     "stkf": "detector + self-tuning Kalman filter (R adapted online)",
     "stkf-latency": "detector + self-tuning Kalman filter, latency-aware",
     "ekf": "one extended Kalman filter on the image features' pixels",

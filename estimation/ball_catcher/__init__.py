@@ -12,6 +12,9 @@ filter and the observer pipelines (docs/spec/catcher.md).
   re-filtering) and reports the prediction to the step's time, the time the next action
   is applied (see :mod:`~observer_gym.estimation.ball_catcher.observer`), so there is no
   latency gap for a second pipeline to close.
+- ``kf-at-delivery``: ``kf`` fusing each frame when it is delivered, as if captured then
+  (``fuse_at="delivery"``): no latency handling, the reference that shows what fusing at
+  the capture time buys.
 - ``raw``: triangulation of the two newest detections, no filter (:class:`RawObserver`).
 - ``ekf``: an iterated EKF on the pixels through each frame's pinhole model, fused at
   capture time (:class:`PixelEKFObserver`).
@@ -33,6 +36,8 @@ filter and the observer pipelines (docs/spec/catcher.md).
   estimation/ball_catcher/learned_kf.py; from frames or measurements, as ``learned``).
 """
 
+import functools
+
 from observer_gym.estimation.ball_catcher.learned import LearnedObserver
 from observer_gym.estimation.ball_catcher.learned_kf import LearnedKFObserver
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
@@ -47,6 +52,7 @@ from observer_gym.estimation.ball_catcher.self_calibrating import (
 OBSERVERS = {
     "kf": BallCatcherObserver,
     "kf-latency": BallCatcherObserver,  # kf is already latency-aware (see above)
+    "kf-at-delivery": functools.partial(BallCatcherObserver, fuse_at="delivery"),
     "raw": RawObserver,
     "ekf": PixelEKFObserver,
     "oracle-visible": OracleVisibleObserver,

@@ -277,6 +277,10 @@ def initial_estimate(config: Any) -> tuple[np.ndarray, np.ndarray]:
     return throw_prior(config)
 
 
+# when a frame is fused: at its capture time, or at its delivery as if captured then
+FUSE_AT = ("capture", "delivery")
+
+
 class BallCatcherObserver:
     """Detector + viewline Kalman filter for BallCatcher-v1.
 
@@ -293,6 +297,10 @@ class BallCatcherObserver:
         r_scale: the default pixel noise's R times this (> 0; sensitivity studies).
         consider_calibration: carry the declared calibration uncertainty as consider
             parameters (default True; False leaves it out, to show its effect).
+        fuse_at: "capture" (default): each frame at its capture time (latency-aware);
+            "delivery": each frame as if captured when it is delivered (the observer
+            ``kf-at-delivery``: a filter without latency handling, the reference that
+            shows what the capture time buys).
     """
 
     def __init__(
@@ -305,11 +313,18 @@ class BallCatcherObserver:
         reacquire_after: int = DEFAULT_REACQUIRE_AFTER,
         r_scale: float = 1.0,
         consider_calibration: bool = True,
+        fuse_at: str = "capture",
     ) -> None:
         if not isinstance(env, BallCatcherEnv):
             raise ValueError(
                 f"BallCatcherObserver needs a BallCatcherEnv, got {type(env).__name__}"
             )
+        if fuse_at not in FUSE_AT:
+            raise ValueError(
+                f"BallCatcherObserver: fuse_at must be one of {', '.join(FUSE_AT)}, got {fuse_at!r}"
+            )
+        # the frame's time the filter takes as its capture time
+        self.time_key = f"{fuse_at}_time_s"
         self.calibration = calibration_consider(env, consider_calibration)
         self.reacquire_after = checked_reacquire_after(reacquire_after, "BallCatcherObserver")
         cfg = env.config
@@ -368,7 +383,7 @@ class BallCatcherObserver:
         """Filter one frame; restart after ``reacquire_after`` rejections in a row of its
         camera. Whether the frame was used (at a restart: any frame filtered again)."""
         kf = self.filter
-        t_s = float(frame["capture_time_s"])
+        t_s = float(frame[self.time_key])
         camera = frame["camera_id"]
         result = kf.add_frame(t_s, frame["K"], frame["T_world_cam"], uv, camera)
         if uv is None:

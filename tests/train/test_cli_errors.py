@@ -57,6 +57,7 @@ EMPTY_RUN = "{empty_run}"  # a run folder with config.json but no model yet
 RUN = ["run", "--no-progress"]
 COMPARE = ["compare", "--no-progress"]
 TRAIN = ["train", "--no-progress", "--algo", "ppo", "--obs", "state"]
+OUT = "{out}"  # replaced by the case's output folder (which must stay unwritten)
 
 CASES = {
     # --- a controller that does not fit the env
@@ -287,6 +288,41 @@ CASES = {
         ["reproduce", "linderoth2010", "--seed", "-1"],
         "argument --seed: must be an integer >= 0, got -1",
     ),
+    "study-unknown-level": (
+        ["study", "delay-rl", "--env", "BallTable-v0", "--levels", "none,extreme", "--out", OUT],
+        "unknown level 'extreme'; allowed: none, moderate, heavy",
+    ),
+    "study-unknown-input": (
+        ["study", "delay-rl", "--env", "BallTable-v0", "--inputs", "belief", "--out", OUT],
+        "unknown input 'belief'; allowed: newest, stack, kf-latency, kf, truth",
+    ),
+    "study-without-out": (
+        ["study", "delay-rl", "--env", "BallCatcher-v1"],
+        "--out required (or --check DIR)",
+    ),
+    "study-check-with-env": (
+        ["study", "delay-rl", "--check", "{state_run}", "--env", "BallTable-v0"],
+        "--check takes no --env: it checks a finished folder",
+    ),
+    "study-duplicate-seeds": (
+        ["study", "delay-rl", "--env", "BallTable-v0", "--seeds", "0,0", "--out", OUT],
+        "argument --seeds",
+    ),
+    "study-ray-workers": (
+        [
+            "study",
+            "delay-rl",
+            "--env",
+            "BallTable-v0",
+            "--backend",
+            "ray",
+            "--workers",
+            "2",
+            "--out",
+            OUT,
+        ],
+        "workers applies to the local backend only",
+    ),
 }
 
 
@@ -309,7 +345,7 @@ def runs(tmp_path: Path) -> dict[str, str]:
 
 
 def _argv(argv: list[str], runs: dict[str, str], out: Path) -> list[str]:
-    argv = [word.format(**runs) for word in argv]
+    argv = [word.format(**runs, out=out) for word in argv]
     if argv[0] in ("run", "compare", "train", "evaluate") and "--resume" not in argv:
         argv += ["--out", str(out)]
     return argv
@@ -333,7 +369,7 @@ def test_a_mistake_is_one_line_and_exit_code_2(case, runs, tmp_path, capsys):
     assert code == 2, stderr
     lines = stderr.splitlines()
     assert len(lines) == 1, stderr
-    command = " ".join(argv[:2] if argv[0] == "reproduce" else argv[:1])
+    command = " ".join(argv[:2] if argv[0] in ("reproduce", "study") else argv[:1])
     assert lines[0].startswith(f"observer-gym {command}: error: "), lines[0]
     assert message in lines[0]
     assert stdout == ""
@@ -396,11 +432,13 @@ HELP = [
             "evaluate",
             "benchmark",
             "reproduce",
+            "study",
         )
     ),
     [],
     ["reproduce", "linderoth2010"],
     ["reproduce", "tsai2009"],
+    ["study", "delay-rl"],
 ]
 
 

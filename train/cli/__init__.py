@@ -30,6 +30,7 @@ from observer_gym.train.cli import (
     listing,
     reproduce,
     run,
+    study,
     sweep,
     train,
 )
@@ -48,6 +49,7 @@ COMMANDS = {
     "benchmark": benchmark.COMMAND,
     "list": listing.COMMAND,
     "reproduce": reproduce.COMMAND,
+    "study": study.COMMAND,
 }
 
 

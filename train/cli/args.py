@@ -184,9 +184,10 @@ def hyperparam_option(text: str) -> tuple[str, object]:
 
 def recorded_args(args: argparse.Namespace) -> dict[str, object]:
     """The parsed command line as results record it: paths as text, without the
-    command's handler."""
+    command's handlers."""
     recorded = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     recorded.pop("run", None)
+    recorded.pop("study_run", None)  # a study's handler (observer-gym study, reproduce)
     return recorded
 
 

@@ -28,7 +28,7 @@ from observer_gym.train.core.messages import UsageError, error_line
 from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
 # Listed here so that parsing needs no heavy import; train_agent checks them again.
-TRAIN_OBS = ("state", "estimate", "rgb")
+TRAIN_OBS = ("state", "estimate", "rgb", "measurements")
 
 
 class _ResumeAction(argparse.Action):
@@ -61,8 +61,9 @@ def _train_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         help=(
             "what the agent reads: state (the true state), estimate (the VisionObserver's "
-            "estimate, same layout) or rgb (the camera frames: resized, grayscale, stacked) "
-            "(not with --resume)"
+            "estimate, same layout), rgb (the camera frames: resized, grayscale, stacked) "
+            "or measurements (the newest frame's detections with their ages, unfiltered; "
+            "hyperparameter measurement_stack=K: the last K) (not with --resume)"
         ),
     )
     parser.add_argument(

@@ -88,11 +88,18 @@ def observer_mode(env_id: str, observer: str) -> str:
     return mode
 
 
+# the observers without a pipeline, by the agent obs type that reads them
+UNFILTERED_OBSERVERS = {"rgb": "pixels", "measurements": "detections"}
+
+
 def frames_message(controller: str, observer: str) -> str:
-    """Why a controller of the state layout cannot read ``observer``'s camera frames."""
+    """Why a controller of the state layout cannot read ``observer``'s unfiltered camera
+    output (frames, or the newest frame's detections)."""
+    obs = {name: obs for obs, name in UNFILTERED_OBSERVERS.items()}.get(observer, "rgb")
+    what = "camera frames" if obs == "rgb" else "the newest frame's detections, unfiltered"
     return (
         f"controller {controller!r} acts on the state layout; observer {observer!r} "
-        "gives camera frames, which only an agent trained with --obs rgb reads"
+        f"gives {what}, which only an agent trained with --obs {obs} reads"
     )
 
 
@@ -149,8 +156,8 @@ def agent_observer(env_id: str, obs: str, estimate_from: str, observer: str | No
         return observer
     if obs == "state":
         return "oracle"
-    if obs == "rgb":
-        return "pixels"
+    if obs in UNFILTERED_OBSERVERS:
+        return UNFILTERED_OBSERVERS[obs]
     return names.estimate_observers[estimate_from]
 
 

@@ -19,6 +19,8 @@ from observer_gym.train.rl.shipped import README_FILE, shipped_names, shipped_pa
 TASK_OBSERVERS = {
     "oracle": "the true state (no camera)",
     "pixels": "the camera frames themselves, for agents trained with --obs rgb",
+    "detections": "the newest frame's detections, unfiltered, for agents trained with "
+    "--obs measurements",
 }
 MEASUREMENTS = "-measurements"
 

@@ -170,7 +170,8 @@ def check_controller(controller: str, system: System, observer: str) -> None:
     ``ALGO:PATH.zip``, or an outside controller (an import path or an entry point's name,
     :mod:`observer_gym.train.core.entries`; its factory is imported). Controllers, outside
     ones and agents trained on the state or an estimate read the state layout (any
-    observer but "pixels"); an agent trained on rgb reads only "pixels"."""
+    observer but "pixels" and "detections"); an agent trained on rgb reads only
+    "pixels", one trained on measurements only "detections"."""
     obs_mode, pipeline, plugin = observer_setup(system, observer)
     reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
     agent_spec = parse_agent_spec(controller)

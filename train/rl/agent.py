@@ -20,6 +20,7 @@ import numpy as np
 
 from observer_gym.train.rl.agent_env import ImageOptions, to_env_action, wrap_images
 from observer_gym.train.rl.features import wrap_features
+from observer_gym.train.rl.measurement_input import wrap_measurements
 from observer_gym.train.rl.normalizer_file import normalizer_for_spaces, read_stats
 from observer_gym.train.rl.run_dir import model_files, read_config
 
@@ -80,11 +81,14 @@ class Agent:
 
     def wrap_env(self, env: gym.Env) -> gym.Env:
         """``env`` as the agent saw it in training: camera frames preprocessed for an rgb
-        agent, through its feature set (hyperparameter ``features``); actions are mapped
-        back by :meth:`predict`."""
+        agent, the detections as one vector (stacked) for a measurements agent, through
+        its feature set (hyperparameter ``features``); actions are mapped back by
+        :meth:`predict`."""
         hyperparams = self.config["hyperparams"]
         if self.obs == "rgb":
             env = wrap_images(env, ImageOptions(**hyperparams["image"]))
+        elif self.obs == "measurements":
+            env = wrap_measurements(env, hyperparams.get("measurement_stack", 1))
         return wrap_features(env, hyperparams.get("features"))
 
     def reset(self) -> None:

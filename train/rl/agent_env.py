@@ -7,6 +7,10 @@
   perfect-detector measurements (observer "kf-measurements", no rendering) or from the
   camera frames (observer "kf"; TargetFollower: the self-tuning filter, "stkf-*"),
   chosen by ``--estimate-from``;
+- ``measurements``: the newest delivered frame's perfect-detector report, unfiltered
+  (observer "detections"), with each camera's frame age and the robot's own kinematics,
+  and with the hyperparameter ``measurement_stack`` k the last k of them
+  (:mod:`observer_gym.train.rl.measurement_input`);
 - ``rgb``: the camera frames themselves (observer "pixels"), preprocessed as
   :class:`ImageOptions` says: each camera image resized to ``size_px`` x ``size_px``
   (OpenCV, area interpolation), converted to grayscale, and the last ``frame_stack``
@@ -43,9 +47,10 @@ from observer_gym.train.core.checks import agent_observer
 from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.features import wrap_features
+from observer_gym.train.rl.measurement_input import wrap_measurements
 from observer_gym.wrappers import FrameImages, GrayFrameStack, NormalizedAction
 
-OBS_TYPES = ("state", "estimate", "rgb")
+OBS_TYPES = ("state", "estimate", "rgb", "measurements")
 ESTIMATE_SOURCES = ("measurements", "rgb")
 
 
@@ -99,6 +104,8 @@ def observer_for(
         return "oracle"
     if obs == "rgb":
         return "pixels"
+    if obs == "measurements":
+        return "detections"
     return task_of(system_for_id(env_id)).ESTIMATE_OBSERVERS[estimate_from]
 
 
@@ -138,11 +145,14 @@ def make_agent_env(
     observer: str | None = None,
     features: str | None = None,
     randomize: Mapping[str, Mapping[str, Any]] | None = None,
+    measurement_stack: int = 1,
 ) -> gym.Env:
     """The training env of an agent: ``observer_for(env_id, obs, estimate_from, observer)``'s env
     (``observer_gym.train.core.observer_env.make_env``), for ``rgb`` with
     :func:`wrap_images` (``image``:
-    :class:`ImageOptions` fields), through the feature set ``features``, and the action
+    :class:`ImageOptions` fields), for ``measurements`` with
+    :func:`~observer_gym.train.rl.measurement_input.wrap_measurements` (the last
+    ``measurement_stack``), through the feature set ``features``, and the action
     space rescaled to [-1, 1]. A top-level function of plain arguments, so
     ``functools.partial`` of it pickles into spawned SubprocVecEnv workers.
 
@@ -155,12 +165,20 @@ def make_agent_env(
 
         fixed = dict(env_kwargs or {})
         make_inner = functools.partial(
-            _drawn_agent_env, env_id, obs, estimate_from, fixed, image, observer, features
+            _drawn_agent_env,
+            env_id,
+            obs,
+            estimate_from,
+            fixed,
+            image,
+            observer,
+            features,
+            measurement_stack,
         )
         return RandomizedEnv(make_inner, env_id, randomize)
     feeding = observer_for(env_id, obs, estimate_from, observer)
     env = make_env(system_for_id(env_id), feeding, env_kwargs)
-    return finish_agent_env(env, obs, image, features)
+    return finish_agent_env(env, obs, image, features, measurement_stack)
 
 
 def _drawn_agent_env(
@@ -171,11 +189,19 @@ def _drawn_agent_env(
     image: Mapping[str, Any] | None,
     observer: str | None,
     features: str | None,
+    measurement_stack: int,
     drawn: Mapping[str, Any],
 ) -> gym.Env:
     """:func:`make_agent_env` with the options ``drawn`` over ``env_kwargs``."""
     return make_agent_env(
-        env_id, obs, estimate_from, {**env_kwargs, **drawn}, image, observer, features
+        env_id,
+        obs,
+        estimate_from,
+        {**env_kwargs, **drawn},
+        image,
+        observer,
+        features,
+        measurement_stack=measurement_stack,
     )
 
 
@@ -184,14 +210,19 @@ def finish_agent_env(
     obs: str,
     image: Mapping[str, Any] | None = None,
     features: str | None = None,
+    measurement_stack: int = 1,
 ) -> gym.Env:
     """The observer's ``env`` as an agent reading ``obs`` sees it: for ``rgb`` with
-    :func:`wrap_images` (``image``: :class:`ImageOptions` fields), with the feature set
+    :func:`wrap_images` (``image``: :class:`ImageOptions` fields), for ``measurements``
+    with :func:`~observer_gym.train.rl.measurement_input.wrap_measurements` (the last
+    ``measurement_stack``), with the feature set
     ``features`` (:func:`~observer_gym.train.rl.features.wrap_features`), and the action space
     rescaled to [-1, 1]; ``env`` is closed if this fails."""
     try:
         if obs == "rgb":
             env = wrap_images(env, ImageOptions(**dict(image or {})))
+        elif obs == "measurements":
+            env = wrap_measurements(env, measurement_stack)
         env = wrap_features(env, features)
         return NormalizedAction(env)
     except BaseException:

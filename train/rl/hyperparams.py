@@ -13,7 +13,8 @@ An env's entry holds two kinds of keys:
   image, MultiInputPolicy for a Dict), ``env_kwargs`` (``gym.make`` options, e.g. a
   smaller camera image for ``--obs rgb``; ``--env-option`` overrides them) and
   ``features`` (null or a feature set of :mod:`observer_gym.train.rl.features` that replaces
-  or extends a state or estimate observation);
+  or extends a state or estimate observation) and ``measurement_stack`` (how many of the
+  newest measurements an agent trained with ``--obs measurements`` reads, 1 to 16);
 - everything else goes to the algorithm's constructor (PPO's ``n_steps``, ...), checked
   against its signature (:func:`algorithm_parameters`: its public parameters but those
   ``observer-gym train`` sets itself) and its value against the key's rule
@@ -44,6 +45,7 @@ import numpy as np
 import yaml
 
 from observer_gym.train.core.algorithms import ALGOS, algorithm_class
+from observer_gym.train.rl.measurement_input import check_stack
 
 if TYPE_CHECKING:
     pass
@@ -63,6 +65,7 @@ TRAINING_DEFAULTS: dict[str, Any] = {
     "policy": None,
     "env_kwargs": {},
     "features": None,
+    "measurement_stack": 1,
 }
 INTEGER_KEYS = ("n_timesteps", "n_envs", "checkpoint_freq", "eval_freq", "eval_episodes")
 VEC_ENVS = ("subproc", "dummy")
@@ -207,6 +210,7 @@ def check_training_keys(params: Mapping[str, Any]) -> None:
         raise ValueError(
             f"features must be null or a feature set's name, got {params['features']!r}"
         )
+    check_stack(params["measurement_stack"])
     if not isinstance(params["env_kwargs"], Mapping):
         raise ValueError(f"env_kwargs must be a mapping, got {params['env_kwargs']!r}")
     if not (params["normalize"] is False or isinstance(params["normalize"], Mapping)):

@@ -140,6 +140,7 @@ def _vec_env(
         config.get("observer") if config["obs"] == "estimate" else None,
         config["hyperparams"].get("features"),  # absent from runs written before it existed
         (config.get("randomize") or None) if randomize else None,
+        config["hyperparams"].get("measurement_stack", 1),  # absent before it existed
     )
     subproc = config["hyperparams"]["vec_env"] == "subproc" and n_envs > 1
     return make_vec_env(

@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 from observer_gym.envs.json_file import read_json
 from observer_gym.extras import require_rl
 from observer_gym.train.core.algorithms import ALGOS
+from observer_gym.train.core.checks import UNFILTERED_OBSERVERS
 from observer_gym.train.reports.folder_lock import check_not_busy
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
@@ -443,7 +444,8 @@ def model_files(run_dir: str | Path) -> tuple[Path, Path | None, int | None]:
 
 def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str) -> None:
     """ValueError unless the trained agent ``controller`` (``ALGO:DIR``) is a run of
-    ``env_id`` with a model to load, trained on camera frames iff ``reads_frames``;
+    ``env_id`` with a model to load, trained on the unfiltered observer ``observer``
+    (``--obs rgb``: "pixels"; ``--obs measurements``: "detections") iff ``reads_frames``;
     first, :class:`~observer_gym.extras.ExtraNotInstalled` without stable-baselines3 and
     PyTorch to load it."""
     spec = parse_agent_spec(controller)
@@ -454,8 +456,10 @@ def check_agent(controller: str, env_id: str, reads_frames: bool, observer: str)
     model_files(run_dir)
     if agent["env_id"] != env_id:
         raise ValueError(f"agent {controller!r} was trained on {agent['env_id']}, not {env_id}")
-    if (agent["obs"] == "rgb") != reads_frames:
-        wants = "observer 'pixels'" if agent["obs"] == "rgb" else "an observer but 'pixels'"
+    wanted = UNFILTERED_OBSERVERS.get(agent["obs"])
+    if (wanted is not None) != reads_frames or (wanted is not None and observer != wanted):
+        unfiltered = " or ".join(repr(name) for name in UNFILTERED_OBSERVERS.values())
+        wants = f"observer {wanted!r}" if wanted else f"an observer but {unfiltered}"
         raise ValueError(
             f"agent {controller!r} was trained with --obs {agent['obs']}: it needs {wants}, "
             f"got {observer!r}"

@@ -190,8 +190,32 @@ def train_seeds(
         FolderBusyError: another command holds ``out_dir``; nothing was written.
         RuntimeError: a seed's training raised (the others run to their end first).
     """
-    seeds = check_seeds(seeds)
     check_backend(backend, workers, address)
+    out_dir = Path(out_dir)
+    record, configs = seeds_configs(env_id, algo, obs, out_dir, seeds, cli_args, **options)
+    # the folder is this run's alone from before seeds.json is written until the aggregate
+    # is; whether it holds a run is checked again under the lock
+    with output_folder(out_dir, "train", marker=False, check=check_new_seeds_folder):
+        _write_seeds(out_dir, record, configs)
+        return _train(out_dir, record.seeds, None, workers, backend, address, progress, reps)
+
+
+def seeds_configs(
+    env_id: str,
+    algo: str,
+    obs: str,
+    out_dir: str | Path,
+    seeds: Sequence[int],
+    cli_args: Mapping[str, Any] | None = None,
+    **options: Any,
+) -> tuple[SeedsConfig, dict[int, dict[str, Any]]]:
+    """The ``seeds.json`` and each seed's ``config.json`` of a new multi-seed run in
+    ``out_dir`` (the arguments of :func:`train_seeds`), checked; nothing is written.
+
+    Raises:
+        ValueError: a bad argument or hyperparameter, or a run already in ``out_dir``.
+    """
+    seeds = check_seeds(seeds)
     out_dir = Path(out_dir)
     check_seeds_folder(out_dir)
     configs = {
@@ -210,13 +234,56 @@ def train_seeds(
         target_timesteps=int(first["hyperparams"]["n_timesteps"]),
         cli_args=cli_args,
     )
-    # the folder is this run's alone from before seeds.json is written until the aggregate
-    # is; whether it holds a run is checked again under the lock
+    return record, configs
+
+
+def prepare_seeds(
+    out_dir: str | Path, record: SeedsConfig, configs: Mapping[int, Mapping[str, Any]]
+) -> None:
+    """Write the multi-seed run :func:`seeds_configs` made into the new folder ``out_dir``
+    (seeds.json and every seed's config.json) without training it: a study sets out every
+    run before it trains any, and :func:`train_runs` trains them.
+
+    Raises:
+        ValueError: a run already in ``out_dir``.
+        FolderBusyError: another command holds ``out_dir``; nothing was written.
+    """
+    out_dir = Path(out_dir)
     with output_folder(out_dir, "train", marker=False, check=check_new_seeds_folder):
-        write_json_atomic(out_dir / SEEDS_FILE, record.as_dict())
-        for seed, config in configs.items():
-            write_run_config(seed_dir(out_dir, seed), config)
-        return _train(out_dir, seeds, None, workers, backend, address, progress, reps)
+        _write_seeds(out_dir, record, configs)
+
+
+def _write_seeds(
+    out_dir: Path, record: SeedsConfig, configs: Mapping[int, Mapping[str, Any]]
+) -> None:
+    write_json_atomic(out_dir / SEEDS_FILE, record.as_dict())
+    for seed, config in configs.items():
+        write_run_config(seed_dir(out_dir, seed), config)
+
+
+def train_runs(
+    run_dirs: Sequence[str | Path],
+    workers: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    progress: bool = True,
+) -> dict[Path, str]:
+    """Train every run folder of ``run_dirs`` on to its configured timesteps
+    (:func:`~observer_gym.train.rl.training.continue_run`: from its latest checkpoint, from
+    its start if it saved none; a finished one is left as it is), in ``workers`` spawned
+    processes or as Ray tasks, as :func:`train_seeds` trains its seeds; the folders may
+    belong to different multi-seed runs. Returns the traceback of each run that raised,
+    by its resolved folder. Signals stop it as they stop :func:`train_seeds`."""
+    check_backend(backend, workers, address)
+    paths = [Path(path).resolve() for path in run_dirs]
+    if not paths:
+        return {}
+    if backend == "ray":
+        return _train_ray(paths, None, address, progress)
+    from observer_gym.train.experiments.ray_backend import local_cpus  # deferred
+
+    count = workers if workers is not None else min(len(paths), local_cpus())
+    return _train_local(paths, None, count, progress)
 
 
 def resume_seeds(

@@ -184,7 +184,14 @@ def run_config(
         tensorboard=tensorboard,
     )
     probe = make_agent_env(
-        env_id, obs, estimate_from, env_kwargs, params["image"], observer, params["features"]
+        env_id,
+        obs,
+        estimate_from,
+        env_kwargs,
+        params["image"],
+        observer,
+        params["features"],
+        measurement_stack=params["measurement_stack"],
     )
     try:  # the action bounds a loaded agent maps back to, and a check that the env builds
         action_space = probe.unwrapped.action_space
@@ -204,6 +211,7 @@ def run_config(
                 params["image"],
                 observer,
                 params["features"],
+                measurement_stack=params["measurement_stack"],
             ),
             randomize,
         )
@@ -335,10 +343,10 @@ def check_features(env_id: str, obs: str, features: str | None) -> None:
             f"hyperparameter features={features!r} is no feature set of {system.short_id}; "
             f"allowed: {listed}"
         )
-    if obs == "rgb":
+    if obs in ("rgb", "measurements"):
         raise ValueError(
             f"hyperparameter features={features!r} appends to a state-layout observation; "
-            "it needs --obs state or estimate, not rgb"
+            f"it needs --obs state or estimate, not {obs}"
         )
 
 

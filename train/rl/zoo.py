@@ -80,11 +80,13 @@ def agent_wrapper(
     observer: str | None = None,
     image: Mapping[str, Any] | None = None,
     features: str | None = None,
+    measurement_stack: int = 1,
 ) -> gym.Env:
     """``env`` (made by Zoo with ``env_kwargs``) as ``observer-gym train`` gives it to an
     agent reading ``obs``: for ``estimate``, wrapped in the VisionObserver of ``observer``
     (default: the system's on measurements); for ``rgb``, its frames preprocessed as
-    ``image`` (:class:`~observer_gym.train.rl.agent_env.ImageOptions`) says; with the
+    ``image`` (:class:`~observer_gym.train.rl.agent_env.ImageOptions`) says; for
+    ``measurements``, the last ``measurement_stack`` detections as one vector; with the
     feature set ``features``; actions rescaled to [-1, 1]. Zoo's ``env_wrapper`` names it.
 
     Raises:
@@ -102,7 +104,9 @@ def agent_wrapper(
             f"env takes its env_kwargs from --eval-env-kwargs: add "
             f"--eval-env-kwargs \"obs_mode:'{obs_mode}'\" and the file's other env_kwargs)"
         )
-    return finish_agent_env(wrap_observer(env, system, feeding), obs, image, features)
+    return finish_agent_env(
+        wrap_observer(env, system, feeding), obs, image, features, measurement_stack
+    )
 
 
 class ZooFile(NamedTuple):
@@ -170,6 +174,8 @@ def zoo_hyperparams(env_id: str, algo: str, obs: str) -> ZooFile:
         wrapper["observer"] = feeding
     if obs == "rgb":
         wrapper["image"] = dict(params["image"])
+    if obs == "measurements":
+        wrapper["measurement_stack"] = params["measurement_stack"]
     if params["features"] is not None:
         wrapper["features"] = params["features"]
     policy = params["policy"] or _default_policy(
@@ -187,7 +193,16 @@ def zoo_hyperparams(env_id: str, algo: str, obs: str) -> ZooFile:
         "env_wrapper": [{WRAPPER: wrapper}],
         "normalize": params["normalize"],
     }
-    training = {"n_timesteps", "n_envs", "policy", "env_kwargs", "normalize", "image", "features"}
+    training = {
+        "n_timesteps",
+        "n_envs",
+        "policy",
+        "env_kwargs",
+        "normalize",
+        "image",
+        "features",
+        "measurement_stack",
+    }
     for key, value in params.items():
         if key in training or key in COMMAND_LINE_KEYS:
             continue

@@ -22,7 +22,9 @@ class Task(Protocol):
     - ``OBSERVERS``: observer name -> (the env's ``obs_mode``, options of the env's default
       VisionObserver pipeline, or None for no observer); "oracle" maps to ("state", {})
       and is not wrapped; "pixels" maps to ("rgb", None): the camera frames themselves,
-      which only an agent trained with ``--obs rgb`` reads.
+      which only an agent trained with ``--obs rgb`` reads; "detections" maps to
+      ("measurements", None): the newest delivered frame's perfect-detector report, which
+      only an agent trained with ``--obs measurements`` reads.
     - ``ESTIMATE_OBSERVERS``: the observer an agent trained with ``--obs estimate`` reads,
       by where the estimate comes from ("measurements" or "rgb").
     - ``CONFIG``: task constants recorded in results.json (e.g. tolerances).

@@ -24,12 +24,17 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "kf": ("rgb", {}),
     "kf-measurements": ("measurements", {}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
+    # the newest delivered measurement, unfiltered: for agents trained on measurements
+    "detections": ("measurements", None),
     # triangulated detections, no filter
     "raw": ("rgb", {"observer": "raw"}),
     "raw-measurements": ("measurements", {"observer": "raw"}),
     # the same pipeline as kf (kf is already latency-aware)
     "kf-latency": ("rgb", {"observer": "kf-latency"}),
     "kf-latency-measurements": ("measurements", {"observer": "kf-latency"}),
+    # kf fusing each frame at its delivery as if captured then: no latency handling
+    "kf-at-delivery": ("rgb", {"observer": "kf-at-delivery"}),
+    "kf-at-delivery-measurements": ("measurements", {"observer": "kf-at-delivery"}),
     # iterated EKF on the pixels
     "ekf": ("rgb", {"observer": "ekf"}),
     "ekf-measurements": ("measurements", {"observer": "ekf"}),

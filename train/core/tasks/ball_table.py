@@ -23,6 +23,8 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
         for suffix, obs_mode in (("", "rgb"), ("-measurements", "measurements"))
     },
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
+    # the newest delivered measurement, unfiltered: for agents trained on measurements
+    "detections": ("measurements", None),
 }
 # what an agent trained with --obs estimate reads, by --estimate-from
 ESTIMATE_OBSERVERS = {"measurements": "kf-measurements", "rgb": "kf"}

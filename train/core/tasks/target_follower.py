@@ -39,6 +39,8 @@ OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "kf-measurements": ("measurements", {"filter": "kf"}),
     "stkf-measurements": ("measurements", {"filter": "stkf"}),
     "pixels": ("rgb", None),  # the camera frames, unfiltered: for agents trained on rgb
+    # the newest delivered measurement, unfiltered: for agents trained on measurements
+    "detections": ("measurements", None),
     # the other observers of estimation/target_follower/__init__.py, from the camera
     # frames and from perfect-detector measurements
     "raw": ("rgb", {"observer": "raw"}),

@@ -18,6 +18,7 @@ from observer_gym.envs import system_of
 
 # system name -> feature set name -> the wrapper class in that system's module
 FEATURES: dict[str, dict[str, str]] = {
+    "ball_table": {"belief": "BeliefFeatures"},
     "ball_catcher": {"crossing": "CrossingFeatures"},
     "target_follower": {"tracking": "TrackingFeatures"},
 }
