@@ -88,7 +88,8 @@ def test_every_name_builds_and_a_bad_name_lists_them():
         for name in OBSERVERS:
             wrapped = VisionObserver(env, observer=name)
             assert wrapped.observation_space == env.state_space
-        with pytest.raises(ValueError, match="allowed: kf, kf-latency, raw, ekf, oracle-visible"):
+        allowed = "allowed: kf, kf-latency, kf-at-delivery, raw, ekf, oracle-visible"
+        with pytest.raises(ValueError, match=allowed):
             VisionObserver(env, observer="ukf")
     finally:
         env.close()

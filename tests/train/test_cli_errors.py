@@ -484,7 +484,7 @@ def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.Argume
 
 def test_train_usage_shows_algo_and_obs_as_required():
     usage = " ".join(_subparser(build_parser(), "train").format_usage().split())
-    assert "--algo {ppo,sac,td3} --obs {state,estimate,rgb}" in usage
+    assert "--algo {ppo,sac,td3} --obs {state,estimate,rgb,measurements}" in usage
     assert "[--algo" not in usage and "[--obs {" not in usage
     assert "[--resume DIR]" in usage
 
