@@ -80,14 +80,14 @@ def test_each_system_feeds_its_own_filters():
 
 
 def test_without_delay_every_frame_arrives_at_once_in_order():
-    d = measure_delivery(BT, LEVELS["none"].env_kwargs(), episodes=1, seed=0)
+    d = measure_delivery(BT, LEVELS["none"].env_kwargs(), min_frames=400, seed=0)
     # one frame per step (50 frames/s, one step per frame), none late or lost
     assert d.frames_delivered == d.steps
     assert d.frames_out_of_order == 0 and d.newest_age_mean_s == 0.0
 
 
 def test_a_fixed_latency_ages_the_newest_frame_by_exactly_the_latency():
-    d = measure_delivery(BT, {"latency_s": 0.04}, episodes=1, seed=0)
+    d = measure_delivery(BT, {"latency_s": 0.04}, min_frames=400, seed=0)
     assert d.frames_out_of_order == 0
     # after the first two steps every step's newest frame was captured 40 ms before it
     assert d.newest_age_max_s == pytest.approx(0.04)
@@ -96,10 +96,10 @@ def test_a_fixed_latency_ages_the_newest_frame_by_exactly_the_latency():
 
 def test_drops_and_jitter_lose_and_reorder_frames_as_the_sensor_model_says():
     p = 0.2
-    d = measure_delivery(BT, {"frame_drop_prob": p}, episodes=2, seed=0)
+    d = measure_delivery(BT, {"frame_drop_prob": p}, min_frames=800, seed=0)
     kept = d.frames_delivered / d.steps
     # binomial: within 4 standard deviations of 1 - p
     assert abs(kept - (1 - p)) < 4 * math.sqrt(p * (1 - p) / d.steps)
-    heavy = measure_delivery(BT, LEVELS["heavy"].env_kwargs(), episodes=1, seed=0)
+    heavy = measure_delivery(BT, LEVELS["heavy"].env_kwargs(), min_frames=400, seed=0)
     # 30 ms jitter on frames 20 ms apart: a frame overtakes an older one often
     assert 0.1 < heavy.out_of_order_fraction < 0.5

@@ -30,19 +30,23 @@ class Delivery(NamedTuple):
     newest_age_max_s: float
 
 
-def measure_delivery(env_id: str, env_kwargs: dict[str, Any], episodes: int, seed: int) -> Delivery:
-    """Run ``episodes`` episodes of ``env_id`` (measurements, ``env_kwargs``; episode i
-    resets with ``seed + i``) and count how its frames arrive (module docstring)."""
+def measure_delivery(
+    env_id: str, env_kwargs: dict[str, Any], min_frames: int, seed: int
+) -> Delivery:
+    """Run episodes of ``env_id`` (measurements, ``env_kwargs``; episode i resets with
+    ``seed + i``) until at least ``min_frames`` frames were delivered, and count how they
+    arrived (module docstring)."""
     system = system_for_id(env_id)
     env = gym.make(system.env_id, obs_mode="measurements", **env_kwargs)
-    delivered = out_of_order = steps = 0
+    delivered = out_of_order = steps = episodes = 0
     ages: list[float] = []
     try:
         space = env.action_space
         assert isinstance(space, gym.spaces.Box)
         action = ((space.low + space.high) / 2.0).astype(space.dtype)
-        for episode in range(episodes):
-            _, info = env.reset(seed=seed + episode)
+        while delivered < min_frames:
+            _, info = env.reset(seed=seed + episodes)
+            episodes += 1
             newest: dict[int, float] = {}
             done = False
             while not done:

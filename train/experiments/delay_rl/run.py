@@ -45,7 +45,7 @@ from observer_gym.train.rl.seeds import prepare_seeds, seed_dir, seeds_configs, 
 PLAN_FILE = "study.json"
 DELIVERY_FILE = "delivery.json"
 TIMING_FILE = "timing.json"  # each invocation's wall time, for the budget
-DELIVERY_EPISODES = 3
+DELIVERY_FRAMES = 3000  # frames counted per level (an out-of-order fraction to ~1 %)
 COMMAND = "study delay-rl"
 
 
@@ -158,7 +158,7 @@ def _delivery(plan: StudyPlan) -> dict[str, Any]:
         level.name: {
             **level._asdict(),
             **measure_delivery(
-                plan.env_id, level.env_kwargs(), DELIVERY_EPISODES, plan.eval_seed
+                plan.env_id, level.env_kwargs(), DELIVERY_FRAMES, plan.eval_seed
             )._asdict(),
         }
         for level in plan.level_records.values()
