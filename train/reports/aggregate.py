@@ -202,7 +202,7 @@ def plot_learning_curves(
 ) -> None:
     """Each seed's evaluation curve (thin) and the mean across seeds with its 95 %
     bootstrap band, against env steps."""
-    from observer_gym.train.reports.plots import new_figure, save_figure  # deferred: matplotlib
+    from observer_gym.train.core.plots import new_figure, save_figure  # deferred: matplotlib
 
     fig = new_figure((7.5, 4.5))
     ax = fig.subplots()
