@@ -177,7 +177,7 @@ def _train(
 ) -> int:
     """Set out every training cell not yet set out, train every unfinished seed, and
     aggregate each cell; returns how many seed runs trained."""
-    from observer_gym.train.reports.aggregate import aggregate_runs
+    from observer_gym.train.rl.seeds import aggregate_seeds
 
     inputs = plan.input_records
     for level, name in plan.train_cells():
@@ -220,7 +220,7 @@ def _train(
     for level, name in plan.train_cells():
         folder = cell_dir(out_dir, level, name)
         if not (folder / "aggregate.json").exists():
-            aggregate_runs(folder)
+            aggregate_seeds(folder)
     return len(todo)
 
 
