@@ -57,6 +57,7 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.parent_watch import end_with_parent
+from observer_gym.train.reports.ray_tasks import local_cpus, run_tasks_ray
 from observer_gym.train.rl.checks import check_seeds_folder
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
@@ -282,8 +283,6 @@ def train_runs(
         return {}
     if backend == "ray":
         return _train_ray(paths, None, address, progress)
-    from observer_gym.train.experiments.ray_backend import local_cpus  # deferred
-
     count = workers if workers is not None else min(len(paths), local_cpus())
     return _train_local(paths, None, count, progress)
 
@@ -373,10 +372,6 @@ def _train(
     elif backend == "ray":
         errors = _train_ray(run_dirs, timesteps, address, progress)
     else:
-        from observer_gym.train.experiments.ray_backend import (
-            local_cpus,  # deferred: the episodes' layers
-        )
-
         count = workers if workers is not None else min(len(run_dirs), local_cpus())
         errors = _train_local(run_dirs, timesteps, count, progress)
     wall_time_s = time.perf_counter() - tic_s
@@ -549,9 +544,9 @@ def _progress_steps(run_dir: Path) -> int:
 def _train_ray(
     run_dirs: Sequence[Path], timesteps: int | None, address: str | None, progress: bool
 ) -> dict[Path, str]:
-    """Train ``run_dirs`` as Ray tasks (:func:`~observer_gym.train.experiments.ray_backend.
-    run_tasks_ray`); returns the traceback of each run that raised."""
-    from observer_gym.train.experiments.ray_backend import run_tasks_ray  # deferred: imports Ray
+    """Train ``run_dirs`` as Ray tasks
+    (:func:`~observer_gym.train.reports.ray_tasks.run_tasks_ray`); returns the traceback
+    of each run that raised."""
 
     try:
         outcomes = run_tasks_ray(

@@ -36,9 +36,9 @@ from observer_gym.train.experiments.delay_rl.plan import (
 )
 from observer_gym.train.experiments.delay_rl.table import StudyTable, derive_table, write_table
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episodes
-from observer_gym.train.experiments.ray_backend import local_cpus
 from observer_gym.train.reports.folder_lock import LOCK_FILE, folder_lock
 from observer_gym.train.reports.outputs import package_versions, write_json_atomic
+from observer_gym.train.reports.ray_tasks import local_cpus
 from observer_gym.train.rl.run_dir import SEEDS_FILE, read_config, read_state, seed_run_dirs
 from observer_gym.train.rl.seeds import prepare_seeds, seed_dir, seeds_configs, train_runs
 
