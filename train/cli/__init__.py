@@ -28,6 +28,7 @@ from observer_gym.train.cli import (
     demo,
     evaluate,
     listing,
+    record,
     reproduce,
     run,
     sweep,
@@ -46,6 +47,7 @@ COMMANDS = {
     "train": train.COMMAND,
     "evaluate": evaluate.COMMAND,
     "benchmark": benchmark.COMMAND,
+    "record": record.COMMAND,
     "list": listing.COMMAND,
     "reproduce": reproduce.COMMAND,
 }

@@ -3,9 +3,12 @@ Minari dataset (:mod:`observer_gym.train.reports.dataset`).
 
 The episodes run as :func:`~observer_gym.train.experiments.episode.run_episode_here` runs
 them (the same env, controller and loop; episode i resets with ``seed + i``), with Minari's
-DataCollector between the observer env and the controller, so the dataset's observations
-are what the controller was given (before a trained agent's own wrappers) and its actions
-what reached the env. One env serves all the episodes, each reset with its seed.
+DataCollector between the observer env and the controller
+(:func:`~observer_gym.train.reports.dataset.recording_env`): the dataset's observations
+are what the observer was given (frames, measurements, or the state for ``oracle``), its
+actions what reached the env (after a trained agent's own wrappers), its infos hold the
+truth and the observer's estimate. One env serves all the episodes, each reset with its
+seed.
 """
 
 from __future__ import annotations
@@ -13,14 +16,13 @@ from __future__ import annotations
 import dataclasses
 import sys
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from observer_gym.envs import system_for_id
 from observer_gym.extras import require_record
 from observer_gym.train.core import entries
-from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.experiments.episode import (
     EpisodeError,
     build_controller,
@@ -104,8 +106,8 @@ def record_experiment(
         entries.objects_in_use(entries.objects_for(observer, controller)),
         dataset.staged_datasets(out_dir) as staging,
     ):
-        env = make_env(system, observer, gym_options, observer_entry.options)
-        collector = dataset.collector(env)
+        collector = dataset.recording_env(system, observer, gym_options, observer_entry.options)
+        env = collector.unwrapped
         try:
             built = build_controller(controller, collector, controller_entry.options)
             played = _play(built, collector, request.seeds, steps, reset_options, progress)
@@ -116,7 +118,7 @@ def record_experiment(
                     "config": {
                         "env_id": env_id,
                         "env_kwargs": {"obs_mode": observed["obs_mode"], **gym_options},
-                        "env_config": dataclasses.asdict(env.unwrapped.config),  # type: ignore[attr-defined]
+                        "env_config": dataclasses.asdict(env.config),
                         "observer": observer,
                         **{k: v for k, v in observed.items() if k != "obs_mode"},
                         "observer_options": observer_entry.options,
@@ -139,7 +141,7 @@ def record_experiment(
                 warnings.simplefilter("ignore", UserWarning)
                 written = collector.create_dataset(
                     dataset_id=dataset_id,
-                    eval_env=env.spec,
+                    eval_env=env.spec,  # the env of the observations, with its obs_mode
                     algorithm_name=f"observer {observer}, controller {controller}",
                     author="observer-gym record",
                     description=(
@@ -157,7 +159,7 @@ def record_experiment(
 def _play(
     controller: Any,
     env: Any,
-    seeds: range | list[int],
+    seeds: Sequence[int],
     steps: int | None,
     reset_options: Mapping[str, Any] | None,
     progress: bool,

@@ -1,11 +1,11 @@
 """Episodes kept as a Minari dataset (``observer-gym record``), and read back.
 
 Writing goes through Minari's own :class:`minari.DataCollector` around the observer env
-(:func:`~observer_gym.train.core.observer_env.make_env`): the observations of the env's
-obs mode (camera frames, measurements or the state, stored losslessly: no JPEG), the
-actions, rewards, terminations and truncations; and in the infos, per step, the fixed
-arrays of :func:`step_info`: the ground-truth state, the newest delivered frame's capture
-and delivery times and calibration per camera (from
+(:func:`recording_env`): the observations of the env's obs mode (camera frames,
+measurements or the state, stored losslessly: no JPEG) rather than the estimate the
+observer makes of them, the actions, rewards, terminations and truncations; and in the
+infos, per step, the fixed arrays of :func:`step_info`: the ground-truth state, the newest
+delivered frame's capture and delivery times and calibration per camera (from
 :func:`~observer_gym.train.reports.episode_frames.delivered_frames`), and the observer's
 estimate and covariance. Minari keeps infos only if every step's have the same keys,
 types and shapes; the env's own info does not (a step delivers 0, 1 or more frames), so
@@ -39,7 +39,14 @@ import minari
 import numpy as np
 from minari.data_collector.callbacks import StepDataCallback
 
+from observer_gym.envs import System
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.observer_env import (
+    check_gym_make_options,
+    observer_setup,
+    with_observer_env_options,
+    wrap_observer,
+)
 from observer_gym.train.reports.episode_frames import delivered_frames
 from observer_gym.train.reports.signals import signals_deferred
 
@@ -104,20 +111,62 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
     return row
 
 
+class KeepObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Passes everything through and keeps the env's newest observation
+    (``kept_observation``): what the observer was given, before a wrapper above (the
+    observer's :class:`~observer_gym.estimation.VisionObserver`) replaces it by its
+    estimate."""
+
+    def __init__(self, env: gym.Env):
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        self.kept_observation: Any = None
+
+    def reset(self, **kwargs: Any) -> Any:
+        obs, info = self.env.reset(**kwargs)
+        self.kept_observation = obs
+        return obs, info
+
+    def step(self, action: Any) -> Any:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.kept_observation = obs
+        return obs, reward, terminated, truncated, info
+
+
 class RecordedStep(StepDataCallback):
-    """Minari's step callback with :func:`step_info` for the info."""
+    """Minari's step callback with the observation of the env's obs mode
+    (:class:`KeepObservation`'s) and :func:`step_info`'s info."""
 
     def __call__(self, env: gym.Env, obs: Any, info: dict[str, Any], **step: Any) -> Any:
         data = super().__call__(env, obs, info, **step)
+        data["observation"] = env.get_wrapper_attr("kept_observation")
         data["info"] = step_info(env, info)
         return data
 
 
-def collector(env: gym.Env) -> minari.DataCollector:
-    """Minari's DataCollector around ``env`` (the observer env), with :class:`RecordedStep`'s
-    infos and lossless images; call inside :func:`staged_datasets`."""
+def recording_env(
+    system: System,
+    observer: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+) -> minari.DataCollector:
+    """:func:`~observer_gym.train.core.observer_env.make_env`'s env for ``observer`` (its
+    steps, repeated here to put a wrapper between them), with :class:`KeepObservation`
+    beneath the observer and Minari's DataCollector above it: the collector records the
+    observations of the obs mode (camera frames losslessly, no JPEG; measurements; the
+    state for ``oracle``), the actions that reached the env and the infos with the
+    observer's estimate (:class:`RecordedStep`). Call inside :func:`staged_datasets`."""
+    obs_mode, _, _ = observer_setup(system, observer)
+    options = with_observer_env_options(system, observer, env_kwargs)
+    check_gym_make_options(options)
+    kept = KeepObservation(gym.make(system.env_id, obs_mode=obs_mode, **options))
+    observed = wrap_observer(kept, system, observer, observer_options)
     return minari.DataCollector(
-        env, step_data_callback=RecordedStep, record_infos=True, jpeg_encoding=False
+        observed,
+        step_data_callback=RecordedStep,
+        record_infos=True,
+        observation_space=kept.observation_space,
+        jpeg_encoding=False,
     )
 
 
