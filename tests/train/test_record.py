@@ -174,6 +174,17 @@ def test_camera_frames_are_recorded_losslessly_and_replay(tmp_path):
     assert episode.estimate_mean.shape == (5, 8)  # the estimate is in the infos
 
 
+def test_the_python_function_records_the_seeds_given(tmp_path):
+    import observer_gym
+
+    result = observer_gym.record(
+        ENV, OBSERVER, CONTROLLER, seeds=[4, 5], steps=2, out_dir=tmp_path / "r"
+    )
+    assert result.dataset_id == DATASET_ID and result.out_dir == tmp_path / "r"
+    assert [(e["seed"], e["steps"]) for e in result.episodes] == [(4, 2), (5, 2)]
+    assert [e.seed for e in read_recording(result.out_dir)] == [4, 5]
+
+
 def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:
     code = main(argv)
     err = capsys.readouterr().err
@@ -209,6 +220,12 @@ def test_an_unknown_controller_is_refused_naming_the_allowed_ones(tmp_path, caps
     assert exited.value.code == 2 and len(err.strip().splitlines()) == 1
     assert "'nope' is neither a controller (lqr" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_help_names_the_command(capsys):
+    with pytest.raises(SystemExit) as exited:
+        main(["record", "--help"])
+    assert exited.value.code == 0 and "Minari dataset" in capsys.readouterr().out
 
 
 def test_record_without_minari_names_the_extra(tmp_path, capsys, monkeypatch):
