@@ -222,6 +222,14 @@ def test_an_unknown_controller_is_refused_naming_the_allowed_ones(tmp_path, caps
     assert not (tmp_path / "r").exists()
 
 
+def test_a_relative_out_folder_is_written_there(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main([*ARGV, "--steps", "2", "--out", "rel", "--no-progress"]) == 0
+    assert "dataset observer_gym/" in capsys.readouterr().out
+    assert [e.seed for e in read_recording(tmp_path / "rel")] == [0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rel"]
+
+
 def test_help_names_the_command(capsys):
     with pytest.raises(SystemExit) as exited:
         main(["record", "--help"])

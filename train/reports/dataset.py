@@ -175,7 +175,7 @@ def staged_datasets(out_dir: str | os.PathLike) -> Iterator[Path]:
     """A staging folder ``.NAME.tmp-PID`` beside ``out_dir`` (which must not exist), with
     ``MINARI_DATASETS_PATH`` pointing at it inside the block; renamed to ``out_dir`` if the
     block ends normally (SIGINT and SIGTERM held meanwhile), removed if it raises."""
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()  # Minari joins its paths to a relative one twice
     staging = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging.mkdir()
