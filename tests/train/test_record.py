@@ -5,6 +5,8 @@ recorded seed; and the refusals (an existing folder, unknown names, no minari)."
 from __future__ import annotations
 
 import importlib.util
+import os
+import subprocess
 import sys
 
 import gymnasium as gym
@@ -228,6 +230,20 @@ def test_a_relative_out_folder_is_written_there(tmp_path, monkeypatch, capsys):
     assert "dataset observer_gym/" in capsys.readouterr().out
     assert [e.seed for e in read_recording(tmp_path / "rel")] == [0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rel"]
+
+
+def test_a_killed_recordings_staging_is_removed_by_the_next(tmp_path, capsys):
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)  # fmt: skip
+    dead_pid = int(finished.stdout)
+    left = tmp_path / f".r.tmp-{dead_pid}"
+    (left / "observer_gym").mkdir(parents=True)
+    alive = tmp_path / f".r.tmp-{os.getppid()}"  # a running process's: kept
+    alive.mkdir()
+    assert main([*ARGV, "--steps", "2", "--out", str(tmp_path / "r"), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: removed {left}, left by a recording into" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r", alive.name])
 
 
 def test_help_names_the_command(capsys):

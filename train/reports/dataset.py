@@ -12,8 +12,8 @@ types and shapes; the env's own info does not (a step delivers 0, 1 or more fram
 it is flattened to one row per camera, NaN where a camera delivered nothing.
 
 A dataset is written into a staging folder beside the output folder
-(``.NAME.tmp-PID``, removed on failure, and by the next command into the same parent if
-the run was killed: :func:`~observer_gym.train.reports.outputs.remove_stale_temps`), with
+(``.NAME.tmp-PID``, removed on failure, and by the next recording into the same folder
+if the run was killed: :func:`remove_killed_stagings`), with
 ``MINARI_DATASETS_PATH`` pointing there while Minari writes, and renamed to the output
 folder at the end: a folder named like the output is a whole dataset. The staging is by
 hand because Minari writes a folder tree, not a file (``replace_atomically`` and
@@ -26,9 +26,11 @@ Needs the ``[record]`` extra (``minari[create,hdf5]``): import this module after
 from __future__ import annotations
 
 import dataclasses
+import glob
 import os
 import re
 import shutil
+import warnings
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -48,6 +50,7 @@ from observer_gym.train.core.observer_env import (
     wrap_observer,
 )
 from observer_gym.train.reports.episode_frames import delivered_frames
+from observer_gym.train.reports.outputs import OutputFolderWarning, process_alive
 from observer_gym.train.reports.signals import signals_deferred
 
 # every dataset observer-gym records is in this Minari namespace
@@ -170,6 +173,25 @@ def recording_env(
     )
 
 
+def remove_killed_stagings(out_dir: Path) -> list[Path]:
+    """Remove the staging folders of ``out_dir`` (``.NAME.tmp-PID`` beside it) whose
+    process is gone (a recording killed while writing), each with an
+    :class:`~observer_gym.train.reports.outputs.OutputFolderWarning`; returns them."""
+    removed = []
+    for path in sorted(out_dir.parent.glob(f".{glob.escape(out_dir.name)}.tmp-*")):
+        pid = path.name.rpartition(".tmp-")[2]
+        if not pid.isdigit() or not path.is_dir() or process_alive(int(pid)):
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+        warnings.warn(
+            f"removed {path}, left by a recording into {out_dir} that was killed while writing",
+            OutputFolderWarning,
+            stacklevel=3,
+        )
+    return removed
+
+
 @contextmanager
 def staged_datasets(out_dir: str | os.PathLike) -> Iterator[Path]:
     """A staging folder ``.NAME.tmp-PID`` beside ``out_dir`` (which must not exist), with
@@ -178,6 +200,7 @@ def staged_datasets(out_dir: str | os.PathLike) -> Iterator[Path]:
     out_dir = Path(out_dir).absolute()  # Minari joins its paths to a relative one twice
     staging = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_killed_stagings(out_dir)
     staging.mkdir()
     before = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(staging)
