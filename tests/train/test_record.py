@@ -4,7 +4,6 @@ recorded seed; and the refusals (an existing folder, unknown names, no minari)."
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -250,21 +249,6 @@ def test_help_names_the_command(capsys):
     with pytest.raises(SystemExit) as exited:
         main(["record", "--help"])
     assert exited.value.code == 0 and "Minari dataset" in capsys.readouterr().out
-
-
-def test_record_without_minari_names_the_extra(tmp_path, capsys, monkeypatch):
-    real = importlib.util.find_spec
-
-    def find_spec(name, *args, **kwargs):
-        return None if name == "minari" else real(name, *args, **kwargs)
-
-    monkeypatch.delitem(sys.modules, "minari", raising=False)
-    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
-    code, err = one_line_error(capsys, [*ARGV, "--out", str(tmp_path / "r")])
-    assert code == 2
-    assert "observer-gym record needs minari, which is not installed: " in err
-    assert "pip install 'observer-gym[record]'" in err
-    assert not (tmp_path / "r").exists()
 
 
 def test_an_interrupted_recording_leaves_no_folder(tmp_path, capsys, monkeypatch):
