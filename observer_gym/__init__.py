@@ -2,7 +2,8 @@
 see, with vision + Kalman-filter observers, control baselines and RL tools.
 
 The experiments of the ``observer-gym`` command are functions here: ``run``, ``compare``,
-``sweep`` and ``evaluate`` (:mod:`observer_gym.train.experiments.api`, imported on first use),
+``sweep``, ``evaluate`` and ``record`` (:mod:`observer_gym.train.experiments.api`, imported
+on first use),
 taking
 the package's names, import paths, factories or objects as observers and controllers.
 
@@ -22,7 +23,7 @@ except metadata.PackageNotFoundError:  # running from a source tree that is not 
 
 register_envs()
 
-API = ("run", "compare", "sweep", "evaluate")
+API = ("run", "compare", "sweep", "evaluate", "record")
 
 
 def __getattr__(name: str):

@@ -24,6 +24,10 @@ RL_INSTALL = "pip install 'observer-gym[rl]'"
 # ``--video`` (observer_gym.train.reports.video) streams frames to ffmpeg through these
 VIDEO_INSTALL = "pip install 'observer-gym[video]'"
 VIDEO_MODULES = ("imageio", "imageio_ffmpeg")
+# ``observer-gym record`` (observer_gym.train.reports.dataset) writes Minari datasets:
+# Minari's DataCollector needs JAX's tree utilities and h5py (minari[create,hdf5])
+RECORD_INSTALL = "pip install 'observer-gym[record]'"
+RECORD_MODULES = ("minari", "jax", "h5py")
 # what a trained agent (stable-baselines3) needs; a learned observer needs torch only
 AGENT_MODULES = ("stable_baselines3", "torch")
 TORCH_MODULES = ("torch",)
@@ -75,6 +79,13 @@ def require_video(what: str = "--video") -> None:
     imageio-ffmpeg) is installed: "--video needs imageio-ffmpeg, which is not installed:
     pip install 'observer-gym[video]'"."""
     _require(what, VIDEO_MODULES, VIDEO_INSTALL)
+
+
+def require_record(what: str = "observer-gym record") -> None:
+    """Raise :class:`ExtraNotInstalled` unless the ``[record]`` extra (minari with JAX and
+    h5py) is installed: "observer-gym record needs minari, which is not installed: pip
+    install 'observer-gym[record]'"."""
+    _require(what, RECORD_MODULES, RECORD_INSTALL)
 
 
 def _require(what: str, modules: Iterable[str], install: str) -> None:

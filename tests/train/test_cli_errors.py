@@ -431,6 +431,7 @@ HELP = [
             "train",
             "evaluate",
             "benchmark",
+            "record",
             "reproduce",
             "study",
         )

@@ -1,7 +1,8 @@
 """The experiments as Python functions: what the ``observer-gym`` command runs.
 
 ``observer_gym.run``, ``compare``, ``sweep`` and ``evaluate`` are these functions; the
-command line parses its arguments, calls them and prints their ``text``. Wherever they
+command line parses its arguments, calls them and prints their ``text``
+(``observer_gym.record`` keeps episodes as a Minari dataset, ``observer-gym record``). Wherever they
 take an observer or a controller, it may be
 
 - a name of the package (``"kf"``, ``"lqr"``, ``"ppo:ball_table-estimate"``), a
@@ -94,6 +95,15 @@ class SweepOutcome(NamedTuple):
     files: list[str]
     text: str  # what 'observer-gym sweep' prints
     results: dict[str, Any]
+
+
+class RecordResult(NamedTuple):
+    """What :func:`record` did."""
+
+    out_dir: Path  # holds the Minari dataset and record.json
+    dataset_id: str  # minari.load_dataset(dataset_id) with MINARI_DATASETS_PATH=out_dir
+    episodes: list[dict[str, Any]]  # per episode: seed, steps, terminated, truncated
+    record: dict[str, Any]  # all of record.json
 
 
 class _Entries(NamedTuple):
@@ -269,6 +279,50 @@ def _run_result(results: dict[str, Any], text: str) -> RunResult:
         text,
         results,
     )
+
+
+def record(
+    env: str,
+    observer: Entry,
+    controller: Entry,
+    *,
+    out_dir: str | Path,
+    episodes: int | None = None,
+    seed: int | None = None,
+    seeds: Sequence[int] | None = None,
+    steps: int | None = None,
+    env_options: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    cli_args: Mapping[str, Any] | None = None,
+) -> RecordResult:
+    """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env`` kept as
+    a Minari dataset in the new folder ``out_dir``
+    (:func:`observer_gym.train.experiments.record.record_experiment`; docs/record.md):
+    episode i resets with ``seed + i`` (or ``seeds``, consecutive). Needs the ``[record]``
+    extra (:class:`~observer_gym.extras.ExtraNotInstalled` otherwise); ValueError for a bad
+    input or an ``out_dir`` that exists, before anything runs."""
+    from observer_gym.train.experiments.record import record_experiment
+
+    listed = episode_seeds(episodes, seed, seeds, consecutive=True)
+    found = _names([observer], [controller], 1, "local")
+    with entries.objects_in_use(found.objects):
+        written = record_experiment(
+            env,
+            found.observers[0],
+            found.controllers[0],
+            episodes=len(listed),
+            seed=listed[0],
+            out_dir=out_dir,
+            steps=steps,
+            progress=progress,
+            env_kwargs=env_options,
+            observer_options=observer_options,
+            controller_options=controller_options,
+            cli_args=cli_args,
+        )
+    return RecordResult(Path(out_dir), written["dataset_id"], written["episodes"], written)
 
 
 def compare(

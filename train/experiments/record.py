@@ -1,0 +1,193 @@
+"""``observer-gym record``: closed-loop episodes of one observer and controller kept as a
+Minari dataset (:mod:`observer_gym.train.reports.dataset`).
+
+The episodes run as :func:`~observer_gym.train.experiments.episode.run_episode_here` runs
+them (the same env, controller and loop; episode i resets with ``seed + i``), with Minari's
+DataCollector between the observer env and the controller
+(:func:`~observer_gym.train.reports.dataset.recording_env`): the dataset's observations
+are what the observer was given (frames, measurements, or the state for ``oracle``), its
+actions what reached the env (after a trained agent's own wrappers), its infos hold the
+truth and the observer's estimate. One env serves all the episodes, each reset with its
+seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from observer_gym.envs import system_for_id
+from observer_gym.extras import require_record
+from observer_gym.train.core import entries
+from observer_gym.train.experiments.episode import (
+    EpisodeError,
+    build_controller,
+    describe_controller,
+)
+from observer_gym.train.experiments.request import check_pair, resolve_request
+from observer_gym.train.reports.outputs import (
+    VERSIONED_PACKAGES,
+    package_versions,
+    to_jsonable,
+    write_json_atomic,
+)
+from observer_gym.train.reports.progress import progress_bar
+
+
+def check_new_folder(out_dir: str | Path) -> Path:
+    """``out_dir`` as a Path; ValueError if it exists (a recording is written whole into a
+    new folder, never over another)."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() or out_dir.is_symlink():
+        raise ValueError(f"{out_dir} exists; record writes a new folder: give one that does not")
+    return out_dir
+
+
+def record_experiment(
+    env_id: str,
+    observer: str,
+    controller: str,
+    episodes: int,
+    seed: int,
+    out_dir: str | Path,
+    steps: int | None = None,
+    progress: bool = True,
+    env_kwargs: Mapping[str, Any] | None = None,
+    reset_options: Mapping[str, Any] | None = None,
+    observer_options: Mapping[str, Any] | None = None,
+    controller_options: Mapping[str, Any] | None = None,
+    cli_args: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run ``episodes`` closed-loop episodes and keep them as a Minari dataset in the new
+    folder ``out_dir``.
+
+    Episode i resets with ``seed + i`` (and ``reset_options``) and runs to the env's end or
+    ``steps`` steps. ``out_dir`` then holds the dataset, ``observer_gym/SYSTEM-OBSERVER-
+    CONTROLLER-v0/data`` (:func:`~observer_gym.train.reports.dataset.dataset_id_for`; load
+    it with ``minari.load_dataset(ID)`` and ``MINARI_DATASETS_PATH=out_dir``, or
+    :func:`~observer_gym.train.reports.dataset.load_recording`), and ``record.json``
+    (``dataset_id``, ``config``, ``versions``, ``episodes``: seed and steps of each). The
+    dataset's metadata holds the same under ``observer_gym``. The folder appears whole at
+    the end or not at all (:func:`~observer_gym.train.reports.dataset.staged_datasets`).
+
+    Returns:
+        What ``record.json`` holds.
+
+    Raises:
+        ExtraNotInstalled: minari (the ``[record]`` extra) is not installed.
+        ValueError: an unknown env, observer or controller, a count < 1, a negative seed,
+            or ``out_dir`` exists.
+        EpisodeError: an episode failed part-way (nothing is written).
+    """
+    require_record()
+    env_id = check_pair(env_id, observer, controller)
+    for name, value in (("episodes", episodes), ("steps", steps)):
+        if value is not None and (int(value) != value or value < 1):
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    out_dir = check_new_folder(out_dir)
+    request = resolve_request(
+        env_id, [observer], [controller], range(seed, seed + episodes), 1, "local", None,
+        steps, dict(env_kwargs or {}), observer_options, controller_options,
+    )  # fmt: skip
+    observer_entry, controller_entry = request.observers[0], request.controllers[0]
+    system = system_for_id(env_id)
+
+    from observer_gym.train.reports import dataset  # needs minari: after require_record
+
+    dataset_id = dataset.dataset_id_for(system.name, observer, controller)
+    gym_options = request.env_kwargs_for(controller_entry)
+    with (
+        entries.objects_in_use(entries.objects_for(observer, controller)),
+        dataset.staged_datasets(out_dir) as staging,
+    ):
+        collector = dataset.recording_env(system, observer, gym_options, observer_entry.options)
+        env = collector.unwrapped
+        try:
+            built = build_controller(controller, collector, controller_entry.options)
+            played = _play(built, collector, request.seeds, steps, reset_options, progress)
+            observed = observer_entry.record()
+            record = to_jsonable(
+                {
+                    "dataset_id": dataset_id,
+                    "config": {
+                        "env_id": env_id,
+                        "env_kwargs": {"obs_mode": observed["obs_mode"], **gym_options},
+                        "env_config": dataclasses.asdict(env.config),
+                        "observer": observer,
+                        **{k: v for k, v in observed.items() if k != "obs_mode"},
+                        "observer_options": observer_entry.options,
+                        "controller": controller,
+                        "controller_config": describe_controller(built),
+                        "controller_options": controller_entry.options,
+                        "episodes": episodes,
+                        "seed": seed,
+                        "steps": steps,
+                        "reset_options": reset_options,
+                        "out_dir": str(out_dir),
+                        "cli_args": cli_args,
+                        "command": sys.argv if cli_args is not None else None,
+                    },
+                    "versions": package_versions((*VERSIONED_PACKAGES, "minari")),
+                    "episodes": played,
+                }
+            )
+            with warnings.catch_warnings():  # Minari's advice to name an author and a link
+                warnings.simplefilter("ignore", UserWarning)
+                written = collector.create_dataset(
+                    dataset_id=dataset_id,
+                    eval_env=env.spec,  # the env of the observations, with its obs_mode
+                    algorithm_name=f"observer {observer}, controller {controller}",
+                    author="observer-gym record",
+                    description=(
+                        f"{env_id} with observer {observer} and controller {controller}: "
+                        f"{episodes} episode(s) from seed {seed}, recorded by observer-gym"
+                    ),
+                )
+            written.storage.update_metadata({"observer_gym": record})
+        finally:
+            collector.close()  # closes the env; removes Minari's temporary folder
+        write_json_atomic(staging / dataset.RECORD_FILE, record)
+    return record
+
+
+def _play(
+    controller: Any,
+    env: Any,
+    seeds: Sequence[int],
+    steps: int | None,
+    reset_options: Mapping[str, Any] | None,
+    progress: bool,
+) -> list[dict[str, Any]]:
+    """The episodes of ``seeds`` on ``env`` (the DataCollector) as
+    :func:`~observer_gym.train.experiments.episode.run_episode_here` plays them; each
+    episode's seed, steps and how it ended."""
+    # a trained agent sees the env through its own wrappers; the collector is beneath
+    played_env = getattr(controller, "wrap_env", lambda env: env)(env)
+    observe_info = getattr(controller, "observe_info", lambda info: None)
+    played = []
+    with progress_bar(total=len(seeds), unit="episode", desc="record", disable=not progress) as bar:
+        for seed in seeds:
+            controller.reset()
+            step = 0
+            terminated = truncated = False
+            try:
+                obs, info = played_env.reset(seed=seed, options=reset_options)
+                observe_info(info)
+                while not (terminated or truncated) and (steps is None or step < steps):
+                    action, _ = controller.predict(obs)
+                    obs, _, terminated, truncated, info = played_env.step(action)
+                    observe_info(info)
+                    step += 1
+            except ValueError as exc:  # an observer's or controller's fault: which, when
+                raise EpisodeError(f"{exc} (episode seed {seed}, after {step} steps)") from None
+            played.append(
+                {"seed": seed, "steps": step, "terminated": terminated, "truncated": truncated}
+            )
+            bar.update(1)
+    return played
