@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from observer_gym.train.reports.plots import plot_distances
+from observer_gym.train.core.plots import plot_distances
 
 OBSERVERS: dict[str, tuple[str, dict[str, Any] | None]] = {
     "oracle": ("state", {}),

@@ -37,7 +37,7 @@ from observer_gym.train.cli import (
 )
 from observer_gym.train.core.args import Parser
 from observer_gym.train.core.messages import error_line, one_line
-from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
+from observer_gym.train.core.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 # the subcommands in the order --help lists them
 COMMANDS = {
@@ -92,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     Ctrl-C and SIGTERM stop any command the same way: ``observer-gym COMMAND: interrupted``
     (or the command's own account: ``train`` says how far it got), exit code 130, after
     the file being written, if any, is complete
-    (:func:`~observer_gym.train.reports.signals.signals_deferred`). A file that cannot be read or
+    (:func:`~observer_gym.train.core.signals.signals_deferred`). A file that cannot be read or
     written (a full disk, no permission: ``OSError``) is one line,
     ``observer-gym COMMAND: error: ...``, and exit code 1; the file is as it was. An
     output folder another command holds (its lock:

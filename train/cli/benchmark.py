@@ -27,7 +27,7 @@ from observer_gym.train.cli.args import (
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import PER_ENV, env_name, folder_path, positive_int
 from observer_gym.train.core.messages import error_line
-from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
+from observer_gym.train.core.signals import INTERRUPTED_EXIT_CODE
 
 PROG = "observer-gym benchmark"
 

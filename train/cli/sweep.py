@@ -36,8 +36,8 @@ from observer_gym.train.core.args import (
     positive_int,
 )
 from observer_gym.train.core.messages import error_line
+from observer_gym.train.core.signals import INTERRUPTED_EXIT_CODE
 from observer_gym.train.experiments.sweep_grid import vary_option
-from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
 
 DEFAULT_EPISODES = 10
 

@@ -25,7 +25,7 @@ from observer_gym.train.core.args import (
     positive_int,
 )
 from observer_gym.train.core.messages import UsageError, error_line
-from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE
+from observer_gym.train.core.signals import INTERRUPTED_EXIT_CODE
 
 # Listed here so that parsing needs no heavy import; train_agent checks them again.
 TRAIN_OBS = ("state", "estimate", "rgb", "measurements")

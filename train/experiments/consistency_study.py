@@ -44,11 +44,11 @@ import numpy as np
 from scipy import stats
 
 from observer_gym.train.core.messages import error_line
+from observer_gym.train.core.plots import new_figure, save_figure
+from observer_gym.train.core.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 from observer_gym.train.reports.consistency import consistency_text, episode_consistency, nees_flag
 from observer_gym.train.reports.outputs import format_table, write_text_atomic
-from observer_gym.train.reports.plots import new_figure, save_figure
-from observer_gym.train.reports.signals import INTERRUPTED_EXIT_CODE, sigterm_as_interrupt
 
 ACCEPTED = (1.0 / 3.0, 3.0)  # the range the tests hold every observer's median NEES/dof to
 

@@ -22,6 +22,7 @@ from observer_gym.envs.ball_table import BallTableConfig
 from observer_gym.envs.ball_table.layout import BALL_POS, BALL_VEL, TILT
 from observer_gym.estimation import VisionObserver
 from observer_gym.train.core.metrics import TOLERANCE_M, rmse, settling_time_s, time_within_s
+from observer_gym.train.core.plots import draw_table, new_figure, save_figure
 from observer_gym.train.reports.outputs import (
     check_folder_kind,
     default_out_dir,
@@ -29,7 +30,6 @@ from observer_gym.train.reports.outputs import (
     package_versions,
     write_json_atomic,
 )
-from observer_gym.train.reports.plots import draw_table, new_figure, save_figure
 from observer_gym.train.reports.progress import progress_bar
 
 ENV_ID = "observer_gym/BallTable-v0"

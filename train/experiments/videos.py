@@ -48,7 +48,7 @@ def plan_videos(
     sweep) those that read camera images are filmed. Raises, before anything runs:
     :class:`~observer_gym.extras.ExtraNotInstalled` without the ``[video]`` extra,
     ValueError when no observer reads images or for an episode index outside
-    0..episodes-1, :class:`~observer_gym.train.reports.outputs.WriteError` for a folder
+    0..episodes-1, :class:`~observer_gym.train.core.atomic_write.WriteError` for a folder
     that cannot be written."""
     if video_dir is None:
         if video_episodes is not None:

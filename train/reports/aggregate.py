@@ -40,7 +40,6 @@ from observer_gym.train.reports.outputs import (
     package_versions,
     write_json_atomic,
 )
-from observer_gym.train.rl.run_dir import read_config, seed_run_dirs
 
 FINAL_REPS = 10_000  # bootstrap replications of a final score's interval
 CURVE_REPS = 2_000  # per evaluation point of the learning curve's band
@@ -202,7 +201,7 @@ def plot_learning_curves(
 ) -> None:
     """Each seed's evaluation curve (thin) and the mean across seeds with its 95 %
     bootstrap band, against env steps."""
-    from observer_gym.train.reports.plots import new_figure, save_figure  # deferred: matplotlib
+    from observer_gym.train.core.plots import new_figure, save_figure  # deferred: matplotlib
 
     fig = new_figure((7.5, 4.5))
     ax = fig.subplots()
@@ -264,22 +263,26 @@ class Aggregate:
 
 
 def aggregate_runs(
-    out_dir: str | Path, reps: int = FINAL_REPS, curve_reps: int = CURVE_REPS
+    out_dir: str | Path,
+    runs: Mapping[int, Path],
+    configs: Mapping[int, Mapping[str, Any]],
+    reps: int = FINAL_REPS,
+    curve_reps: int = CURVE_REPS,
 ) -> Aggregate:
-    """Aggregate the runs of the multi-seed folder ``out_dir`` (``seed_<s>/``, each with
-    its ``eval.csv``): writes ``learning_curves.png``, ``aggregate.md`` and, last,
-    ``aggregate.json`` into ``out_dir`` as a set (all or none:
-    :func:`~observer_gym.train.reports.outputs.output_set`), and returns what the JSON holds.
+    """Aggregate the seed runs ``runs`` (seed -> run folder, each with its ``eval.csv``)
+    of the multi-seed folder ``out_dir``, trained with ``configs`` (seed -> the run's
+    config; :func:`observer_gym.train.rl.seeds.aggregate_seeds` reads both): writes
+    ``learning_curves.png``, ``aggregate.md`` and, last, ``aggregate.json`` into
+    ``out_dir`` as a set (all or none: :func:`~observer_gym.train.reports.outputs.output_set`),
+    and returns what the JSON holds.
 
     Raises:
         ValueError: no seed runs in ``out_dir``, runs of different envs, algorithms or
             observations, or a run that has not evaluated yet.
     """
     out_dir = Path(out_dir)
-    runs = seed_run_dirs(out_dir)
     if not runs:
         raise ValueError(f"{out_dir} holds no seed_<s>/ runs to aggregate")
-    configs = {seed: read_config(path) for seed, path in runs.items()}
     kinds = {(c["env_id"], c["algo"], c["obs"], c["observer"]) for c in configs.values()}
     if len(kinds) > 1:
         raise ValueError(f"the runs in {out_dir} differ in env, algo or obs: {sorted(kinds)}")

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.train.core.entries import entry_line
+from observer_gym.train.core.plots import new_figure, save_figure
 from observer_gym.train.reports.aggregate import METHOD
 from observer_gym.train.reports.compare_stats import (
     ORACLE,
@@ -30,7 +31,6 @@ from observer_gym.train.reports.outputs import (
     to_jsonable,
     write_json_atomic,
 )
-from observer_gym.train.reports.plots import new_figure, save_figure
 
 
 # --- names -------------------------------------------------------------------------------

@@ -49,9 +49,9 @@ from observer_gym.train.core.observer_env import (
     with_observer_env_options,
     wrap_observer,
 )
+from observer_gym.train.core.signals import signals_deferred
 from observer_gym.train.reports.episode_frames import delivered_frames
 from observer_gym.train.reports.outputs import OutputFolderWarning, process_alive
-from observer_gym.train.reports.signals import signals_deferred
 
 # every dataset observer-gym records is in this Minari namespace
 NAMESPACE = "observer_gym"

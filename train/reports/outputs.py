@@ -3,8 +3,9 @@ text tables; and the output folder's upkeep after a run that was killed.
 
 Atomic writes go through a temp file beside the target whose name carries the writer's
 PID (:data:`TEMP_PATTERNS`), with SIGINT and SIGTERM held until the file is in place
-(:func:`~observer_gym.train.reports.signals.signals_deferred`); a failed write raises
-:class:`WriteError` and leaves the target as it was. A report of several files is staged
+(:func:`~observer_gym.train.core.signals.signals_deferred`); a failed write raises
+:class:`~observer_gym.train.core.atomic_write.WriteError` and leaves the target as it was
+(:mod:`observer_gym.train.core.atomic_write`). A report of several files is staged
 and moved into place as a set (:func:`output_set`). A run killed with SIGKILL (or a power
 cut) cannot remove its temps, nor say that it stopped; :func:`output_folder` therefore,
 when a command starts writing into a folder, removes the temps there whose writer process
@@ -45,9 +46,10 @@ from typing import Any
 import numpy as np
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.atomic_write import WriteError, replace_atomically, write_error
 from observer_gym.train.core.messages import OneLineWarning
+from observer_gym.train.core.signals import signals_deferred
 from observer_gym.train.reports.folder_lock import folder_lock
-from observer_gym.train.reports.signals import signals_deferred
 
 # The distributions that decide what an experiment computes.
 # what package_versions records for a distribution that is not installed
@@ -395,33 +397,6 @@ def output_folder(
         raise
 
 
-class WriteError(OSError):
-    """A file could not be written: its path and why. The file is as it was before."""
-
-
-def _write_error(path: Path, exc: BaseException) -> WriteError:
-    return WriteError(f"could not write {path}: {' '.join(str(exc).split())}")
-
-
-def replace_atomically(path: str | os.PathLike, write: Callable[[Path], Any]) -> None:
-    """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX), with
-    SIGINT and SIGTERM held until both are done
-    (:func:`~observer_gym.train.reports.signals.signals_deferred`). The temp is ``.NAME.tmp-PID``
-    beside ``path``; if ``write`` or the rename fails, the temp is removed, ``path`` is as
-    it was and :class:`WriteError` names it (an ``OSError`` from the file system, or a
-    ``RuntimeError`` from PyTorch's zip writer, which reports a full disk so)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with signals_deferred():
-        try:
-            write(tmp)
-            os.replace(tmp, path)
-        except (OSError, RuntimeError) as exc:
-            raise _write_error(path, exc) from exc
-        finally:
-            tmp.unlink(missing_ok=True)
-
-
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` as :func:`replace_atomically` does."""
     replace_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
@@ -430,7 +405,7 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
 def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as JSON to a temp file beside ``path`` (``.NAME.PID.XXXXXXXX.tmp``),
     then rename it into place, with SIGINT and SIGTERM held until both are done
-    (:func:`~observer_gym.train.reports.signals.signals_deferred`).
+    (:func:`~observer_gym.train.core.signals.signals_deferred`).
 
     A reader sees the old file or the whole new one, never half of it. NumPy values are
     converted (:func:`to_jsonable`); NaN and infinity raise ``ValueError`` (they are not
@@ -447,14 +422,14 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
                 dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
             )
         except OSError as exc:
-            raise _write_error(path, exc) from exc
+            raise write_error(path, exc) from exc
         try:
             with os.fdopen(fd, "w") as f:
                 f.write(text)
             os.chmod(tmp_name, 0o644)  # mkstemp makes it owner-only
             os.replace(tmp_name, path)
         except OSError as exc:
-            raise _write_error(path, exc) from exc
+            raise write_error(path, exc) from exc
         finally:
             Path(tmp_name).unlink(missing_ok=True)
 
@@ -477,7 +452,7 @@ def output_set(
     try:
         staging.mkdir()
     except OSError as exc:
-        raise _write_error(out_dir, exc) from exc
+        raise write_error(out_dir, exc) from exc
     try:
         try:
             yield staging
@@ -492,7 +467,7 @@ def output_set(
                     target.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(file, target)
                 except OSError as exc:
-                    raise _write_error(target, exc) from exc
+                    raise write_error(target, exc) from exc
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from observer_gym.train.core.args import point_text, value_text
+from observer_gym.train.core.plots import new_figure, save_figure
 from observer_gym.train.reports.compare_report import (
     difference_unit,
     format_difference,
@@ -34,7 +35,6 @@ from observer_gym.train.reports.outputs import (
     output_set,
     write_text_atomic,
 )
-from observer_gym.train.reports.plots import new_figure, save_figure
 
 ROW_COLUMNS = ("observer", "controller", "episode", "seed")
 

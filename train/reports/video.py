@@ -35,14 +35,15 @@ from typing import Any
 import cv2
 import numpy as np
 
+from observer_gym.train.core.atomic_write import WriteError
+from observer_gym.train.core.signals import signals_deferred
 from observer_gym.train.reports.episode_frames import (
     DeliveredFrame,
     delivered_frames,
     marker_pixels,
     projection_for,
 )
-from observer_gym.train.reports.outputs import WriteError, remove_stale_temps
-from observer_gym.train.reports.signals import signals_deferred
+from observer_gym.train.reports.outputs import remove_stale_temps
 
 # The overlays' colours (RGB, as the frames are)
 ESTIMATE_RGB = (255, 0, 255)

@@ -7,7 +7,7 @@ off-policy algorithms. Each file is written to a temporary name and renamed into
 then ``checkpoint_<N>.json`` records the set's files and their sha256, and
 ``checkpoints/latest.json`` (the same record) names the newest complete set, replaced
 last. Ctrl-C and SIGTERM wait until the set is saved
-(:func:`~observer_gym.train.reports.signals.signals_deferred`); a run killed while saving
+(:func:`~observer_gym.train.core.signals.signals_deferred`); a run killed while saving
 (SIGKILL, power) leaves the previous set named and intact; the temp files such a kill
 leaves (``.model_<N>.zip.tmp-<PID>``, ...) are removed when the run is resumed
 (:func:`observer_gym.train.reports.outputs.remove_stale_temps`). A resumed run starts from the
@@ -22,8 +22,9 @@ from pathlib import Path
 from typing import Any
 
 from observer_gym.extras import require_rl
-from observer_gym.train.reports.outputs import replace_atomically, write_json_atomic
-from observer_gym.train.reports.signals import signals_deferred
+from observer_gym.train.core.atomic_write import replace_atomically
+from observer_gym.train.core.signals import signals_deferred
+from observer_gym.train.reports.outputs import write_json_atomic
 from observer_gym.train.rl.callbacks import EveryStepsCallback
 from observer_gym.train.rl.normalizer_file import save_normalizer
 from observer_gym.train.rl.run_dir import (  # noqa: F401  (latest_checkpoint: read here too)

@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from observer_gym.envs.json_file import read_bytes_limited
+from observer_gym.train.core.signals import signals_deferred, sigterm_as_interrupt
 from observer_gym.train.reports.outputs import (
     write_json_atomic,
     write_text_atomic,
     writer_identity,
 )
-from observer_gym.train.reports.signals import signals_deferred, sigterm_as_interrupt
 from observer_gym.train.rl.agent_env import make_agent_env
 from observer_gym.train.rl.callbacks import EveryStepsCallback
 from observer_gym.train.rl.run_dir import (
@@ -187,7 +187,7 @@ def learn(
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from observer_gym.train.reports.plots import plot_learning_curve
+    from observer_gym.train.core.plots import plot_learning_curve
     from observer_gym.train.rl.checkpoints import (
         CheckpointCallback,
         replace_atomically,

@@ -144,8 +144,8 @@ def write_stats(stats: NormalizerStats, path: str | Path) -> None:
 
 def save_normalizer(vec_normalize: Any, path: str | Path) -> None:
     """Save ``vec_normalize``'s statistics to ``path`` (:func:`write_stats`), atomically
-    (:func:`~observer_gym.train.reports.outputs.replace_atomically`)."""
-    from observer_gym.train.reports.outputs import replace_atomically
+    (:func:`~observer_gym.train.core.atomic_write.replace_atomically`)."""
+    from observer_gym.train.core.atomic_write import replace_atomically
 
     stats = stats_of(vec_normalize)
     replace_atomically(path, lambda tmp: write_stats(stats, tmp))

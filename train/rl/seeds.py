@@ -4,9 +4,9 @@ aggregate.
 A multi-seed run's folder ``OUT`` holds ``seeds.json`` (what is trained: the seeds and
 the options, :class:`SeedsConfig`) and one ordinary run folder per seed,
 ``OUT/seed_<s>/`` (:mod:`observer_gym.train.rl.training`), so everything that reads a run
-reads each seed's. When every seed has finished, :func:`observer_gym.train.reports.aggregate.
-aggregate_runs` writes ``learning_curves.png``, ``aggregate.json`` and ``aggregate.md``
-into ``OUT``.
+reads each seed's. When every seed has finished, :func:`aggregate_seeds` reads each seed's
+config and :func:`observer_gym.train.reports.aggregate.aggregate_runs` writes
+``learning_curves.png``, ``aggregate.json`` and ``aggregate.md`` into ``OUT``.
 
 Every seed's config.json is written before any training starts; then the seeds train in
 ``workers`` spawned processes (``backend="local"``) or as Ray tasks (``"ray"``), each
@@ -42,6 +42,8 @@ from tqdm import tqdm
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.core.checks import check_backend, check_seeds
 from observer_gym.train.reports.aggregate import (
+    CURVE_REPS,
+    FINAL_REPS,
     Aggregate,
     aggregate_runs,
     statistics_text,
@@ -55,6 +57,7 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.parent_watch import end_with_parent
+from observer_gym.train.reports.ray_tasks import local_cpus, run_tasks_ray
 from observer_gym.train.rl.checks import check_seeds_folder
 from observer_gym.train.rl.run_dir import (
     SEED_PREFIX,
@@ -280,8 +283,6 @@ def train_runs(
         return {}
     if backend == "ray":
         return _train_ray(paths, None, address, progress)
-    from observer_gym.train.experiments.ray_backend import local_cpus  # deferred
-
     count = workers if workers is not None else min(len(paths), local_cpus())
     return _train_local(paths, None, count, progress)
 
@@ -371,10 +372,6 @@ def _train(
     elif backend == "ray":
         errors = _train_ray(run_dirs, timesteps, address, progress)
     else:
-        from observer_gym.train.experiments.ray_backend import (
-            local_cpus,  # deferred: the episodes' layers
-        )
-
         count = workers if workers is not None else min(len(run_dirs), local_cpus())
         errors = _train_local(run_dirs, timesteps, count, progress)
     wall_time_s = time.perf_counter() - tic_s
@@ -402,8 +399,24 @@ def _train(
     aggregate = None
     if runs and all(run.status == "finished" for run in runs):
         kwargs = {} if reps is None else {"reps": reps}
-        aggregate = aggregate_runs(out_dir, **kwargs)
+        aggregate = aggregate_seeds(out_dir, **kwargs)
     return SeedsResult(out_dir, tuple(runs), wall_time_s, steps, aggregate)
+
+
+def aggregate_seeds(
+    out_dir: str | Path, reps: int = FINAL_REPS, curve_reps: int = CURVE_REPS
+) -> Aggregate:
+    """Aggregate the ``seed_<s>/`` runs of the multi-seed folder ``out_dir``
+    (:func:`~observer_gym.train.reports.aggregate.aggregate_runs`, with each run's config
+    read here; ``reps`` and ``curve_reps`` its bootstrap replications).
+
+    Raises:
+        ValueError: as ``aggregate_runs`` (no seed runs, runs that differ, a run not
+            evaluated yet) or a seed's ``config.json`` that cannot be read.
+    """
+    runs = seed_run_dirs(out_dir)
+    configs = {seed: read_config(path) for seed, path in runs.items()}
+    return aggregate_runs(out_dir, runs, configs, reps, curve_reps)
 
 
 def _timesteps(run_dir: Path) -> int:
@@ -531,9 +544,9 @@ def _progress_steps(run_dir: Path) -> int:
 def _train_ray(
     run_dirs: Sequence[Path], timesteps: int | None, address: str | None, progress: bool
 ) -> dict[Path, str]:
-    """Train ``run_dirs`` as Ray tasks (:func:`~observer_gym.train.experiments.ray_backend.
-    run_tasks_ray`); returns the traceback of each run that raised."""
-    from observer_gym.train.experiments.ray_backend import run_tasks_ray  # deferred: imports Ray
+    """Train ``run_dirs`` as Ray tasks
+    (:func:`~observer_gym.train.reports.ray_tasks.run_tasks_ray`); returns the traceback
+    of each run that raised."""
 
     try:
         outcomes = run_tasks_ray(

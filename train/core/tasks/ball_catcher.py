@@ -213,7 +213,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     """``plane.png``: where each ball crossed the box's plane relative to the hole
     (caught / missed), with the hole and the ball's size; ``estimate.png`` for an
     observer: episode 0's ball-position error and its 2-sigma band over time."""
-    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+    from observer_gym.train.core.plots import (  # imported on use: matplotlib
         new_figure,
         save_figure,
     )

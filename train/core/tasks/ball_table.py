@@ -81,7 +81,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     """``path.png`` (ball paths of the first episodes), ``error.png`` (distance from the
     centre vs time) and, for an observer, ``estimate.png`` (episode 0's estimate vs truth
     with +-2 sigma)."""
-    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+    from observer_gym.train.core.plots import (  # imported on use: matplotlib
         plot_distances,
         plot_estimate,
         plot_paths,

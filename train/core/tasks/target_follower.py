@@ -230,7 +230,7 @@ def plot(records: Sequence[Mapping[str, Any]], observer: str, out_dir: Path) -> 
     ``error.png`` (|(x_i, y_i)| and d_x - d* vs time, every episode, occlusions shaded in
     episode 0) and, for an observer, ``estimate.png`` (episode 0's estimate of X_i vs
     truth with +-2 sigma)."""
-    from observer_gym.train.reports.plots import (  # imported on use: matplotlib
+    from observer_gym.train.core.plots import (  # imported on use: matplotlib
         new_figure,
         save_figure,
     )

@@ -39,16 +39,12 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.atomic_write import WriteError, replace_atomically
 from observer_gym.train.experiments.benchmark.check import FolderCheckError, check_folder
 from observer_gym.train.experiments.benchmark.records import EPISODES_CSV
 from observer_gym.train.experiments.benchmark.report import SCORES_JSON, TABLE_MD
 from observer_gym.train.experiments.benchmark.suite import SystemSuite, load_suite
-from observer_gym.train.reports.outputs import (
-    WriteError,
-    output_set,
-    replace_atomically,
-    write_text_atomic,
-)
+from observer_gym.train.reports.outputs import output_set, write_text_atomic
 
 PUBLISHED = (EPISODES_CSV, SCORES_JSON, TABLE_MD)
 PROG = "python -m observer_gym.train.experiments.benchmark.leaderboard"

@@ -36,9 +36,9 @@ from observer_gym.train.experiments.delay_rl.plan import (
 )
 from observer_gym.train.experiments.delay_rl.table import StudyTable, derive_table, write_table
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episodes
-from observer_gym.train.experiments.ray_backend import local_cpus
 from observer_gym.train.reports.folder_lock import LOCK_FILE, folder_lock
 from observer_gym.train.reports.outputs import package_versions, write_json_atomic
+from observer_gym.train.reports.ray_tasks import local_cpus
 from observer_gym.train.rl.run_dir import SEEDS_FILE, read_config, read_state, seed_run_dirs
 from observer_gym.train.rl.seeds import prepare_seeds, seed_dir, seeds_configs, train_runs
 
@@ -177,7 +177,7 @@ def _train(
 ) -> int:
     """Set out every training cell not yet set out, train every unfinished seed, and
     aggregate each cell; returns how many seed runs trained."""
-    from observer_gym.train.reports.aggregate import aggregate_runs
+    from observer_gym.train.rl.seeds import aggregate_seeds
 
     inputs = plan.input_records
     for level, name in plan.train_cells():
@@ -220,7 +220,7 @@ def _train(
     for level, name in plan.train_cells():
         folder = cell_dir(out_dir, level, name)
         if not (folder / "aggregate.json").exists():
-            aggregate_runs(folder)
+            aggregate_seeds(folder)
     return len(todo)
 
 

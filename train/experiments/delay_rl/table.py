@@ -293,8 +293,8 @@ def _signed(value: float, table: StudyTable) -> str:
 def plot_curves(out_dir: Path, table: StudyTable) -> None:
     """``curves_<level>.png``: each input's mean evaluation return during training (its
     cell's aggregate.json band) at that level."""
+    from observer_gym.train.core.plots import new_figure, save_figure  # deferred
     from observer_gym.train.experiments.delay_rl.run import cell_dir
-    from observer_gym.train.reports.plots import new_figure, save_figure  # deferred
 
     plan = StudyPlan.from_dict(table.plan)
     for level in plan.levels:

@@ -435,7 +435,7 @@ def single_camera_figure(single: dict):
 def save_plots(two: dict, single: dict, out_dir: Path) -> list[Path]:
     """Save :func:`two_camera_figure` and :func:`single_camera_figure` into ``out_dir`` as
     two_cameras_ellipses.png and single_camera_ellipses.png; their paths."""
-    from observer_gym.train.reports.plots import save_figure  # deferred: matplotlib
+    from observer_gym.train.core.plots import save_figure  # deferred: matplotlib
 
     paths = []
     for fig, name in (

@@ -289,7 +289,7 @@ def save_plot(sigmas: list[float], mse: dict, out_dir: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from observer_gym.train.reports.plots import save_figure
+    from observer_gym.train.core.plots import save_figure
 
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), constrained_layout=True)
     for q, ax in enumerate(axes.flat):

@@ -13,8 +13,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from observer_gym.envs.ball_table.geometry import BALL_TRAVEL_M, TABLE_SIDE_M
+from observer_gym.train.core.atomic_write import replace_atomically
 from observer_gym.train.core.metrics import TOLERANCE_M
-from observer_gym.train.reports.outputs import replace_atomically
 
 DPI = 110
 MIN_LOG_DISTANCE_M = 1e-5  # distances are drawn on a log axis; exact zeros are lifted here
@@ -22,7 +22,7 @@ MIN_LOG_DISTANCE_M = 1e-5  # distances are drawn on a log axis; exact zeros are 
 
 def save_figure(fig: Figure, path: str | Path, dpi: float = DPI) -> None:
     """Save ``fig`` to ``path`` in the format of its suffix, atomically
-    (:func:`~observer_gym.train.reports.outputs.replace_atomically`): a failed or interrupted save
+    (:func:`~observer_gym.train.core.atomic_write.replace_atomically`): a failed or interrupted save
     leaves no partial image."""
     path = Path(path)
     fmt = path.suffix.lstrip(".") or "png"
