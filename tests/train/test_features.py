@@ -93,7 +93,7 @@ def test_the_agent_env_reads_the_features_of_the_estimate():
 
 def test_feature_names_are_checked():
     assert feature_names("ball_catcher") == ("crossing",)
-    assert feature_names("ball_table") == ()
+    assert feature_names("ball_table") == ("belief",)
     env = gym.make("observer_gym/BallTable-v0", obs_mode="state")
     try:
         with pytest.raises(ValueError, match="unknown features 'crossing' for BallTable-v0"):

@@ -29,6 +29,14 @@ from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.delay_rl.delivery import measure_delivery
+from observer_gym.train.experiments.delay_rl.layout import (
+    DELIVERY_FILE,
+    PLAN_FILE,
+    TIMING_FILE,
+    cell_dir,
+    eval_path,
+    reference_path,
+)
 from observer_gym.train.experiments.delay_rl.plan import (
     LEVELS,
     REFERENCE_CONTROLLERS,
@@ -42,9 +50,6 @@ from observer_gym.train.reports.ray_tasks import local_cpus
 from observer_gym.train.rl.run_dir import SEEDS_FILE, read_config, read_state, seed_run_dirs
 from observer_gym.train.rl.seeds import prepare_seeds, seed_dir, seeds_configs, train_runs
 
-PLAN_FILE = "study.json"
-DELIVERY_FILE = "delivery.json"
-TIMING_FILE = "timing.json"  # each invocation's wall time, for the budget
 DELIVERY_FRAMES = 3000  # frames counted per level (an out-of-order fraction to ~1 %)
 COMMAND = "study delay-rl"
 
@@ -59,19 +64,6 @@ class StudyResult:
     wall_time_s: float
     trained_runs: int  # seed runs trained (on) in this call
     evaluations: int  # evaluation records written in this call
-
-
-def cell_dir(out_dir: Path, level: str, name: str) -> Path:
-    """The multi-seed training folder of input ``name`` trained at ``level``."""
-    return out_dir / "train" / level / name
-
-
-def eval_path(out_dir: Path, trained_at: str, name: str, at: str) -> Path:
-    return out_dir / "eval" / trained_at / name / f"at_{at}.json"
-
-
-def reference_path(out_dir: Path, name: str, at: str) -> Path:
-    return out_dir / "reference" / name / f"at_{at}.json"
 
 
 def run_study(

@@ -20,6 +20,14 @@ from typing import Any
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.core.tasks import task_of
+from observer_gym.train.experiments.delay_rl.layout import (
+    DELIVERY_FILE,
+    PLAN_FILE,
+    TIMING_FILE,
+    cell_dir,
+    eval_path,
+    reference_path,
+)
 from observer_gym.train.experiments.delay_rl.plan import SHIFT_FROM, StudyPlan
 from observer_gym.train.reports.aggregate import across_seeds
 from observer_gym.train.reports.outputs import (
@@ -57,15 +65,6 @@ def derive_table(out_dir: str | Path) -> StudyTable:
         ValueError: the folder holds no study, or a record is missing (the study has not
             finished: run it again to continue).
     """
-    from observer_gym.train.experiments.delay_rl.run import (
-        DELIVERY_FILE,
-        PLAN_FILE,
-        TIMING_FILE,
-        cell_dir,
-        eval_path,
-        reference_path,
-    )
-
     out_dir = Path(out_dir)
     if not (out_dir / PLAN_FILE).is_file():
         raise ValueError(f"{out_dir} holds no delay-rl study (no {PLAN_FILE})")
@@ -294,7 +293,6 @@ def plot_curves(out_dir: Path, table: StudyTable) -> None:
     """``curves_<level>.png``: each input's mean evaluation return during training (its
     cell's aggregate.json band) at that level."""
     from observer_gym.train.core.plots import new_figure, save_figure  # deferred
-    from observer_gym.train.experiments.delay_rl.run import cell_dir
 
     plan = StudyPlan.from_dict(table.plan)
     for level in plan.levels:
