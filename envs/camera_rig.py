@@ -134,6 +134,7 @@ class _CameraSchedule:
     index: int = 0  # the next frame's number
     next_tick: int = 0
     last_tick: int = -1
+    lost: int = 0  # frames captured and lost (drops) since the reset
 
 
 class FrameClock:
@@ -192,6 +193,7 @@ class FrameClock:
             schedule.next_tick = self._draw_tick(schedule)
             if tick > 0 and self.drop_prob > 0.0:
                 if self.rng.random() < self.drop_prob:  # uniform()'s number, cheaper
+                    schedule.lost += 1
                     continue
             cameras.append(camera_id)
         schedules = self.schedules
@@ -203,6 +205,10 @@ class FrameClock:
     def next_capture_tick(self) -> int:
         """The earliest tick at which some camera captures next (its frame may be lost)."""
         return self._next_tick
+
+    def frames_lost(self) -> list[int]:
+        """Per camera, the frames lost (dropped at capture) since the reset."""
+        return [schedule.lost for schedule in self.schedules]
 
     def delivery_tick(self, camera_id: int, capture_tick: int) -> int:
         """When a frame of ``camera_id`` captured at ``capture_tick`` arrives."""
@@ -289,6 +295,12 @@ class CameraRig:
         """The earliest tick at which some camera captures next (its frame may be lost)."""
         assert self.clock is not None, "reset() first"
         return self.clock.next_capture_tick()
+
+    def frames_lost(self) -> list[int]:
+        """Per camera, the frames dropped at capture since the reset: the ground truth of
+        what the observer never receives (it sees only gaps in the capture times)."""
+        assert self.clock is not None, "reset() first"
+        return self.clock.frames_lost()
 
     def due(self, tick: int) -> list[int]:
         """The cameras that capture a kept frame at ``tick`` (drawing jitters and drops)."""

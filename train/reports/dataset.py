@@ -75,6 +75,9 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
     - ``time_s`` (): the env's time since the reset, s;
     - ``state`` (n,): the ground truth, the env's state layout (SI units);
     - ``frame_count`` (C,): frames of each camera delivered at this step;
+    - ``frames_lost`` (C,): frames of each camera dropped at capture since the reset (the
+      sensor's ``frame_drop_prob``; the truth, which the observer sees only as gaps in
+      the capture times): a step's drops are its difference from the step before;
     - ``frame_capture_time_s``, ``frame_delivery_time_s`` (C,): the newest delivered
       frame's capture and delivery times, s since the reset; NaN for a camera without one;
     - ``K_nominal``, ``K_true`` (C, 3, 3), px: that frame's intrinsics as the observer was
@@ -89,6 +92,7 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
         "time_s": np.asarray(float(info["time_s"])),
         "state": np.array(info["state"], dtype=np.float64),
         "frame_count": np.zeros(cameras, dtype=np.int64),
+        "frames_lost": np.array(env.unwrapped.rig.frames_lost(), dtype=np.int64),  # type: ignore[attr-defined]
         "frame_capture_time_s": np.full(cameras, np.nan),
         "frame_delivery_time_s": np.full(cameras, np.nan),
         "K_nominal": np.full((cameras, 3, 3), np.nan),
