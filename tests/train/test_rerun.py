@@ -247,3 +247,25 @@ def test_a_failure_mid_episode_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run_episode(spec)
     assert list(tmp_path.iterdir()) == []  # neither the file nor its temp
+
+
+def test_rerun_turned_off_in_the_environment_is_refused_before_any_episode(
+    tmp_path, capsys, monkeypatch
+):
+    """rerun-sdk writes nothing with RERUN=off (its own values: 0, false, off)."""
+    monkeypatch.setenv("RERUN", "off")
+    argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "1"]
+    argv += ["--out", str(tmp_path / "r"), "--rerun", str(tmp_path / "x.rrd")]
+    code, err = one_line_error(capsys, argv)
+    assert code == 2 and "RERUN=off" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_that_cannot_be_written_is_refused_before_any_episode(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "1"]
+    argv += ["--out", str(tmp_path / "r"), "--rerun", str(blocker / "x.rrd")]
+    code, err = one_line_error(capsys, argv)
+    assert code == 1 and f"cannot write {blocker / 'x.rrd'}" in err
+    assert not (tmp_path / "r").exists()

@@ -77,11 +77,20 @@ class RerunRequest:
 
 
 def check_rerun_file(path: str | os.PathLike) -> Path:
-    """``path`` checked before any episode runs: ValueError unless it ends in ``.rrd``
-    or if it is a folder; its folder created if needed, and WriteError (one line) if files
+    """``path`` checked before any episode runs: ValueError unless it ends in ``.rrd``,
+    if it is a folder, or where rerun-sdk's logging is turned off (the environment
+    variable ``RERUN`` set to off, 0 or false: rerun would write nothing); its folder
+    created if needed, and WriteError (one line) if files
     cannot be made there. Removes the temps there of writers that are gone (a run killed
     with SIGKILL), as :func:`~observer_gym.train.reports.video.check_video_folder` does."""
     path = Path(path)
+    # rerun-sdk reads RERUN when a recording starts; asked here (its own values) so that
+    # the run is refused before any episode rather than failing after one
+    if os.environ.get("RERUN", "").strip().lower() in ("0", "off", "false"):
+        raise ValueError(
+            f"--rerun: rerun-sdk's logging is turned off here (RERUN={os.environ['RERUN']} "
+            "in the environment), so it would write nothing: unset RERUN or set RERUN=on"
+        )
     if path.suffix != ".rrd":
         raise ValueError(f"--rerun takes a file ending in .rrd, got {str(path)!r}")
     if path.is_dir():
