@@ -162,6 +162,7 @@ def test_ball_catcher_truth_ellipsoid_and_cameras_are_what_the_episode_gave(tmp_
         K = np.asarray(logged.at(entity, t, "Pinhole:image_from_camera")[0]).reshape(3, 3).T
         np.testing.assert_allclose(K, np.diag([2, 2, 1]) @ np.asarray(frame["K"]), rtol=1e-6)
     assert not np.allclose(nominal["T_world_cam"], true["T_world_cam"], atol=1e-4)
+    assert len(RrdReader(path).blueprints()) == 1  # the viewer's default layout
 
 
 def test_the_image_matches_its_pinhole(tmp_path):

@@ -25,6 +25,9 @@ takes the step's ``info`` and logs, on the one timeline ``sim_time_s`` (the env'
   logged on steps where the env says its observers' model does not hold
   (``model_holds_key``); ``metrics/action/<k>``: each entry of the controller's action.
 
+The file carries a default layout for the viewer (a blueprint): the 3-D world beside each
+camera's images and the plots.
+
 The file is streamed under a temp name beside it (``.NAME.rrd.tmp-PID``, the house's
 pattern) and renamed into place when the episode ends
 (:func:`~observer_gym.train.core.atomic_write.replace_atomically`); an episode that fails
@@ -198,12 +201,34 @@ class EpisodeRerun:
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         self.stream.set_log_time_enabled(False)  # one timeline: the simulation's
         try:
-            self.stream.save(self.tmp)
+            self.stream.save(self.tmp, default_blueprint=self._blueprint())
         except Exception as exc:  # rerun reports a file it cannot open as its own error
             self.tmp.unlink(missing_ok=True)
             raise WriteError(f"could not write {self.path}: {exc}") from exc
         self.stream.send_recording_name(request.name)
         self._log_static()
+
+    def _blueprint(self) -> Any:
+        """The viewer's default layout: the 3-D world beside each camera's images and the
+        error and NEES plots, the time panel on :data:`TIMELINE`."""
+        import rerun.blueprint as rrb
+
+        cameras = [
+            rrb.Spatial2DView(origin=f"world/camera{i}/true", name=f"camera {i}")
+            for i in range(int(self.env.unwrapped.rig.num_cameras))
+        ]
+        plots = [
+            rrb.TimeSeriesView(origin="metrics/estimate_error", name="estimate error"),
+            rrb.TimeSeriesView(origin="metrics/nees", name="NEES"),
+            rrb.TimeSeriesView(origin="metrics/action", name="action"),
+        ]
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="world", name="world"),
+                rrb.Vertical(*cameras, *plots),
+            ),
+            rrb.TimePanel(timeline=TIMELINE),
+        )
 
     def _log_static(self) -> None:
         rr, log = self.rr, self.stream.log
