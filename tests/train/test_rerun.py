@@ -195,7 +195,7 @@ def test_the_episode_is_the_same_with_and_without_a_recording_and_nees_is_the_ru
 
 
 def test_run_with_and_without_rerun_gives_the_same_episodes(tmp_path, capsys):
-    argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "2", "--steps", "15"]
+    argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "2", "--steps", "8"]
     argv += ["--no-progress"]
     assert main([*argv, "--out", str(tmp_path / "plain")]) == 0
     rrd = tmp_path / "rec" / "episode.rrd"
@@ -270,3 +270,27 @@ def test_a_folder_that_cannot_be_written_is_refused_before_any_episode(tmp_path,
     code, err = one_line_error(capsys, argv)
     assert code == 1 and f"cannot write {blocker / 'x.rrd'}" in err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.slow  # loads PyTorch and stable-baselines3
+def test_evaluate_records_one_agents_episode_and_refuses_a_multi_seed_run(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    import shutil
+
+    from observer_gym.train.rl.run_dir import agent_folder
+
+    rrd = tmp_path / "agent.rrd"
+    argv = ["evaluate", "--episodes", "1", "--steps", "10", "--no-progress"]
+    model = ["--model", "ppo:ball_table-estimate"]
+    assert main([*argv, *model, "--out", str(tmp_path / "e"), "--rerun", str(rrd)]) == 0
+    capsys.readouterr()
+    assert Logged(rrd).count("/world/ball/truth", "Points3D:positions") == 11  # reset + 10
+    multi = tmp_path / "multi"
+    for seed in (0, 1):
+        shutil.copytree(agent_folder("ppo:ball_table-estimate"), multi / f"seed_{seed}")
+    rerun = ["--rerun", str(tmp_path / "multi.rrd")]
+    code, err = one_line_error(
+        capsys, [*argv, "--model", str(multi), "--out", str(tmp_path / "m"), *rerun]
+    )
+    assert code == 2 and "give one seed's run (--model DIR/seed_<s>)" in err
+    assert not (tmp_path / "m").exists() and not (tmp_path / "multi.rrd").exists()
