@@ -212,6 +212,17 @@ def test_run_with_and_without_rerun_gives_the_same_episodes(tmp_path, capsys):
     capsys.readouterr()
 
 
+@pytest.mark.slow  # spawns worker processes
+def test_a_worker_process_writes_the_recording(tmp_path, capsys):
+    argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "2", "--steps", "8"]
+    rrd = tmp_path / "episode.rrd"
+    argv += ["--no-progress", "--workers", "2", "--rerun", str(rrd), "--rerun-episode", "1"]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 0
+    capsys.readouterr()
+    assert [p.name for p in tmp_path.iterdir() if p.name != "r"] == ["episode.rrd"]
+    assert Logged(rrd).count("/world/ball/truth", "Points3D:positions") == 9
+
+
 def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:
     code = main(argv)
     err = capsys.readouterr().err
