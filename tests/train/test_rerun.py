@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
+from observer_gym.train.core.atomic_write import WriteError
 from observer_gym.train.core.observer_env import make_env
 from observer_gym.train.experiments.episode import EpisodeSpec, build_controller, run_episode
 from observer_gym.train.reports import rerun_recording
@@ -305,3 +306,28 @@ def test_evaluate_records_one_agents_episode_and_refuses_a_multi_seed_run(tmp_pa
     )
     assert code == 2 and "give one seed's run (--model DIR/seed_<s>)" in err
     assert not (tmp_path / "m").exists() and not (tmp_path / "multi.rrd").exists()
+
+
+def test_a_recording_that_did_not_reach_the_disk_whole_is_one_write_error(tmp_path, monkeypatch):
+    """rerun's writer logs a failed write (a full disk) instead of raising: the file is
+    checked before the rename, and a cut one is dropped with its temp."""
+    real = rerun_recording.EpisodeRerun.__init__
+
+    def cut_on_close(self, request, env):
+        real(self, request, env)
+        disconnect = self.stream.disconnect
+
+        def disconnect_and_cut():
+            disconnect()
+            data = self.tmp.read_bytes()
+            self.tmp.write_bytes(data[: len(data) // 2])
+
+        monkeypatch.setattr(self.stream, "disconnect", disconnect_and_cut)
+
+    monkeypatch.setattr(rerun_recording.EpisodeRerun, "__init__", cut_on_close)
+    spec = EpisodeSpec.of(
+        TABLE, "kf", "lqr", seed=0, max_steps=10, rerun=RerunRequest(str(tmp_path / "x.rrd"), "x")
+    )
+    with pytest.raises(WriteError, match=r"could not write .*x\.rrd: the recording is incomplete"):
+        run_episode(spec)
+    assert list(tmp_path.iterdir()) == []

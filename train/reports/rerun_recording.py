@@ -29,7 +29,7 @@ The file carries a default layout for the viewer (a blueprint): the 3-D world be
 camera's images and the plots.
 
 The file is streamed under a temp name beside it (``.NAME.rrd.tmp-PID``, the house's
-pattern) and renamed into place when the episode ends
+pattern) and renamed into place when the episode ends, once its footer reads back whole
 (:func:`~observer_gym.train.core.atomic_write.replace_atomically`); an episode that fails
 or is interrupted removes the temp (:meth:`EpisodeRerun.abort`).
 """
@@ -39,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import uuid
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -340,10 +341,20 @@ class EpisodeRerun:
         """Close the file and move it into place; its path."""
 
         def close(tmp: Path) -> None:
+            from rerun.chunk import RrdReader
+
             self.stream.flush()
             self.stream.disconnect()  # closes the file sink: the footer is written
             if not tmp.is_file() or tmp.stat().st_size == 0:
                 raise OSError(f"rerun wrote nothing to {tmp.name}")
+            # rerun's writer reports a failed write (a full disk) in its log, not to the
+            # caller: the file is whole if its footer reads back (a few ms)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # rerun's own warning for a missing footer
+                try:
+                    RrdReader(tmp).store()
+                except (RuntimeError, ValueError) as exc:
+                    raise OSError(f"the recording is incomplete: {exc}") from exc
 
         replace_atomically(self.path, close)
         return self.path
