@@ -119,6 +119,13 @@ def test_ball_table_one_image_per_delivered_frame_and_the_truth_on_the_true_tabl
     centre = T[:3, :3] @ np.array([info["state"][0], info["state"][1], 0.025]) + T[:3, 3]
     truth = logged.at("/world/ball/truth", info["time_s"], "Points3D:positions")
     np.testing.assert_allclose(truth[0], centre, atol=1e-6)
+    # the arm: from its base (the world's origin) to the flange, which holds the table's
+    # top 55 mm above it along the table's normal (envs/ball_table/geometry.py)
+    assert logged.count("/world/robot", "LineStrips3D:strips") == len(infos)
+    joints = np.asarray(logged.at("/world/robot", info["time_s"], "LineStrips3D:strips")[0])
+    np.testing.assert_allclose(joints[0], [0.0, 0.0, 0.0], atol=1e-6)
+    flange_in_table = T[:3, :3].T @ (joints[-1] - T[:3, 3])
+    np.testing.assert_allclose(flange_in_table, [0.0, 0.0, -0.055], atol=1e-5)
     # the table drawn as the five boxes of its URDF (top and four borders)
     boxes = logged.rows["/world/table/boxes"][0][1]
     assert len(boxes["Boxes3D:half_sizes"]) == 5

@@ -11,8 +11,8 @@ takes the step's ``info`` and logs, on the one timeline ``sim_time_s`` (the env'
   position), and ``world/ball/estimate/ellipsoid``: the 2-sigma ellipsoid of the estimate's
   position covariance (world frame), from its eigendecomposition;
 - ``world/table`` (BallTable) and ``world/box`` (BallCatcher): the body's true pose and, once,
-  its visual boxes as PyBullet holds them (``getVisualShapeData``); the robot arm is not
-  drawn (its meshes are not logged);
+  its visual boxes as PyBullet holds them (``getVisualShapeData``); ``world/robot``: the arm
+  as a line through its base and its links' frames (its meshes are not logged);
 - ``world/camera<i>/nominal`` and ``world/camera<i>/true``: each camera's pose
   (``T_world_cam``) and pinhole (``K``, so the viewer draws its frustum) as the observer was
   told and as the world's camera was, at every frame the camera delivers; under
@@ -63,7 +63,8 @@ APPLICATION_ID = "observer-gym"
 TIMELINE = "sim_time_s"
 JPEG_QUALITY = 90
 BALL_RADIUS_M = 0.025  # BallTable's and BallCatcher's ball (drawn at this radius)
-FRUSTUM_DEPTH_M = 0.1  # where the viewer draws each camera's image plane
+FRUSTUM_DEPTH_M = 0.1
+ARM_RGB = (255, 140, 0)  # where the viewer draws each camera's image plane
 # The scene's bodies drawn as boxes, per system: the env scene's attribute holding the
 # PyBullet body and the info entry holding its true pose (4x4, world from body)
 SCENE_BODIES = {
@@ -155,6 +156,32 @@ def ellipsoid_axes(covariance_m2: np.ndarray, sigmas: float = 2.0) -> tuple[np.n
     return half_sizes, Rotation.from_matrix(vectors).as_quat()
 
 
+def _arm_of(env: Any) -> tuple[Any, int, int] | None:
+    """The scene's robot arm as (PyBullet client, body, number of links), None without
+    one (TargetFollower)."""
+    base = env.unwrapped
+    arm = getattr(getattr(base, "scene", None), "arm", None)
+    body = getattr(arm, "body", None)
+    if body is None:
+        return None
+    client = base.sim.client
+    return client, body, int(client.getNumJoints(body))
+
+
+def arm_joints_world(arm: tuple[Any, int, int]) -> np.ndarray:
+    """The arm's base and each link's frame origin (n + 1, 3) in the world frame, now."""
+    client, body, links = arm
+    # PyBullet gives the base's centre of mass: its link frame is that times the inverse
+    # of the inertial frame's offset
+    com_m, com_quat = client.getBasePositionAndOrientation(body)
+    inertial_m, inertial_quat = client.getDynamicsInfo(body, -1)[3:5]
+    base_m, _ = client.multiplyTransforms(
+        com_m, com_quat, *client.invertTransform(inertial_m, inertial_quat)
+    )
+    states = client.getLinkStates(body, list(range(links)), computeForwardKinematics=True)
+    return np.array([base_m, *(state[4] for state in states)], dtype=float)
+
+
 def _box_shapes(env: Any, attribute: str) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, Any]]:
     """The visual boxes of the scene's body ``attribute``: (half sizes, centre,
     quaternion xyzw, RGBA 0-255) in the body's frame, as PyBullet holds them (the fixed
@@ -198,6 +225,7 @@ class EpisodeRerun:
         self.error_entries = ERROR_ENTRIES.get(self.system)
         self.model_holds_key = getattr(base, "model_holds_key", None)
         self.overlay = FrameOverlay(env)
+        self.arm = _arm_of(env)
         self.images_logged = 0
         self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         self.stream.set_log_time_enabled(False)  # one timeline: the simulation's
@@ -262,6 +290,8 @@ class EpisodeRerun:
             if key in info:
                 T = np.asarray(info[key], dtype=float)
                 log(f"world/{attribute}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        if self.arm is not None:
+            log("world/robot", rr.LineStrips3D([arm_joints_world(self.arm)], colors=[ARM_RGB]))
         state = np.asarray(info["state"], dtype=float)
         truth = ball_in_world(self.system, info, state)
         if truth is not None:
