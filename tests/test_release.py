@@ -62,6 +62,7 @@ PACKAGE_DATA = {
 }
 
 
+@pytest.mark.slow  # builds the wheel (4 s); CI's plain-install step builds and installs it too
 def test_the_wheel_holds_every_package_and_its_data(tmp_path):
     """A plain `pip install .` installs the wheel: every source folder with an __init__.py
     is in it as its mapped package (envs/robots/ as observer_gym/envs/robots/), with its

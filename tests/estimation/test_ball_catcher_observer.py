@@ -71,6 +71,7 @@ def test_detector_finds_the_ball_centre_to_a_tenth_of_a_pixel():
     assert np.abs(errors).max() < 0.5
 
 
+@pytest.mark.slow  # renders many noisy frames: 2.6 s (load ~2)
 def test_detector_rarely_takes_noise_for_the_ball_at_the_heaviest_image_noise():
     """image_noise_std=64 (the env's maximum), 4 flights, frames with the ball wholly in
     view: detections more than 3 px from the projected centre are false (a blob of noise

@@ -167,6 +167,7 @@ def test_detector_on_84x84_frames(small_frames):
     assert np.max(np.abs(tilt)) < WORST_TILT_ERROR_BOUND_RAD
 
 
+@pytest.mark.slow  # a rendered episode: 2.2 s (load ~2)
 def test_occluder_at_84x84_never_gives_a_wrong_pose():
     """With the occluder passing over the table, every pose found is within the worst
     bounds; where only the red top's or the outline's square is left (~30 px a side), the

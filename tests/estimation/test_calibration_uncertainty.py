@@ -89,7 +89,7 @@ def test_no_calibration_error_gives_none():
         # the same with 0.04 s of latency: the filters start before the first frame, their
         # offset prior from the nominal scene (observer.py, _start_calibration). Measured
         # 0.80 (kf) and 2.45 (kf-latency); 1.85 and 7.96 with no offset states then.
-        (
+        pytest.param(  # with latency: 2.1 s (load ~2), slow
             "BallTable-v0",
             "kf",
             "lqr",
@@ -97,8 +97,9 @@ def test_no_calibration_error_gives_none():
             {"calib_rotation_error_deg": 1.0, "latency_s": 0.04},
             1 / 3,
             3.0,
+            marks=pytest.mark.slow,
         ),
-        (
+        pytest.param(  # with latency: 2.1 s (load ~2), slow
             "BallTable-v0",
             "kf-latency",
             "lqr",
@@ -106,6 +107,7 @@ def test_no_calibration_error_gives_none():
             {"calib_rotation_error_deg": 1.0, "latency_s": 0.04},
             1 / 3,
             3.0,
+            marks=pytest.mark.slow,
         ),
         # BallCatcher kf: the calibration as pixel variance in R (measured 0.34 at 2 %
         # focal error, 12.9 without it); a constant offset taken as white noise leaves the

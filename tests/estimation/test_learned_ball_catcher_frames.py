@@ -47,6 +47,7 @@ def _new_frames():
     return ball_catcher_data.collect_frames(3, NEW_SEED, crop_px=None)
 
 
+@pytest.mark.slow  # renders a new seed's frames: 3.6 s (load ~2)
 def test_the_detector_reads_whole_frames_of_a_new_seed_within_its_measured_error():
     """3 throws of a new seed, 141 whole frames (133 with the ball's centre in the image),
     measured: RMSE 0.120 and 0.110 px (u, v) over the frames both it and the label

@@ -49,7 +49,10 @@ DETECTOR_BOUNDS = {
 }
 
 
-@pytest.fixture(scope="module", params=list(SYSTEMS))
+@pytest.fixture(  # BallTable's frames (its detector 3.9 s, its closed loop 5.4 s at load ~2): slow
+    scope="module",
+    params=[pytest.param(s, marks=pytest.mark.slow) if s == "BallTable-v0" else s for s in SYSTEMS],
+)
 def system(request):
     return request.param
 

@@ -108,7 +108,9 @@ def _closed_loop(make_env, obs_mode, hold_s, steps, occlusions_s=(4.0,), **kwarg
     return trace
 
 
-@pytest.mark.parametrize("obs_mode", ["rgb", "measurements"])
+@pytest.mark.parametrize(  # rgb: 2 x 170 rendered steps, 3.7 s (load ~2): slow
+    "obs_mode", [pytest.param("rgb", marks=pytest.mark.slow), "measurements"]
+)
 def test_predicts_through_3_s_of_full_occlusion_and_tracking_resumes(make_env, obs_mode):
     trace = _closed_loop(make_env, obs_mode, hold_s=3.0, steps=170)
     unoccluded = _closed_loop(make_env, obs_mode, hold_s=3.0, steps=170, occlusions_s=())

@@ -11,6 +11,10 @@ Profiles (chosen by the environment variable HYPOTHESIS_PROFILE, default "ci"):
   (``.ci/run``), reproducible like "ci".
 - "dev": the ci examples without shrinking (a failure is reported at once, unshrunk).
 
+Every test here carries the ``fuzz`` marker (added at collection, below): the default run
+(``-m 'not slow and not fuzz'``) leaves them to CI's fuzzing step, which runs them with the
+"long" profile; ``pytest -m fuzz tests/fuzz`` runs them with the "ci" profile.
+
 At the end of the run the table of what was tried per category (accepted, or rejected
 with a ValueError) is printed, summed over the xdist workers.
 """
@@ -41,6 +45,14 @@ PROFILE = os.environ.get("HYPOTHESIS_PROFILE", "ci")
 settings.load_profile(PROFILE)
 
 _GATHERED: Counter[tuple[str, str]] = Counter()
+_HERE = os.path.dirname(__file__)
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects by marker
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if str(item.path).startswith(_HERE + os.sep):
+            item.add_marker(pytest.mark.fuzz)
 
 
 def pytest_sessionfinish(session):

@@ -60,6 +60,7 @@ def test_sweep_over_pixel_noise_keeps_the_world(tmp_path):
     assert len(results["cells"]) == 2
 
 
+@pytest.mark.slow  # a real PPO training: 2.6 s (load ~2)
 def test_train_then_run_the_agent(tmp_path):
     out = tmp_path / "agent"
     argv = ["train", *ENV, "--algo", "ppo", "--obs", "estimate", "--timesteps", "64"]

@@ -169,6 +169,7 @@ def test_a_resumed_runs_timing_holds_its_levels_times(folder, tmp_path):
     assert resumed["wall_s"] >= sum(levels_s.values())
 
 
+@pytest.mark.slow  # a benchmark of three levels: 2.3 s (load ~2)
 def test_off_a_terminal_each_finished_level_is_one_line_on_stderr(tmp_path, capsys):
     argv = [a for a in ARGV if a != "--no-progress"]
     argv[argv.index("--episodes") + 1] = "1"

@@ -67,6 +67,7 @@ def test_compare_refuses_another_commands_folder(tmp_path, capsys, make, kind):
         run_comparison("BallTable-v0", "oracle", "lqr", [0], out, steps=5, progress=False)
 
 
+@pytest.mark.slow  # every command twice: 6.4 s (load ~2)
 def test_a_command_writes_again_into_its_own_folder(tmp_path):
     out = tmp_path / "out"
     _run(out)

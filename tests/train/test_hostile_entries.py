@@ -80,7 +80,9 @@ def test_a_covariance_the_nees_cannot_use_is_refused(hostile, tmp_path, kind, wh
 
 
 # --- 17 and 11: an exception, or sys.exit, part-way ----------------------------------------------
-@pytest.mark.parametrize("workers", ["1", "2"])
+@pytest.mark.parametrize(  # two workers: processes of their own, 1.5-3 s each (load ~2): slow
+    "workers", ["1", pytest.param("2", marks=pytest.mark.slow)]
+)
 @pytest.mark.parametrize(
     ("observer", "controller", "said"),
     [

@@ -86,6 +86,7 @@ def run(tiny_run, tmp_path) -> Path:
 RESUME = ["train", "--no-progress", "--timesteps", str(3 * STEPS), "--resume"]
 
 
+@pytest.mark.slow  # resumes a PPO training: 3.6 s (load ~2)
 def test_resume_replaces_linked_eval_and_monitor_files_never_writing_through(run, tmp_path):
     outside = tmp_path / "outside"
     outside.mkdir()
@@ -314,6 +315,7 @@ def test_check_of_episodes_linked_to_dev_zero_is_one_line(tmp_path, capsys):
     assert "episodes.csv is not a regular file" in line
 
 
+@pytest.mark.slow  # runs a benchmark level twice: 2.8 s (load ~2)
 def test_a_nan_in_a_level_file_runs_the_level_again(tmp_path):
     request = check_benchmark("BallCatcher-v1", "kf-measurements", "intercept", episodes=2)
     out = tmp_path / "bench"

@@ -156,6 +156,7 @@ def test_a_killed_training_run_is_reported_and_its_temps_removed(tmp_path, capfd
     assert state["status"] == "finished" and state["timesteps"] == target
 
 
+@pytest.mark.slow  # kills a command line process and runs the next: 2.6 s (load ~2)
 def test_a_killed_run_into_a_folder_is_reported_by_the_next(tmp_path, capsys):
     out = tmp_path / "out"
     command = [

@@ -81,6 +81,7 @@ def test_outside_entries_run_beside_the_builtins_and_give_their_numbers(outside,
     assert f"- observer {DELEGATE} ({PACKAGE} not installed)" in table
 
 
+@pytest.mark.slow  # two worker processes and two runs: 7.8 s (load ~2)
 def test_an_alpha_beta_observer_runs_with_its_options_and_one_worker_equals_two(outside, tmp_path):
     runs = [
         observer_gym.run(

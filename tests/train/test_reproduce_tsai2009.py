@@ -51,6 +51,7 @@ def test_short_study_orders_the_filters_as_the_paper(capsys):
     assert study["ended_early"] == 0
 
 
+@pytest.mark.slow  # two reproductions: 3 s (load ~2)
 def test_the_targets_turning_is_what_sets_x_i_apart():
     """Why x_i misses its Table 2 target (docs/target_follower.md): without (44)'s turning,
     x_i's STKF/KF ratio is y_i's and within 1.25x the paper's; with it, x_i's ratio and

@@ -62,6 +62,7 @@ def test_every_shipped_agent_acts_as_its_fingerprint_says(name):
     assert sum(p.stat().st_size for p in folder.iterdir()) < MAX_AGENT_BYTES
 
 
+@pytest.mark.slow  # trains and ships an agent: 2.2 s (load ~2)
 def test_shipping_an_agent_makes_it_loadable_by_name(tmp_path, monkeypatch):
     run = tmp_path / "run"
     train_agent(

@@ -23,7 +23,11 @@ COMMANDS = {
 }
 
 
-@pytest.mark.parametrize("command", COMMANDS.values(), ids=COMMANDS.keys())
+@pytest.mark.parametrize(  # compare (3 s at load ~2) takes run's writer: slow
+    "command",
+    [pytest.param(argv, id=name, marks=[pytest.mark.slow] if name == "compare" else [])
+     for name, argv in COMMANDS.items()],
+)  # fmt: skip
 def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(command, tmp_path, capsys):
     out = tmp_path / "out"
     argv = [*command, "--episodes", "1", "--steps", "5", "--out", str(out), "--no-progress"]
