@@ -107,14 +107,14 @@ def delivered(infos, camera: int) -> int:
 
 def test_ball_table_one_image_per_delivered_frame_and_the_truth_on_the_true_table(tmp_path):
     path = tmp_path / "table.rrd"
-    infos = record(path, TABLE, "lqr", 25)
+    infos = record(path, TABLE, "lqr", 12)
     logged = Logged(path)
     assert path.is_file() and not list(tmp_path.glob(".*tmp*"))
     images = logged.count("/world/camera0/true/image", "EncodedImage:blob")
     assert images == delivered(infos, 0) > 10
-    # the truth at step 20: the state's table-frame (x, y) at the ball's radius above the
+    # the truth at step 10: the state's table-frame (x, y) at the ball's radius above the
     # top, on the table's true pose
-    info = infos[20]
+    info = infos[10]
     T = np.asarray(info["T_world_table"])
     centre = T[:3, :3] @ np.array([info["state"][0], info["state"][1], 0.025]) + T[:3, 3]
     truth = logged.at("/world/ball/truth", info["time_s"], "Points3D:positions")
@@ -186,7 +186,7 @@ def test_the_image_matches_its_pinhole(tmp_path):
 
 
 def test_the_episode_is_the_same_with_and_without_a_recording_and_nees_is_the_runs(tmp_path):
-    spec = EpisodeSpec.of(CATCHER, "kf", "intercept", seed=5, max_steps=40)
+    spec = EpisodeSpec.of(CATCHER, "kf", "intercept", seed=5, max_steps=25)
     plain = run_episode(spec)
     path = tmp_path / "x.rrd"
     recorded = run_episode(dataclasses.replace(spec, rerun=RerunRequest(str(path), "x")))
@@ -202,6 +202,7 @@ def test_the_episode_is_the_same_with_and_without_a_recording_and_nees_is_the_ru
         assert by_time[round(float(t), 9)] == pytest.approx(nees, rel=1e-12)
 
 
+@pytest.mark.slow  # two runs of the command
 def test_run_with_and_without_rerun_gives_the_same_episodes(tmp_path, capsys):
     argv = ["run", "--observer", "kf", "--controller", "lqr", "--episodes", "2", "--steps", "8"]
     argv += ["--no-progress"]
