@@ -28,6 +28,10 @@ VIDEO_MODULES = ("imageio", "imageio_ffmpeg")
 # Minari's DataCollector needs JAX's tree utilities and h5py (minari[create,hdf5])
 RECORD_INSTALL = "pip install 'observer-gym[record]'"
 RECORD_MODULES = ("minari", "jax", "h5py")
+# ``--rerun FILE.rrd`` (observer_gym.train.reports.rerun_recording) writes a recording
+# for the rerun viewer with rerun-sdk
+RERUN_INSTALL = "pip install 'observer-gym[rerun]'"
+RERUN_MODULES = ("rerun",)
 # what a trained agent (stable-baselines3) needs; a learned observer needs torch only
 AGENT_MODULES = ("stable_baselines3", "torch")
 TORCH_MODULES = ("torch",)
@@ -36,13 +40,14 @@ _SHOWN = {
     "torch": "PyTorch",
     "stable_baselines3": "stable-baselines3",
     "imageio_ffmpeg": "imageio-ffmpeg",
+    "rerun": "rerun-sdk",
 }
 
 
 class ExtraNotInstalled(ImportError):
     """What was asked for needs an extra (``[rl]``: PyTorch, stable-baselines3;
-    ``[video]``: imageio, imageio-ffmpeg) that is not installed; the message names the
-    install line.
+    ``[video]``: imageio, imageio-ffmpeg; ``[record]``: minari; ``[rerun]``: rerun-sdk)
+    that is not installed; the message names the install line.
 
     An ImportError, as the failed import itself would be (code that tolerates a missing
     optional dependency catches ImportError), not a ValueError: the request is valid, the
@@ -86,6 +91,13 @@ def require_record(what: str = "observer-gym record") -> None:
     h5py) is installed: "observer-gym record needs minari, which is not installed: pip
     install 'observer-gym[record]'"."""
     _require(what, RECORD_MODULES, RECORD_INSTALL)
+
+
+def require_rerun(what: str = "--rerun") -> None:
+    """Raise :class:`ExtraNotInstalled` unless the ``[rerun]`` extra (rerun-sdk) is
+    installed: "--rerun needs rerun-sdk, which is not installed: pip install
+    'observer-gym[rerun]'"."""
+    _require(what, RERUN_MODULES, RERUN_INSTALL)
 
 
 def _require(what: str, modules: Iterable[str], install: str) -> None:

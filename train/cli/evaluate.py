@@ -13,6 +13,7 @@ from observer_gym.train.cli.args import (
     command_error,
     recorded_args,
 )
+from observer_gym.train.cli.rerun_options import add_rerun_arguments, rerun_options
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import folder_path, nonnegative_int, positive_int
 from observer_gym.train.core.messages import error_line
@@ -54,6 +55,7 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_output_arguments(parser, "evaluate")
     add_video_arguments(parser)
+    add_rerun_arguments(parser)
 
 
 def _evaluate_run(args: argparse.Namespace) -> int:
@@ -85,6 +87,12 @@ def _evaluate_run(args: argparse.Namespace) -> int:
             if args.video is not None:
                 check_video_observer(obs_mode, observer)
         videos = video_options(args)
+        recording = rerun_options(args)
+        if multi_seed and recording:
+            raise ValueError(
+                "--rerun records one agent's episode: give one seed's run "
+                "(--model DIR/seed_<s>), not the multi-seed run"
+            )
     except (ValueError, ImportError) as exc:  # no agent there, or an observer it cannot read
         return command_error("evaluate", exc)
 
@@ -103,6 +111,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
         "progress": not args.no_progress,
         "cli_args": recorded_args(args),
         **videos,
+        **recording,
     }
     try:
         if multi_seed:

@@ -15,6 +15,7 @@ from observer_gym.train.cli.args import (
     controller_name,
     recorded_args,
 )
+from observer_gym.train.cli.rerun_options import add_rerun_arguments, rerun_options
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
@@ -98,6 +99,7 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
     add_video_arguments(parser)
+    add_rerun_arguments(parser)
 
 
 def _run_run(args: argparse.Namespace) -> int:
@@ -111,6 +113,7 @@ def _run_run(args: argparse.Namespace) -> int:
         obs_mode = observer_mode(env_id, args.observer)
         check_env_options(env_id, obs_mode, dict(args.env_option))
         videos = video_options(args)
+        recording = rerun_options(args)
     except ValueError as exc:  # an observer, controller or env option the env does not take
         return command_error("run", exc)
 
@@ -133,6 +136,7 @@ def _run_run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             cli_args=recorded_args(args),
             **videos,
+            **recording,
         )
     except EpisodeError as exc:  # an episode failed part-way: nothing written
         print(error_line("observer-gym run", exc), file=sys.stderr)

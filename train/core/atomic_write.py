@@ -23,6 +23,14 @@ def write_error(path: Path, exc: BaseException) -> WriteError:
     return WriteError(f"could not write {path}: {' '.join(str(exc).split())}")
 
 
+def temp_path_for(path: str | os.PathLike) -> Path:
+    """The temp :func:`replace_atomically` writes ``path`` through: ``.NAME.tmp-PID``
+    beside it (a writer that streams into the file before the rename, such as a rerun
+    recording, opens this one)."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
 def replace_atomically(path: str | os.PathLike, write: Callable[[Path], Any]) -> None:
     """Write with ``write(tmp_path)`` then rename onto ``path`` (atomic on POSIX), with
     SIGINT and SIGTERM held until both are done
@@ -31,7 +39,7 @@ def replace_atomically(path: str | os.PathLike, write: Callable[[Path], Any]) ->
     it was and :class:`WriteError` names it (an ``OSError`` from the file system, or a
     ``RuntimeError`` from PyTorch's zip writer, which reports a full disk so)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = temp_path_for(path)
     with signals_deferred():
         try:
             write(tmp)

@@ -220,13 +220,17 @@ def run(
     cli_args: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_file: str | Path | None = None,
+    rerun_episode: int | None = None,
 ) -> RunResult:
     """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env``
     (:func:`observer_gym.train.experiments.run.run_experiment`): episode i resets with
     ``seed + i`` (or ``seeds``, consecutive: the module docstring); writes results.json
     and the env's plots into ``out_dir`` (default: a new folder under runs/).
     ``observer_options`` and ``controller_options`` go to an outside observer's and
-    controller's factory. ValueError for a bad input, before anything
+    controller's factory. ``video_dir`` and ``video_episodes``: MP4s of episodes
+    (docs/watch.md); ``rerun_file``: a ``.rrd`` recording of episode ``rerun_episode``
+    (default 0) for the rerun viewer. ValueError for a bad input, before anything
     runs; :class:`observer_gym.train.experiments.episode.EpisodeError` for an episode that fails
     part-way (nothing is written).
 
@@ -265,6 +269,8 @@ def run(
             controller_options=controller_options,
             video_dir=video_dir,
             video_episodes=video_episodes,
+            rerun_file=rerun_file,
+            rerun_episode=rerun_episode,
         )
     return _run_result(results, results_text(results))
 
@@ -512,12 +518,15 @@ def evaluate(
     cli_args: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_file: str | Path | None = None,
+    rerun_episode: int | None = None,
 ) -> RunResult:
     """Episodes of the agent trained in the folder ``model`` (one seed's run; or a shipped
     agent by name, ``"ppo:ball_table-estimate"`` or ``"ball_table-estimate"``) on its env
     with its training options, reading what it was trained on or ``observer``
     (:func:`observer_gym.train.experiments.evaluate.evaluate_agent`); ``video_dir``: MP4s
-    of the episodes ``video_episodes`` as :func:`run`'s.
+    of the episodes ``video_episodes`` and ``rerun_file``: a rerun recording of episode
+    ``rerun_episode``, as :func:`run`'s.
 
     Example, a shipped agent (PPO on the kf's estimate of BallTable):
         >>> import tempfile
@@ -549,5 +558,7 @@ def evaluate(
             cli_args=cli_args,
             video_dir=video_dir,
             video_episodes=video_episodes,
+            rerun_file=rerun_file,
+            rerun_episode=rerun_episode,
         )
     return _run_result(results, results_text(results, "evaluate"))

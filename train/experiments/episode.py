@@ -40,6 +40,7 @@ from observer_gym.train.reports.outputs import (
 )
 from observer_gym.train.reports.parent_watch import end_with_parent
 from observer_gym.train.reports.progress import progress_bar
+from observer_gym.train.reports.rerun_recording import RerunRequest
 from observer_gym.train.reports.video import EpisodeVideo, VideoRequest
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import parse_agent_spec
@@ -90,6 +91,9 @@ class EpisodeSpec:
     # where this episode's video goes (observer_gym.train.reports.video), None for none;
     # the video only reads what the episode produces, so the record is the same
     video: VideoRequest | None = None
+    # where this episode's rerun recording goes (observer_gym.train.reports.rerun_recording),
+    # None for none; like the video it only reads what the episode produces
+    rerun: RerunRequest | None = None
 
     @classmethod
     def of(
@@ -250,7 +254,12 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         rewards: list[float] = []
         terminated = truncated = False
         video = None if spec.video is None else EpisodeVideo(spec.video, env)
+        recording = None
         try:
+            if spec.rerun is not None:
+                from observer_gym.train.reports.rerun_recording import EpisodeRerun
+
+                recording = EpisodeRerun(spec.rerun, env)
             obs, info = env.reset(seed=spec.seed, options=spec.reset_options)
             # The ground truth as the env gave it, copied before any entry sees the step
             # (outside entries are shown read-only copies: entry_guard).
@@ -259,6 +268,8 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
             samples = [info]
             if video is not None:
                 video.add(info, 0)
+            if recording is not None:
+                recording.add(info, 0)
             while not (terminated or truncated) and (
                 spec.max_steps is None or len(actions) < spec.max_steps
             ):
@@ -271,8 +282,12 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
                 samples.append(info)
                 if video is not None:
                     video.add(info, len(actions), actions[-1])
+                if recording is not None:
+                    recording.add(info, len(actions), actions[-1])
             if video is not None:
                 video.finish()
+            if recording is not None:
+                recording.finish()
         except ValueError as exc:  # an observer's or controller's fault: which episode, when
             raise EpisodeError(
                 f"{exc} (episode seed {spec.seed}, after {len(actions)} steps)"
@@ -280,6 +295,8 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
         finally:
             if video is not None:
                 video.abort()  # after finish() a no-op; else the temps go
+            if recording is not None:
+                recording.abort()  # after finish() the temp is gone already
         record: dict[str, Any] = {
             # Rounded to the nanosecond: the env sums dt, which leaves float dust (0.74000..03).
             "time_s": np.round([s["time_s"] for s in samples], 9),

@@ -51,6 +51,8 @@ def evaluate_agent(
     cli_args: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_file: str | Path | None = None,
+    rerun_episode: int | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed``, ``seed + 1``, ...) of the agent trained
     in ``run_dir`` on its env with its training env options, reading ``observer``'s output
@@ -60,7 +62,8 @@ def evaluate_agent(
     of a run that has not finished. A run that was killed
     (:func:`~observer_gym.train.rl.run_dir.read_state`) is reported with an
     :class:`~observer_gym.train.reports.outputs.OutputFolderWarning` naming the checkpoint used.
-    ``video_dir``, ``video_episodes``: videos of episodes, as :func:`run_experiment`'s."""
+    ``video_dir``, ``video_episodes``: videos of episodes, and ``rerun_file``,
+    ``rerun_episode``: a rerun recording of one, as :func:`run_experiment`'s."""
     config = read_config(run_dir)
     _, _, trained_steps = model_files(run_dir)  # a clear error now if there is nothing to load
     state = read_state(run_dir)
@@ -85,6 +88,8 @@ def evaluate_agent(
         cli_args=cli_args,
         video_dir=video_dir,
         video_episodes=video_episodes,
+        rerun_file=rerun_file,
+        rerun_episode=rerun_episode,
     )
 
 

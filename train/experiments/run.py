@@ -18,7 +18,14 @@ from observer_gym.train.core import entries
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, check_entries, run_episodes
 from observer_gym.train.experiments.request import Request, check_pair, resolve_request
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
+from observer_gym.train.experiments.videos import (
+    RerunPlan,
+    VideoPlan,
+    plan_rerun,
+    plan_videos,
+    with_rerun,
+    with_videos,
+)
 from observer_gym.train.reports.consistency import (
     NEES_COLUMN,
     consistency_text,
@@ -54,6 +61,8 @@ def run_experiment(
     controller_options: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_file: str | Path | None = None,
+    rerun_episode: int | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` closed-loop episodes; write results and plots.
 
@@ -93,6 +102,10 @@ def run_experiment(
         video_dir: write a video of the episodes ``video_episodes`` (indices, default the
             first) into this folder (:mod:`observer_gym.train.experiments.videos`); the
             results are the same with and without.
+        rerun_file: write a recording of episode ``rerun_episode`` (an index, default 0)
+            into this ``.rrd`` file for the rerun viewer
+            (:mod:`observer_gym.train.reports.rerun_recording`); the results are the same
+            with and without.
 
     Returns:
         What ``results.json`` holds (JSON types).
@@ -115,6 +128,7 @@ def run_experiment(
     )  # fmt: skip
     observer_entry, controller_entry = request.observers[0], request.controllers[0]
     videos = plan_videos(video_dir, video_episodes, episodes, env_id, [observer])
+    rerun = plan_rerun(rerun_file, rerun_episode, episodes)
     check_entries(
         env_id, observer, controller, env_kwargs, observer_entry.options,
         controller_entry.options, seed,
@@ -124,7 +138,7 @@ def run_experiment(
     # and again once the folder is this run's alone (another command may have written it)
     with output_folder(out_dir, "run", check=lambda folder: check_folder_kind(folder, "run")):
         return _run_into(
-            out_dir, request, reset_options, cli_args, progress, videos,
+            out_dir, request, reset_options, cli_args, progress, videos, rerun,
         )  # fmt: skip
 
 
@@ -135,6 +149,7 @@ def _run_into(
     cli_args: Mapping[str, Any] | None,
     progress: bool,
     videos: VideoPlan | None = None,
+    rerun: RerunPlan | None = None,
 ) -> dict[str, Any]:
     """:func:`run_experiment`'s episodes and outputs, its request checked."""
     observer, controller = request.observers[0], request.controllers[0]
@@ -153,7 +168,7 @@ def _run_into(
         )
         for seed in seeds
     ]
-    specs = with_videos(specs, videos, len(seeds))
+    specs = with_rerun(with_videos(specs, videos, len(seeds)), rerun)
     tic_s = time.perf_counter()
     records = run_episodes(specs, request.workers, progress)
     wall_time_s = time.perf_counter() - tic_s

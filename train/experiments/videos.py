@@ -1,10 +1,13 @@
-"""``--video DIR`` for the experiments: which episodes get a video, checked before any runs.
+"""``--video DIR`` and ``--rerun FILE.rrd`` for the experiments: which episodes get a video
+or a rerun recording, checked before any runs.
 
 :func:`plan_videos` checks a request for videos once, up front (the ``[video]`` extra
 installed, every observer reading camera images, the episode indices within the run, the
 folder writable) and :func:`with_videos` marks the chosen episodes' specs, so that
 :func:`~observer_gym.train.experiments.episode.run_episode` writes their videos as they
-run (:mod:`observer_gym.train.reports.video`), in whichever process runs them.
+run (:mod:`observer_gym.train.reports.video`), in whichever process runs them;
+:func:`plan_rerun` and :func:`with_rerun` do the same for one episode's rerun recording
+(:mod:`observer_gym.train.reports.rerun_recording`).
 """
 
 from __future__ import annotations
@@ -14,9 +17,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from observer_gym.envs import system_for_id
-from observer_gym.extras import require_video
+from observer_gym.extras import require_rerun, require_video
 from observer_gym.train.core.observer_env import observer_setup
 from observer_gym.train.experiments.episode import EpisodeSpec
+from observer_gym.train.reports.rerun_recording import RerunRequest, check_rerun_file
 from observer_gym.train.reports.video import (
     VideoRequest,
     check_video_folder,
@@ -83,4 +87,47 @@ def with_videos(
             )
             spec = dataclasses.replace(spec, video=VideoRequest(str(plan.folder), stem))
         marked.append(spec)
+    return marked
+
+
+@dataclasses.dataclass(frozen=True)
+class RerunPlan:
+    """The ``.rrd`` file and the episode recorded into it (its index in the run)."""
+
+    path: Path
+    episode: int
+
+
+def plan_rerun(
+    rerun_file: str | Path | None, rerun_episode: int | None, episodes: int
+) -> RerunPlan | None:
+    """The checked plan of a rerun recording, None without ``rerun_file``. Raises, before
+    anything runs: :class:`~observer_gym.extras.ExtraNotInstalled` without the
+    ``[rerun]`` extra, ValueError for a file not ending in ``.rrd`` or an episode index
+    outside 0..episodes-1 (or given without a file),
+    :class:`~observer_gym.train.core.atomic_write.WriteError` for a folder that cannot be
+    written."""
+    if rerun_file is None:
+        if rerun_episode is not None:
+            raise ValueError("a rerun episode was given without a rerun file (--rerun FILE.rrd)")
+        return None
+    require_rerun()
+    episode = 0 if rerun_episode is None else int(rerun_episode)
+    if not 0 <= episode < episodes:
+        raise ValueError(
+            f"rerun episode {episode} is outside the run's episodes 0..{episodes - 1} "
+            "(indices from 0: episode i resets with seed + i)"
+        )
+    return RerunPlan(check_rerun_file(rerun_file), episode)
+
+
+def with_rerun(specs: Sequence[EpisodeSpec], plan: RerunPlan | None) -> list[EpisodeSpec]:
+    """``specs`` (one per episode of a run) with a
+    :class:`~observer_gym.train.reports.rerun_recording.RerunRequest` on the planned one."""
+    if plan is None:
+        return list(specs)
+    marked = list(specs)
+    spec = marked[plan.episode]
+    name = video_stem(spec.env_id, spec.observer, spec.controller, plan.episode, spec.seed)
+    marked[plan.episode] = dataclasses.replace(spec, rerun=RerunRequest(str(plan.path), name))
     return marked

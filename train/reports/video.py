@@ -164,99 +164,26 @@ class _Stream:
         self.tmp.unlink(missing_ok=True)
 
 
-class EpisodeVideo:
-    """The videos of one episode (one per camera), written as the episode runs.
+class FrameOverlay:
+    """Draws what the observer made of each delivered frame on its image (OpenCV): the
+    detection, the truth through the true camera (and through the nominal one under a
+    calibration error), the estimate with its 2-sigma ellipse, the frame's age and the
+    frames dropped since the camera's last one (so it keeps each camera's last capture
+    time: one instance per episode). What a video frame (:class:`EpisodeVideo`) and a
+    rerun recording (:mod:`observer_gym.train.reports.rerun_recording`) show."""
 
-    Call :meth:`add` with the reset's ``info`` (``step`` 0, no action) and each step's,
-    then :meth:`finish`; on any failure :meth:`abort` removes the temps (use it as a
-    context manager: ``finish`` on a normal exit, ``abort`` on an exception). ``fps``:
-    the video's frame rate (default the camera's frame rate, so it plays in real time).
-    """
-
-    def __init__(self, request: VideoRequest, env: Any, fps: float | None = None) -> None:
-        from observer_gym.envs import system_of
-
-        self.folder = Path(request.folder)
-        self.stem = request.stem
+    def __init__(self, env: Any) -> None:
         base = env.unwrapped
-        self.env = env
-        self.num_cameras = int(base.rig.num_cameras)
         self.period_s = 1.0 / float(base.config.frame_rate_hz)
-        self.fps = float(fps if fps is not None else base.config.frame_rate_hz)
         self.projection = projection_for(base)
-        self.error_entries = ERROR_ENTRIES.get(system_of(base).name)
-        self.streams: dict[int, _Stream] = {}
         self.last_capture_s: dict[int, float] = {}
-        self.errors: collections.deque[float] = collections.deque(maxlen=STRIP_STEPS)
-        self.actions: collections.deque[np.ndarray] = collections.deque(maxlen=STRIP_STEPS)
-        self.action_low = np.asarray(getattr(env.action_space, "low", [-1.0]), dtype=float)
-        self.action_high = np.asarray(getattr(env.action_space, "high", [1.0]), dtype=float)
-        self.paths: list[Path] = []
-
-    def path_for(self, camera_id: int) -> Path:
-        suffix = f"_camera{camera_id}" if self.num_cameras > 1 else ""
-        return self.folder / f"{self.stem}{suffix}.mp4"
-
-    def add(self, info: Mapping[str, Any], step: int, action: np.ndarray | None = None) -> None:
-        """Draw and send the frames ``info`` delivers (the reset's with ``step`` 0)."""
-        if action is not None:
-            self.actions.append(np.asarray(action, dtype=float).reshape(-1))
-        estimate = info.get("estimate")
-        if estimate is not None and self.error_entries is not None:
-            entries, _, scale = self.error_entries
-            difference = np.asarray(estimate["mean"])[entries] - np.asarray(info["state"])[entries]
-            self.errors.append(float(np.linalg.norm(difference) * scale))
-        for frame in delivered_frames(self.env, info, step):
-            if frame.image is None:
-                continue
-            drawn = self.draw(frame)
-            stream = self.streams.get(frame.camera_id)
-            if stream is None:
-                stream = _Stream(
-                    self.path_for(frame.camera_id), (drawn.shape[1], drawn.shape[0]), self.fps
-                )
-                self.streams[frame.camera_id] = stream
-            stream.send(drawn)
-
-    @property
-    def frames_written(self) -> dict[int, int]:
-        return {camera: stream.frames for camera, stream in self.streams.items()}
-
-    def finish(self) -> list[Path]:
-        """Close the encoders and move the files into place; their paths."""
-        for camera in sorted(self.streams):
-            stream = self.streams.pop(camera)
-            try:
-                stream.finish()
-            except BaseException:
-                self.abort()
-                raise
-            self.paths.append(stream.path)
-        return self.paths
-
-    def abort(self) -> None:
-        """Stop the encoders and remove the temps; nothing is renamed into place."""
-        for stream in self.streams.values():
-            stream.abort()
-        self.streams.clear()
-
-    def __enter__(self) -> EpisodeVideo:
-        return self
-
-    def __exit__(self, kind, value, traceback) -> None:
-        if kind is None:
-            self.finish()
-        else:
-            self.abort()
-
-    # drawing
 
     def scale_of(self, image: np.ndarray) -> int:
         """The image's enlargement in the video (small frames are doubled to read)."""
         return 2 if image.shape[0] < 400 else 1
 
     def draw(self, frame: DeliveredFrame) -> np.ndarray:
-        """The video frame of ``frame``: the image with its overlays, and the strip."""
+        """``frame``'s image, enlarged by :meth:`scale_of`, with its overlays."""
         assert frame.image is not None
         scale = self.scale_of(frame.image)
         image = cv2.resize(frame.image, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
@@ -323,12 +250,7 @@ class EpisodeVideo:
                 cv2.LINE_AA,
             )
             cv2.rectangle(image, (0, 0), (image.shape[1] - 1, height - 1), DROPPED_RGB, 2)
-        canvas = np.concatenate([image, self._strip(height)], axis=1)
-        # ffmpeg's yuv420p wants sizes in whole macroblocks: pad with black, never resize
-        pad_h, pad_w = -canvas.shape[0] % 16, -canvas.shape[1] % 16
-        if pad_h or pad_w:
-            canvas = cv2.copyMakeBorder(canvas, 0, pad_h, 0, pad_w, cv2.BORDER_CONSTANT, value=0)
-        return canvas
+        return image
 
     @staticmethod
     def _ellipse(image: np.ndarray, uv: np.ndarray, covariance: np.ndarray, scale: int) -> None:
@@ -339,6 +261,103 @@ class EpisodeVideo:
         angle = math.degrees(math.atan2(vectors[1, 0], vectors[0, 0]))
         centre = (round(float(uv[0]) * scale), round(float(uv[1]) * scale))
         cv2.ellipse(image, centre, axes, angle, 0, 360, ESTIMATE_RGB, 1, cv2.LINE_AA)
+
+
+class EpisodeVideo:
+    """The videos of one episode (one per camera), written as the episode runs.
+
+    Call :meth:`add` with the reset's ``info`` (``step`` 0, no action) and each step's,
+    then :meth:`finish`; on any failure :meth:`abort` removes the temps (use it as a
+    context manager: ``finish`` on a normal exit, ``abort`` on an exception). ``fps``:
+    the video's frame rate (default the camera's frame rate, so it plays in real time).
+    """
+
+    def __init__(self, request: VideoRequest, env: Any, fps: float | None = None) -> None:
+        from observer_gym.envs import system_of
+
+        self.folder = Path(request.folder)
+        self.stem = request.stem
+        base = env.unwrapped
+        self.env = env
+        self.num_cameras = int(base.rig.num_cameras)
+        self.fps = float(fps if fps is not None else base.config.frame_rate_hz)
+        self.overlay = FrameOverlay(env)
+        self.error_entries = ERROR_ENTRIES.get(system_of(base).name)
+        self.streams: dict[int, _Stream] = {}
+        self.errors: collections.deque[float] = collections.deque(maxlen=STRIP_STEPS)
+        self.actions: collections.deque[np.ndarray] = collections.deque(maxlen=STRIP_STEPS)
+        self.action_low = np.asarray(getattr(env.action_space, "low", [-1.0]), dtype=float)
+        self.action_high = np.asarray(getattr(env.action_space, "high", [1.0]), dtype=float)
+        self.paths: list[Path] = []
+
+    def path_for(self, camera_id: int) -> Path:
+        suffix = f"_camera{camera_id}" if self.num_cameras > 1 else ""
+        return self.folder / f"{self.stem}{suffix}.mp4"
+
+    def add(self, info: Mapping[str, Any], step: int, action: np.ndarray | None = None) -> None:
+        """Draw and send the frames ``info`` delivers (the reset's with ``step`` 0)."""
+        if action is not None:
+            self.actions.append(np.asarray(action, dtype=float).reshape(-1))
+        estimate = info.get("estimate")
+        if estimate is not None and self.error_entries is not None:
+            entries, _, scale = self.error_entries
+            difference = np.asarray(estimate["mean"])[entries] - np.asarray(info["state"])[entries]
+            self.errors.append(float(np.linalg.norm(difference) * scale))
+        for frame in delivered_frames(self.env, info, step):
+            if frame.image is None:
+                continue
+            drawn = self.draw(frame)
+            stream = self.streams.get(frame.camera_id)
+            if stream is None:
+                stream = _Stream(
+                    self.path_for(frame.camera_id), (drawn.shape[1], drawn.shape[0]), self.fps
+                )
+                self.streams[frame.camera_id] = stream
+            stream.send(drawn)
+
+    @property
+    def frames_written(self) -> dict[int, int]:
+        return {camera: stream.frames for camera, stream in self.streams.items()}
+
+    def finish(self) -> list[Path]:
+        """Close the encoders and move the files into place; their paths."""
+        for camera in sorted(self.streams):
+            stream = self.streams.pop(camera)
+            try:
+                stream.finish()
+            except BaseException:
+                self.abort()
+                raise
+            self.paths.append(stream.path)
+        return self.paths
+
+    def abort(self) -> None:
+        """Stop the encoders and remove the temps; nothing is renamed into place."""
+        for stream in self.streams.values():
+            stream.abort()
+        self.streams.clear()
+
+    def __enter__(self) -> EpisodeVideo:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        if kind is None:
+            self.finish()
+        else:
+            self.abort()
+
+    # drawing
+
+    def draw(self, frame: DeliveredFrame) -> np.ndarray:
+        """The video frame of ``frame``: the image with its overlays
+        (:meth:`FrameOverlay.draw`), and the strip."""
+        image = self.overlay.draw(frame)
+        canvas = np.concatenate([image, self._strip(image.shape[0])], axis=1)
+        # ffmpeg's yuv420p wants sizes in whole macroblocks: pad with black, never resize
+        pad_h, pad_w = -canvas.shape[0] % 16, -canvas.shape[1] % 16
+        if pad_h or pad_w:
+            canvas = cv2.copyMakeBorder(canvas, 0, pad_h, 0, pad_w, cv2.BORDER_CONSTANT, value=0)
+        return canvas
 
     def _strip(self, height: int) -> np.ndarray:
         """The estimate error (top) and the action (bottom, one line per entry, scaled to
