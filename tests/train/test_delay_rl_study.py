@@ -112,3 +112,18 @@ def test_another_plan_in_the_folder_is_refused_in_one_line(study, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "holds another study" in err[0], err
+
+
+def test_the_ray_backend_records_what_the_local_one_did(study, tmp_path):
+    """The same seed runs trained as Ray tasks (a local Ray started by the command) are
+    evaluated to the local study's per-seed records, bit for bit."""
+    pytest.importorskip("ray")
+    argv = [*ARGS, "--out", str(tmp_path / "ray"), "--backend", "ray"]
+    argv[argv.index("none,moderate")] = "none"
+    argv[argv.index("newest,truth")] = "truth"
+    assert main(argv) == 0
+    path = ("eval", "none", "truth", "at_none.json")
+    assert (
+        read_json(tmp_path.joinpath("ray", *path))["per_seed"]
+        == (read_json(study.joinpath(*path))["per_seed"])
+    )
