@@ -89,8 +89,13 @@ def one_variant(
     env_kwargs.update(_patch(variant))
     ratios, squared, count, distance = [], 0.0, 0, []
     for seed in seeds:
-        spec = EpisodeSpec(
-            f"observer_gym/{env}", observer, study.controller, seed, study.steps, env_kwargs
+        spec = EpisodeSpec.of(
+            f"observer_gym/{env}",
+            observer,
+            study.controller,
+            seed,
+            max_steps=study.steps,
+            env_kwargs=env_kwargs,
         )
         record = run_episode(spec)
         ratios.append(episode_consistency(record)["nees_ratio"])

@@ -4,8 +4,9 @@
 
 ``observer_gym.compare`` of BallTable-v0 with two observers (``kf-measurements``,
 ``oracle``) and ``lqr``, one seed, five steps, in this process (one worker), under
-cProfile; prints the calls of each look-up function. A request resolved once would call
-each of them about once.
+cProfile; prints the calls of each look-up function. The request is resolved once: the
+system and its task once, each observer once (and the oracle for the designs' check),
+a controller's design once per episode.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import tempfile
 import observer_gym
 
 LOOKUPS = ("system_for_id", "task_of", "task_for", "controllers_of", "controllers_for",
-           "observer_setup", "make_env")  # fmt: skip
+           "observer_setup", "resolve_observer", "make_env")  # fmt: skip
 
 
 def main() -> None:

@@ -30,6 +30,7 @@ from observer_gym.controllers.registry import (
     check_controller_fits,
     controllers_for,
     controllers_of,
+    design_controller,
     make_controller,
 )
 from observer_gym.controllers.target_follower.plant import TargetFollowerPlant
@@ -59,5 +60,6 @@ __all__ = [
     "check_weights",
     "controllers_for",
     "controllers_of",
+    "design_controller",
     "make_controller",
 ]

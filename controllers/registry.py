@@ -23,6 +23,7 @@ __all__ = [
     "check_controller_fits",
     "controllers_for",
     "controllers_of",
+    "design_controller",
     "make_controller",
 ]
 
@@ -95,7 +96,18 @@ def make_controller(name: str, env: gym.Env, /, **options: Any) -> Controller:
             f"make_controller: env = {env!r}, must be a gymnasium env of a registered system "
             f"({', '.join(s.env_id for s in SYSTEMS)}), e.g. gym.make(...)"
         )
-    cls, design_input, _ = check_controller_fits(name, system_of(env))
+    return design_controller(name, check_controller_fits(name, system_of(env)), env, options)
+
+
+def design_controller(
+    name: str, design: ControllerDesign, env: gym.Env, options: Mapping[str, Any] | None = None
+) -> Controller:
+    """The controller ``name`` of ``design`` (one of the env's system's controllers, found
+    by the caller) designed from ``env``'s nominal model with ``options``; an unknown
+    option raises ValueError naming those allowed (as does a bad value, from the
+    constructor)."""
+    cls, design_input, _ = design
+    options = dict(options or {})
     allowed = list(inspect.signature(cls).parameters)[1:]
     unknown = sorted(set(options) - set(allowed))
     if unknown:

@@ -25,7 +25,9 @@ def test_ekf_settles_the_ball_under_one_degree_of_rotation_error(controller, see
     centre and its mean distance over the last 2 s is below 1 cm, the sweeps' settling
     radius (measured, either controller: final 2.5 and 3.2 mm, last 2 s 5.1 and 4.7 mm;
     before the translation states, with MPC, final 122 and 99 mm: it lost the ball)."""
-    run = run_episode(EpisodeSpec(ENV_ID, "ekf-measurements", controller, seed, None, SWEEP))
+    run = run_episode(
+        EpisodeSpec.of(ENV_ID, "ekf-measurements", controller, seed, env_kwargs=SWEEP)
+    )
     distance_m = np.hypot(*run["state"][:, :2].T)
     last_2_s = float(distance_m[-100:].mean())
     print(f"\nfinal {distance_m[-1] * 1e3:.2f} mm, last 2 s mean {last_2_s * 1e3:.2f} mm")

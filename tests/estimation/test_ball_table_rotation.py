@@ -25,7 +25,7 @@ def test_kf_and_the_lqr_do_not_fall_into_a_limit_cycle():
     """Seed 5, the defaults: the RMS tilt command and the final distance from the centre
     (measured: kf 10.9 mrad and 0.003 mm, ekf 10.4 mrad and 0.003 mm; kf without the
     rotation term 54.7 mrad and 7.1 mm, 230 restarts over seeds 0-19)."""
-    run = run_episode(EpisodeSpec(ENV_ID, "kf-measurements", "lqr", 5))
+    run = run_episode(EpisodeSpec.of(ENV_ID, "kf-measurements", "lqr", 5))
     actions, state = run["actions"], run["state"]
     effort_rad = float(np.sqrt(np.mean(np.square(actions))))
     final_m = float(np.hypot(*state[-1, :2]))

@@ -60,7 +60,7 @@ def test_the_target_follower_rgb_agent_runs_on_its_small_camera_with_no_env_opti
     lengths and the width set point scaled to it (ppo.yml's rgb env_kwargs); loading it by
     name brings those options to its episodes, whose frames are then that size and whose
     image state is in that camera's pixels, and the request's own options still win."""
-    from observer_gym.train.core.observer_env import make_env
+    from observer_gym.train.core.observer_env import make_env, resolve_observer
     from observer_gym.train.rl.hyperparams import resolve_hyperparams
 
     env_id, agent_name = "observer_gym/TargetFollower-v0", "ppo:target_follower-rgb"
@@ -69,8 +69,11 @@ def test_the_target_follower_rgb_agent_runs_on_its_small_camera_with_no_env_opti
     request = resolve_request("TargetFollower-v0", ["pixels"], [agent_name], [0])
     assert request.controller(agent_name).env_options == options
     assert request.env_kwargs_for(request.controller(agent_name)) == options
+    system = system_for_id(env_id)
     env = make_env(
-        system_for_id(env_id), "pixels", request.env_kwargs_for(request.controller(agent_name))
+        system,
+        resolve_observer(system, "pixels"),
+        request.env_kwargs_for(request.controller(agent_name)),
     )
     try:
         frame, info = env.reset(seed=0)

@@ -21,7 +21,7 @@ from observer_gym.envs import SYSTEMS
 from observer_gym.train.cli import build_parser, main
 from observer_gym.train.core import checks
 from observer_gym.train.core.systems import controller_choices, observer_choices
-from observer_gym.train.experiments.request import check_controller, check_pair
+from observer_gym.train.experiments.request import check_pair, check_pair_of
 from observer_gym.train.rl.agent_env import ESTIMATE_SOURCES, OBS_TYPES, observer_for
 from observer_gym.train.rl.hyperparams import ALGOS, TRAINING_DEFAULTS, check_algorithm_keys
 from observer_gym.train.rl.normalizer_file import record_final_files
@@ -530,7 +530,7 @@ def test_the_checks_say_what_the_library_says(tmp_path):
         for observer in [*observer_choices(), "no-such-observer"]:
             for controller in sorted(names):
                 cli_side = _message(checks.check_observer, system.short_id, observer) or _message(
-                    check_controller, controller, system, observer
+                    check_pair_of, system, observer, controller
                 )
                 library = _message(check_pair, system.short_id, observer, controller)
                 assert cli_side == library, (system.short_id, observer, controller)

@@ -10,10 +10,13 @@ from pathlib import Path
 
 import pytest
 
+from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
 from observer_gym.train.core import entries
+from observer_gym.train.core.observer_env import resolve_observer
 from observer_gym.train.experiments import api, catalogue
 from observer_gym.train.experiments.episode import check_entries
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.rl.run_dir import agent_folder
 from observer_gym.train.rl.shipped import shipped_path
 
@@ -136,20 +139,30 @@ def example(monkeypatch):
     return mylab.control
 
 
+def _check_entries(env_id: str, observer: str, controller: str) -> None:
+    """check_entries on the pair's entries resolved by name."""
+    system = system_for_id(env_id)
+    check_entries(
+        system, resolve_observer(system, observer), resolve_controller(system, controller)
+    )
+
+
 def test_a_declared_entry_is_refused_elsewhere_in_one_line(example):
     with pytest.raises(ValueError) as refused:
-        check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
+        _check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
     assert str(refused.value) == (
         f"controller {BALL_PD!r} does not fit BallCatcher-v1: it declares it is made for "
         "BallTable-v0 (its factory's systems)"
     )
-    check_entries("observer_gym/BallTable-v0", "kf-measurements", BALL_PD)  # where it fits, it runs
+    _check_entries(
+        "observer_gym/BallTable-v0", "kf-measurements", BALL_PD
+    )  # where it fits, it runs
 
 
 def test_an_undeclared_entry_that_does_not_fit_is_named_with_the_cause(example, monkeypatch):
     monkeypatch.delattr(example.make_controller, "systems")
     with pytest.raises(ValueError) as refused:
-        check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
+        _check_entries("observer_gym/BallCatcher-v1", "kf-measurements", BALL_PD)
     message = str(refused.value)
     assert "\n" not in message
     assert message.startswith(f"controller {BALL_PD!r}: predict() raised ValueError: operands")

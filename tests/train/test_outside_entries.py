@@ -299,7 +299,9 @@ def test_a_policy_zip_trained_with_plain_stable_baselines3_is_compared(tmp_path,
     pair = next(p for p in results["pairs"] if p["controller"] == f"ppo:{path}")
     assert pair["controller_config"]["class"] == "PolicyFile"
     # the actions are the policy's own on the estimates it was given (deterministic)
-    spec = EpisodeSpec("observer_gym/BallTable-v0", "kf-measurements", f"ppo:{path}", 2, 10)
+    spec = EpisodeSpec.of(
+        "observer_gym/BallTable-v0", "kf-measurements", f"ppo:{path}", 2, max_steps=10
+    )
     record = run_episode(spec)
     expected, _ = model.predict(record["estimate"][:10].astype(np.float32), deterministic=True)
     np.testing.assert_allclose(record["actions"], expected, rtol=1e-5, atol=1e-9)

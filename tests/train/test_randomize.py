@@ -15,7 +15,7 @@ from stable_baselines3 import PPO
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.rl import randomize as randomize_module
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.agent_env import make_agent_env
@@ -246,8 +246,8 @@ def test_a_loaded_agent_reads_the_fixed_options(randomized_run):
     agent = Agent.load(randomized_run)
     env = agent.wrap_env(
         make_env(
-            system_for_id(agent.config["env_id"]),
-            agent.config["observer"],
+            system := system_for_id(agent.config["env_id"]),
+            resolve_observer(system, agent.config["observer"]),
             agent.config["env_kwargs"],
         )
     )

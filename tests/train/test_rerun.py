@@ -28,8 +28,9 @@ from scipy.spatial.transform import Rotation
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
 from observer_gym.train.core.atomic_write import WriteError
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.experiments.episode import EpisodeSpec, build_controller, run_episode
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.reports import rerun_recording
 from observer_gym.train.reports.rerun_recording import EpisodeRerun, RerunRequest
 
@@ -78,9 +79,10 @@ class Logged:
 def record(path: Path, env_id: str, controller: str, steps: int, env_options=None, seed=3):
     """A kf episode of ``steps`` steps recorded into ``path``; each step's info (the
     reset's first) with the frames it delivered per camera."""
-    env = make_env(system_for_id(env_id), "kf", env_options)
+    system = system_for_id(env_id)
+    env = make_env(system, resolve_observer(system, "kf"), env_options)
     try:
-        built = build_controller(controller, env)
+        built = build_controller(resolve_controller(system, controller), env, system)
         built.reset()
         observe = getattr(built, "observe_info", lambda info: None)
         with EpisodeRerun(RerunRequest(str(path), "test"), env) as recording:

@@ -190,8 +190,8 @@ def test_two_workers_give_the_results_of_one(tmp_path):
 
 @pytest.mark.slow  # starts worker processes: 3.3 s (load ~2)
 def test_a_failing_episode_in_a_worker_raises_naming_the_episode():
-    good = EpisodeSpec(ENV_ID, "oracle", "lqr", seed=0, max_steps=5)
-    bad = EpisodeSpec(ENV_ID, "oracle", "lqr", seed=1, max_steps=5, env_kwargs={"bogus": 1})
+    good = EpisodeSpec.of(ENV_ID, "oracle", "lqr", seed=0, max_steps=5)
+    bad = EpisodeSpec.of(ENV_ID, "oracle", "lqr", seed=1, max_steps=5, env_kwargs={"bogus": 1})
     with pytest.raises(ValueError, match="bogus") as raised:
         run_episodes([good, bad, good, good], workers=2, progress=False)
     assert any("seed=1" in note for note in raised.value.__notes__)

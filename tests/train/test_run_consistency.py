@@ -89,8 +89,13 @@ def test_ball_catcher_nees_counts_the_free_flight_only():
     from observer_gym.train.experiments.episode import EpisodeSpec, run_episode
 
     options = {"measurement_noise_px": 2.0}
-    spec = EpisodeSpec(
-        "observer_gym/BallCatcher-v1", "kf-measurements", "intercept", 0, 150, options
+    spec = EpisodeSpec.of(
+        "observer_gym/BallCatcher-v1",
+        "kf-measurements",
+        "intercept",
+        0,
+        max_steps=150,
+        env_kwargs=options,
     )
     record = run_episode(spec)
     env = gym.make("observer_gym/BallCatcher-v1", obs_mode="state", **options)

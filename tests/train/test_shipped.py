@@ -11,6 +11,7 @@ import pytest
 from observer_gym.envs import system_for_id
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import build_controller
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.rl import shipped
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import model_files, parse_agent_spec, read_config
@@ -76,7 +77,9 @@ def test_shipping_an_agent_makes_it_loadable_by_name(tmp_path, monkeypatch):
     assert shipped.shipped_names() == ("ball_table-state",)
     assert fingerprint_difference(folder) == 0.0
     assert read_fingerprint(folder).observation.shape == (8,)
-    controller = build_controller("ppo:ball_table-state", None)
+    system = system_for_id("BallTable-v0")
+    entry = resolve_controller(system, "ppo:ball_table-state")
+    controller = build_controller(entry, None, system)
     assert controller.run_dir == str(folder) and controller.timesteps == 128
     # a folder of that name here wins over the shipped agent
     monkeypatch.chdir(tmp_path)

@@ -279,7 +279,7 @@ def test_an_interrupted_sweep_resumes_without_rerunning_cells(swept, tmp_path, m
     result = run_sweep(**ARGS, out_dir=out_dir)
     assert (result.cells_run, result.cells_reused) == (5, 3)
     assert len(calls) == 5 * EPISODES
-    ran = {(s.observer, s.controller, s.env_kwargs[KEY]) for s in calls}
+    ran = {(s.observer.name, s.controller.name, s.env_kwargs[KEY]) for s in calls}
     assert len(ran) == 5  # no finished cell ran again
     for name in OUTPUTS:
         assert (out_dir / name).read_bytes() == (reference / name).read_bytes(), name

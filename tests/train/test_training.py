@@ -19,7 +19,7 @@ from stable_baselines3 import PPO
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.experiments.evaluate import evaluate_agent
 from observer_gym.train.experiments.run import run_experiment
 from observer_gym.train.rl.agent import Agent, model_files
@@ -96,7 +96,8 @@ def test_saved_agent_predicts_as_the_sb3_model_it_saved(ppo_run):
         return np.clip((obs - mean) / np.sqrt(var + epsilon), -clip, clip).astype(np.float32)
 
     checkpoint = Agent.load(ppo_run)  # a second load: same weights, same actions
-    env = make_env(system_for_id("observer_gym/BallTable-v0"), "kf-measurements")
+    system = system_for_id("observer_gym/BallTable-v0")
+    env = make_env(system, resolve_observer(system, "kf-measurements"))
     try:
         obs, _ = env.reset(seed=3)
         low, high = env.action_space.low, env.action_space.high

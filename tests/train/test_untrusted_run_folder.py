@@ -17,7 +17,7 @@ import pytest
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.rl import normalizer_file
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.run_dir import file_sha256
@@ -267,7 +267,8 @@ def test_converting_an_old_folder_needs_trust_and_keeps_what_the_agent_does(tmp_
     assert fingerprint_difference(folder) <= 1e-6
     pickled = VecNormalize.__new__(VecNormalize)
     pickled.__setstate__(agent.obs_normalizer.__getstate__())
-    env = make_env(system_for_id("observer_gym/BallTable-v0"), "kf-measurements")
+    system = system_for_id("observer_gym/BallTable-v0")
+    env = make_env(system, resolve_observer(system, "kf-measurements"))
     try:
         obs, _ = env.reset(seed=1)
     finally:

@@ -22,12 +22,13 @@ pytest.importorskip("imageio_ffmpeg")
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.cli import main
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.experiments.episode import (
     EpisodeSpec,
     build_controller,
     run_episode,
 )
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.reports import video as video_module
 from observer_gym.train.reports.episode_frames import (
     marker_pixels,
@@ -36,6 +37,7 @@ from observer_gym.train.reports.episode_frames import (
 from observer_gym.train.reports.video import EpisodeVideo, VideoRequest
 
 ENV = "observer_gym/BallTable-v0"
+SYSTEM = system_for_id(ENV)
 
 
 def decoded(path: Path) -> list[np.ndarray]:
@@ -54,9 +56,9 @@ def decoded(path: Path) -> list[np.ndarray]:
 def film(folder: Path, steps: int, env_options: dict | None = None):
     """A BallTable kf + lqr episode of ``steps`` steps filmed into ``folder``: the video's
     path, the number of frames delivered, and the last frame's info."""
-    env = make_env(system_for_id(ENV), "kf", env_options)
+    env = make_env(SYSTEM, resolve_observer(SYSTEM, "kf"), env_options)
     try:
-        controller = build_controller("lqr", env)
+        controller = build_controller(resolve_controller(SYSTEM, "lqr"), env, SYSTEM)
         controller.reset()
         video = EpisodeVideo(VideoRequest(str(folder), "episode"), env)
         with video:
@@ -88,7 +90,7 @@ def test_the_video_has_one_frame_per_delivered_frame_and_the_estimate_where_it_p
     assert len(frames) == delivered
     assert path.name == "episode.mp4"
     assert [p.name for p in tmp_path.iterdir()] == ["episode.mp4"]  # no temp left
-    env = make_env(system_for_id(ENV), "kf")
+    env = make_env(SYSTEM, resolve_observer(SYSTEM, "kf"))
     try:
         projection = projection_for(env)
     finally:
@@ -114,7 +116,7 @@ def test_the_truth_through_the_true_camera_and_the_nominal_one_differ_with_a_cal
     path, delivered, last = film(tmp_path, steps=10, env_options=options)
     frames = decoded(path)
     assert len(frames) == delivered
-    env = make_env(system_for_id(ENV), "kf", options)
+    env = make_env(SYSTEM, resolve_observer(SYSTEM, "kf"), options)
     try:
         projection = projection_for(env)
     finally:
@@ -133,10 +135,10 @@ def test_the_truth_through_the_true_camera_and_the_nominal_one_differ_with_a_cal
 
 
 def test_dropped_frames_are_marked_on_the_next_frame(tmp_path):
-    env = make_env(system_for_id(ENV), "kf", {"frame_drop_prob": 0.3})
+    env = make_env(SYSTEM, resolve_observer(SYSTEM, "kf"), {"frame_drop_prob": 0.3})
     captures = []
     try:
-        controller = build_controller("lqr", env)
+        controller = build_controller(resolve_controller(SYSTEM, "lqr"), env, SYSTEM)
         controller.reset()
         with EpisodeVideo(VideoRequest(str(tmp_path), "drops"), env) as video:
             obs, info = env.reset(seed=1)

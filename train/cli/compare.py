@@ -133,16 +133,17 @@ def check_pairs(
     no layer but the env's module."""
     from observer_gym.envs import system_for_id
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
-    from observer_gym.train.experiments.request import check_controller
+    from observer_gym.train.experiments.request import check_pair_of
     from observer_gym.train.rl.run_dir import expand_agent
 
     for observer in observers:
         env_id = check_observer(env_id, observer)
     # a multi-seed run stands for its seeds' agents
     controllers = [agent for name in controllers for agent in expand_agent(name)]
+    system = system_for_id(env_id)
     for controller in controllers:
         for observer in observers:
-            check_controller(controller, system_for_id(env_id), observer)
+            check_pair_of(system, observer, controller)
     for obs_mode in dict.fromkeys(observer_mode(env_id, observer) for observer in observers):
         check_env_options(env_id, obs_mode, env_options, decided_by="each observer")
 

@@ -61,7 +61,7 @@ def _evaluate_arguments(parser: argparse.ArgumentParser) -> None:
 def _evaluate_run(args: argparse.Namespace) -> int:
     from observer_gym.envs import system_for_id
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
-    from observer_gym.train.experiments.request import check_controller
+    from observer_gym.train.experiments.request import check_pair_of
     from observer_gym.train.reports.video import check_video_observer
     from observer_gym.train.rl.run_dir import (
         agent_folder,
@@ -81,7 +81,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
             config = read_config(run_dir)
             observer = args.observer or config["observer"]
             env_id = check_observer(config["env_id"], observer)
-            check_controller(f"{config['algo']}:{run_dir}", system_for_id(env_id), observer)
+            check_pair_of(system_for_id(env_id), observer, f"{config['algo']}:{run_dir}")
             obs_mode = observer_mode(env_id, observer)
             check_env_options(env_id, obs_mode, config["env_kwargs"])
             if args.video is not None:

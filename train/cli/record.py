@@ -90,11 +90,11 @@ def _run_record(args: argparse.Namespace) -> int:
     from observer_gym.extras import require_record
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
     from observer_gym.train.experiments.record import check_new_folder
-    from observer_gym.train.experiments.request import check_controller
+    from observer_gym.train.experiments.request import check_pair_of
 
     try:
         env_id = check_observer(args.env, args.observer)
-        check_controller(args.controller, system_for_id(env_id), args.observer)
+        check_pair_of(system_for_id(env_id), args.observer, args.controller)
         check_env_options(env_id, observer_mode(env_id, args.observer), dict(args.env_option))
         check_new_folder(args.out)
     except ValueError as exc:  # an observer, controller, env option or folder refused

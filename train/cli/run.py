@@ -105,11 +105,11 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 def _run_run(args: argparse.Namespace) -> int:
     from observer_gym.envs import system_for_id
     from observer_gym.train.core.checks import check_env_options, check_observer, observer_mode
-    from observer_gym.train.experiments.request import check_controller
+    from observer_gym.train.experiments.request import check_pair_of
 
     try:
         env_id = check_observer(args.env, args.observer)
-        check_controller(args.controller, system_for_id(env_id), args.observer)
+        check_pair_of(system_for_id(env_id), args.observer, args.controller)
         obs_mode = observer_mode(env_id, args.observer)
         check_env_options(env_id, obs_mode, dict(args.env_option))
         videos = video_options(args)

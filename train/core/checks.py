@@ -63,9 +63,13 @@ def check_observer(env_id: str, observer: str) -> str:
     if observer not in names_for(env_id).observer_modes:
         entries.load_factory(_observer_plugin(env_id, observer))
     else:  # deferred: observer_env imports the estimation layer
-        from observer_gym.train.core.observer_env import require_observer_modules
+        from observer_gym.train.core.observer_env import (
+            require_observer_modules,
+            resolve_observer,
+        )
 
-        require_observer_modules(system, observer)  # the learned ones: PyTorch
+        # the learned ones: PyTorch
+        require_observer_modules(system, resolve_observer(system, observer))
     return env_id
 
 

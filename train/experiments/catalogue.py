@@ -151,19 +151,28 @@ def _trial(plugin: entries.Plugin, env_id: str) -> bool:
     """Whether ``plugin`` builds and acts once on ``env_id`` (warnings silenced)."""
     import warnings
 
-    from observer_gym.controllers import controllers_for
+    from observer_gym.controllers import controllers_of
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.core.observer_env import resolve_observer
     from observer_gym.train.experiments.episode import check_entries
+    from observer_gym.train.experiments.request import resolve_controller
+
+    system = system_for_id(env_id)
 
     if plugin.kind == "controller":
         pairs = [("oracle", plugin.name)]
     else:
-        first = next(iter(controllers_for(env_id)))
+        first = next(iter(controllers_of(system)))
         pairs = [(f"{plugin.name}{MEASUREMENTS}", first), (plugin.name, first)]
     for observer, controller in pairs:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                check_entries(env_id, observer, controller)
+                check_entries(
+                    system,
+                    resolve_observer(system, observer),
+                    resolve_controller(system, controller),
+                )
         except Exception:  # any failure: it does not fit (run names the cause)
             continue
         return True

@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.experiments.episode import (
     EpisodeSpec,
     build_controller,
@@ -31,7 +31,7 @@ from observer_gym.train.experiments.episode import (
     run_episodes,
 )
 from observer_gym.train.experiments.request import Request, resolve_request
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
+from observer_gym.train.experiments.videos import VideoPlan, plan_videos_for, with_videos
 from observer_gym.train.reports.aggregate import across_seeds
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.reports.compare_stats import (
@@ -96,10 +96,7 @@ def check_pairs_once(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     (:func:`observer_gym.train.experiments.episode.check_entries`)."""
     for controller in request.controllers:
         for observer in request.observers:
-            check_entries(
-                request.env_id, observer.name, controller.name, env_kwargs, observer.options,
-                controller.options, request.seeds[0],
-            )  # fmt: skip
+            check_entries(request.system, observer, controller, env_kwargs, request.seeds[0])
 
 
 def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
@@ -108,11 +105,12 @@ def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     outside ones are tried by :func:`check_pairs_once`); ValueError if the env or a
     design fails."""
     env_id = request.env_id
-    baselines = [c.name for c in request.controllers if c.kind == "design"]
+    baselines = [c for c in request.controllers if c.kind == "design"]
     if not baselines:
         return
+    oracle = resolve_observer(request.system, ORACLE, task=request.task)
     try:
-        env = make_env(request.system, ORACLE, env_kwargs)
+        env = make_env(request.system, oracle, env_kwargs)
     except (TypeError, ValueError) as exc:
         raise ValueError(
             f"cannot make {env_id} with env options {dict(env_kwargs)}: {exc}"
@@ -120,9 +118,11 @@ def check_designs(request: Request, env_kwargs: Mapping[str, Any]) -> None:
     try:
         for controller in baselines:
             try:
-                build_controller(controller, env)
+                build_controller(controller, env, request.system)
             except ValueError as exc:
-                raise ValueError(f"controller {controller!r} does not fit {env_id}: {exc}") from exc
+                raise ValueError(
+                    f"controller {controller.name!r} does not fit {env_id}: {exc}"
+                ) from exc
     finally:
         env.close()
 
@@ -240,15 +240,13 @@ def run_pairs(request: Request, progress: bool = True, videos: VideoPlan | None 
     same records); with ``videos``, the chosen episodes write their videos."""
     pairs = [(o, c) for c in request.controllers for o in request.observers]
     specs = [
-        EpisodeSpec.of(
-            request.env_id,
-            observer.name,
-            controller.name,
+        EpisodeSpec.of_entries(
+            request.system,
+            observer,
+            controller,
             seed,
             max_steps=request.steps,
             env_kwargs=request.env_kwargs_for(controller),
-            observer_options=observer.options,
-            controller_options=controller.options,
         )
         for observer, controller in pairs
         for seed in request.seeds
@@ -338,9 +336,7 @@ def run_comparison(
         observer_options, controller_options,
     )  # fmt: skip
     task, seeds = request.task, list(request.seeds)
-    videos = plan_videos(
-        video_dir, video_episodes, len(seeds), request.env_id, request.observer_names
-    )
+    videos = plan_videos_for(video_dir, video_episodes, len(seeds), request.observers)
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "compare")

@@ -185,14 +185,14 @@ def measure_consistency(
     and the env options ``env_kwargs``; each episode's NEES/dof and NIS/dof."""
     nees, nis = [], []
     for i in range(episodes):
-        spec = EpisodeSpec(
+        spec = EpisodeSpec.of(
             env_id,
             observer,
             controller,
             seed + i,
-            steps,
-            dict(env_kwargs or {}),
-            observer_options=dict(observer_options or {}),
+            observer_options,
+            max_steps=steps,
+            env_kwargs=dict(env_kwargs or {}),
         )
         consistency = episode_consistency(run_episode(spec))
         nees.append(consistency.get("nees_ratio"))

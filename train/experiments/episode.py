@@ -1,7 +1,9 @@
 """One closed-loop episode, and many: what ``run``, ``compare`` and ``sweep`` run.
 
-:class:`EpisodeSpec` is everything one episode needs, by name (picklable, so a worker
-process or a Ray task runs it); :func:`run_episode` builds its own env and controller,
+:class:`EpisodeSpec` is everything one episode needs, resolved: the system's record and
+the observer's and controller's entries (strings and dicts, so the spec pickles to a
+worker process or a Ray task, which looks no name up again); :func:`run_episode` builds
+its own env and controller,
 resets with the spec's seed and closes the env, so any episode can be rerun alone and
 running the episodes in several processes gives exactly the results of one
 (:func:`iter_episodes`, :func:`run_episodes`). :func:`check_entries` tries an outside
@@ -20,18 +22,15 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from observer_gym.controllers import (
-    controllers_of,
-    make_controller,
-)
-from observer_gym.envs import System, system_for_id, system_of
+from observer_gym.controllers import controllers_of, design_controller
+from observer_gym.envs import System, system_for_id
 from observer_gym.train.core import entries
 from observer_gym.train.core.controller_entries import (
     CheckedController,
     PolicyFile,
-    is_policy_file,
 )
-from observer_gym.train.core.observer_env import make_env, observer_setup
+from observer_gym.train.core.observer_env import ObserverEntry, make_env, resolve_observer
+from observer_gym.train.experiments.request import ControllerEntry, resolve_controller
 from observer_gym.train.reports.consistency import (
     nees_per_step,
 )
@@ -74,17 +73,16 @@ CONTROLLER_ATTRIBUTES = (
 
 @dataclasses.dataclass(frozen=True)
 class EpisodeSpec:
-    """Everything one episode needs; picklable, so a worker process can run it."""
+    """Everything one episode needs, resolved once where the request starts; picklable,
+    so a worker process or a Ray task runs it without looking a name up."""
 
-    env_id: str
-    observer: str
-    controller: str
+    system: System
+    observer: ObserverEntry  # with its options
+    controller: ControllerEntry  # with its options
     seed: int
     max_steps: int | None = None
     env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     reset_options: Mapping[str, Any] | None = None
-    observer_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    controller_options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     # the observer and controller if given as Python objects (entries.as_name), by name:
     # they travel with the spec to a worker
     objects: Mapping[tuple[str, str], Any] = dataclasses.field(default_factory=dict)
@@ -95,15 +93,48 @@ class EpisodeSpec:
     # None for none; like the video it only reads what the episode produces
     rerun: RerunRequest | None = None
 
+    @property
+    def env_id(self) -> str:
+        return self.system.env_id
+
     @classmethod
-    def of(
-        cls, env_id: str, observer: str, controller: str, seed: int, **fields: Any
+    def of_entries(
+        cls,
+        system: System,
+        observer: ObserverEntry,
+        controller: ControllerEntry,
+        seed: int,
+        **fields: Any,
     ) -> EpisodeSpec:
         """The spec with the objects the observer and controller names stand for, if any."""
         return cls(
-            env_id, observer, controller, seed, **fields,
-            objects=entries.objects_for(observer, controller),
+            system, observer, controller, seed, **fields,
+            objects=entries.objects_for(observer.name, controller.name),
         )  # fmt: skip
+
+    @classmethod
+    def of(
+        cls,
+        env_id: str,
+        observer: str,
+        controller: str,
+        seed: int,
+        observer_options: Mapping[str, Any] | None = None,
+        controller_options: Mapping[str, Any] | None = None,
+        **fields: Any,
+    ) -> EpisodeSpec:
+        """The spec of an episode given by names (``observer_options`` over the
+        observer's pipeline's or to its factory, ``controller_options`` to the
+        controller's constructor or factory): each resolved once here, then
+        :meth:`of_entries`."""
+        system = system_for_id(env_id)
+        return cls.of_entries(
+            system,
+            resolve_observer(system, observer, observer_options),
+            resolve_controller(system, controller, controller_options),
+            seed,
+            **fields,
+        )
 
 
 class EpisodeError(ValueError):
@@ -111,63 +142,49 @@ class EpisodeError(ValueError):
     message names it, the episode's seed and the step."""
 
 
-def is_outside(system: System, observer: str, controller: str) -> bool:
+def is_outside(observer: ObserverEntry, controller: ControllerEntry) -> bool:
     """Whether the pair has an outside observer or controller (an import path, an entry
     point, or a stable-baselines3 zip): what :func:`check_entries` tries."""
-    agent_spec = parse_agent_spec(controller)
-    outside_controller = (
-        is_policy_file(agent_spec[1])
-        if agent_spec is not None
-        else controller not in controllers_of(system)
-    )
-    return observer_setup(system, observer)[2] is not None or outside_controller
+    return observer.plugin is not None or controller.kind in ("outside", "policy")
 
 
-def entry_identities(env_id: str, observer: str, controller: str) -> dict[str, dict[str, Any]]:
+def entry_identities(
+    observer: ObserverEntry, controller: ControllerEntry
+) -> dict[str, dict[str, Any]]:
     """Where the pair's outside observer and controller come from, by kind
     (:func:`~observer_gym.train.core.entries.entry_identity`: import path,
     distribution, version, the sha256 of the factory's module or the object's hash); {}
     for the package's own entries and agents. Sweeps and benchmarks key their cells and
     levels by it, so an upgraded package's entry does not reuse another's."""
     found: dict[str, dict[str, Any]] = {}
-    system = system_for_id(env_id)
-    plugin = observer_setup(system, observer)[2]
-    if plugin is not None:
-        found["observer"] = entries.entry_identity(plugin)
-    if parse_agent_spec(controller) is None and controller not in controllers_of(system):
-        controller_plugin = entries.find_plugin("controller", controller)
-        if controller_plugin is not None:
-            found["controller"] = entries.entry_identity(controller_plugin)
+    if observer.plugin is not None:
+        found["observer"] = entries.entry_identity(observer.plugin)
+    if controller.plugin is not None:
+        found["controller"] = entries.entry_identity(controller.plugin)
     return found
 
 
 def check_entries(
-    env_id: str,
-    observer: str,
-    controller: str,
+    system: System,
+    observer: ObserverEntry,
+    controller: ControllerEntry,
     env_kwargs: Mapping[str, Any] | None = None,
-    observer_options: Mapping[str, Any] | None = None,
-    controller_options: Mapping[str, Any] | None = None,
     seed: int = 0,
 ) -> None:
     """Try an outside observer or controller once before anything runs: refuse one whose
     factory declares other systems (:func:`~observer_gym.train.core.entries.check_declared`),
-    then build the env, the pipeline and the controller, reset with ``seed``, and ask for
-    one action (the estimate's layout and the action are checked as in every step).
-    ValueError, one line naming the entry, the system and what is wrong; nothing for a
-    pair of the package's own (tested) entries."""
-    system = system_for_id(env_id)
-    if not is_outside(system, observer, controller):
+    then build the env, the pipeline and the controller (with the entries' options),
+    reset with ``seed``, and ask for one action (the estimate's layout and the action are
+    checked as in every step). ValueError, one line naming the entry, the system and what
+    is wrong; nothing for a pair of the package's own (tested) entries."""
+    if not is_outside(observer, controller):
         return
-    plugins = [observer_setup(system, observer)[2]]
-    if parse_agent_spec(controller) is None and controller not in controllers_of(system):
-        plugins.append(entries.find_plugin("controller", controller))
-    for plugin in plugins:
+    for plugin in (observer.plugin, controller.plugin):
         if plugin is not None:
             entries.check_declared(plugin, system.env_id, system.short_id)
-    env = make_env(system, observer, env_kwargs, observer_options)
+    env = make_env(system, observer, env_kwargs)
     try:
-        built = build_controller(controller, env, controller_options)
+        built = build_controller(controller, env, system)
         env = getattr(built, "wrap_env", lambda env: env)(env)
         getattr(built, "reset", lambda: None)()
         obs, info = env.reset(seed=seed)
@@ -178,32 +195,31 @@ def check_entries(
         raise ValueError(f"{exc} (on {system.short_id}, tried before any episode)") from exc
     except Exception as exc:  # an outside observer's own fault, raised inside the wrappers
         raise ValueError(
-            f"observer {observer!r} with controller {controller!r} fails on {system.short_id} "
-            f"(tried before any episode): {type(exc).__name__}: {exc}"
+            f"observer {observer.name!r} with controller {controller.name!r} fails on "
+            f"{system.short_id} (tried before any episode): {type(exc).__name__}: {exc}"
         ) from exc
     finally:
         env.close()
 
 
-def build_controller(
-    controller: str, env: gym.Env, options: Mapping[str, Any] | None = None
-) -> Any:
-    """The controller named ``controller`` for ``env``: a trained agent for ``ALGO:DIR``,
-    a :class:`~observer_gym.train.core.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
+def build_controller(controller: ControllerEntry, env: gym.Env, system: System) -> Any:
+    """The controller of ``controller`` (resolved for ``system``, ``env``'s system) with
+    its options: a trained agent for ``ALGO:DIR``, a
+    :class:`~observer_gym.train.core.controller_entries.PolicyFile` for ``ALGO:PATH.zip``,
     the :class:`~observer_gym.train.core.controller_entries.CheckedController` of an outside
-    factory called with ``options``, else ``make_controller(controller, env, **options)``."""
-    agent_spec = parse_agent_spec(controller)
-    if agent_spec is not None:
+    factory, else the system's design (:func:`~observer_gym.controllers.design_controller`:
+    its one look-up of the system's controllers)."""
+    name, options = controller.name, controller.options
+    agent_spec = parse_agent_spec(name)
+    if controller.kind in ("agent", "policy") and agent_spec is not None:
         if options:
-            raise ValueError(f"controller {controller!r} takes no options, got {dict(options)}")
-        if is_policy_file(agent_spec[1]):
+            raise ValueError(f"controller {name!r} takes no options, got {dict(options)}")
+        if controller.kind == "policy":
             return PolicyFile(agent_spec[0], agent_spec[1], env)
         return Agent.load(agent_spec[1], algo=agent_spec[0])
-    if controller not in controllers_of(system_of(env)):
-        plugin = entries.find_plugin("controller", controller)
-        if plugin is not None:
-            return CheckedController(plugin, env, options or {})
-    return make_controller(controller, env, **dict(options or {}))
+    if controller.plugin is not None:
+        return CheckedController(controller.plugin, env, options)
+    return design_controller(name, controllers_of(system)[name], env, options)
 
 
 def describe_controller(controller: Any) -> dict[str, Any]:
@@ -237,11 +253,9 @@ def run_episode_here(spec: EpisodeSpec) -> dict[str, Any]:
     (:func:`describe_controller`) and ``env_config`` (the env's full configuration).
     Stops at termination, truncation (the env's time limit) or ``spec.max_steps``.
     """
-    env = make_env(
-        system_for_id(spec.env_id), spec.observer, spec.env_kwargs, spec.observer_options
-    )
+    env = make_env(spec.system, spec.observer, spec.env_kwargs)
     try:
-        controller = build_controller(spec.controller, env, spec.controller_options)
+        controller = build_controller(spec.controller, env, spec.system)
         # An agent sees the env through the wrappers it was trained with (image resizing
         # and frame stacking for rgb); info, with the ground truth, passes through them.
         env = getattr(controller, "wrap_env", lambda env: env)(env)

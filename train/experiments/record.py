@@ -20,7 +20,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from observer_gym.envs import system_for_id
 from observer_gym.extras import require_record
 from observer_gym.train.core import entries
 from observer_gym.train.experiments.episode import (
@@ -96,7 +95,7 @@ def record_experiment(
         steps, dict(env_kwargs or {}), observer_options, controller_options,
     )  # fmt: skip
     observer_entry, controller_entry = request.observers[0], request.controllers[0]
-    system = system_for_id(env_id)
+    system = request.system
 
     from observer_gym.train.reports import dataset  # needs minari: after require_record
 
@@ -106,10 +105,10 @@ def record_experiment(
         entries.objects_in_use(entries.objects_for(observer, controller)),
         dataset.staged_datasets(out_dir) as staging,
     ):
-        collector = dataset.recording_env(system, observer, gym_options, observer_entry.options)
+        collector = dataset.recording_env(system, observer_entry, gym_options)
         env = collector.unwrapped
         try:
-            built = build_controller(controller, collector, controller_entry.options)
+            built = build_controller(controller_entry, collector, system)
             played = _play(built, collector, request.seeds, steps, reset_options, progress)
             observed = observer_entry.record()
             record = to_jsonable(

@@ -7,12 +7,14 @@ env id or looks a name up again.
 and controller by name; the command line checks a controller with this one (its other
 up-front checks are :mod:`observer_gym.train.core.checks`).
 
-Each observer becomes an :class:`ObserverEntry` (its env mode, the package's pipeline
-options or an outside entry, its options) and each controller a :class:`ControllerEntry`
-(the package's design, a trained agent, a stable-baselines3 zip or an outside entry).
-Episodes still travel to workers by name
-(:class:`~observer_gym.train.experiments.episode.EpisodeSpec`):
-names and import paths pickle, and a worker resolves them again in its own process.
+Each observer becomes an :class:`~observer_gym.train.core.observer_env.ObserverEntry`
+(its env mode, the package's pipeline options or an outside entry, its options, the env
+options it needs) and each controller a :class:`ControllerEntry` (the package's design, a
+trained agent, a stable-baselines3 zip or an outside entry). Both are strings and dicts:
+they travel to workers and Ray tasks inside each episode's
+:class:`~observer_gym.train.experiments.episode.EpisodeSpec` with the
+:class:`~observer_gym.envs.System` record, and no process looks their names up again (a
+worker imports the entries' modules, nothing more).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import importlib.util
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
-from observer_gym.controllers import check_controller_fits, controllers_of
+from observer_gym.controllers import ControllerDesign, check_controller_fits, controllers_of
 from observer_gym.envs import System, system_for_id
 from observer_gym.train.core import entries
 from observer_gym.train.core.checks import (
@@ -40,9 +42,9 @@ from observer_gym.train.core.entries import (
     load_factory,
 )
 from observer_gym.train.core.observer_env import (
-    observer_env_options,
-    observer_setup,
+    ObserverEntry,
     require_observer_modules,
+    resolve_observer,
 )
 from observer_gym.train.core.tasks import Task, task_of
 from observer_gym.train.experiments.camera_scale import (
@@ -51,26 +53,6 @@ from observer_gym.train.experiments.camera_scale import (
     options_in_entry_pixels,
 )
 from observer_gym.train.rl.run_dir import check_agent, expand_agent, parse_agent_spec, trained_with
-
-
-class ObserverEntry(NamedTuple):
-    """One observer of a request."""
-
-    name: str  # as the results name it
-    obs_mode: str  # the env's obs_mode it reads
-    pipeline_options: Mapping[str, Any] | None  # a package observer's; None: pixels, outside
-    plugin: Plugin | None  # an outside observer's entry
-    options: dict[str, Any]  # its factory's keyword arguments (outside observers only)
-
-    def record(self) -> dict[str, Any]:
-        """What results record of it: env mode, pipeline options, an outside entry."""
-        record: dict[str, Any] = {
-            "obs_mode": self.obs_mode,
-            "pipeline_options": self.pipeline_options,
-        }
-        if self.plugin is not None:
-            record["entry"] = self.plugin.describe(self.options)
-        return record
 
 
 class ControllerEntry(NamedTuple):
@@ -142,8 +124,7 @@ class Request(NamedTuple):
         """The env options each observer needs and gets wherever it runs
         (observer_env.make_env), for the observers that need some (what results record
         beside ``env_kwargs``)."""
-        needed = {o.name: observer_env_options(self.system, o.name) for o in self.observers}
-        return {name: options for name, options in needed.items() if options}
+        return {o.name: dict(o.env_options) for o in self.observers if o.env_options}
 
     def agent_camera_scales(self, varied: Sequence[str] = ()) -> dict[str, float]:
         """Each agent whose pixel-valued options (the request's, or the ``varied`` keys of
@@ -161,7 +142,7 @@ class Request(NamedTuple):
         return [entry.name for entry in self.controllers]
 
 
-def check_controller(controller: str, system: System, observer: str) -> None:
+def check_controller(controller: str, system: System, observer: ObserverEntry) -> None:
     """Raise ``ValueError`` unless ``controller`` can act on ``observer``'s output in
     ``system``'s env: one of the system's controllers (``controllers_of(system)``; another
     system's is refused naming those that fit), a trained agent ``ALGO:DIR`` whose
@@ -172,30 +153,19 @@ def check_controller(controller: str, system: System, observer: str) -> None:
     ones and agents trained on the state or an estimate read the state layout (any
     observer but "pixels" and "detections"); an agent trained on rgb reads only
     "pixels", one trained on measurements only "detections"."""
-    obs_mode, pipeline, plugin = observer_setup(system, observer)
-    reads_pixels = plugin is None and pipeline is None and obs_mode != "state"
-    agent_spec = parse_agent_spec(controller)
-    if agent_spec is None:
-        controller_plugin = None
-        if controller not in controllers_of(system):
-            controller_plugin = entries.find_plugin("controller", controller)
-        if controller_plugin is not None:
-            entries.load_factory(controller_plugin)
-        else:
-            check_controller_fits(
-                controller,
-                system,
-                others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}",
-            )
-        if reads_pixels:
-            raise ValueError(frames_message(controller, observer))
-        return
-    if is_policy_file(agent_spec[1]):
-        check_policy_file(controller, agent_spec[1])
-        if reads_pixels:
-            raise ValueError(frames_message(controller, observer))
-        return
-    check_agent(controller, system.env_id, reads_pixels, observer)
+    entry = resolve_controller(system, controller)
+    check_controller_reads(system, entry, observer)
+
+
+def check_controller_reads(
+    system: System, controller: ControllerEntry, observer: ObserverEntry
+) -> None:
+    """ValueError unless the resolved ``controller`` reads what ``observer`` gives in
+    ``system``'s env (see :func:`check_controller`); looks no name up."""
+    if controller.kind == "agent":
+        check_agent(controller.name, system.env_id, observer.reads_pixels, observer.name)
+    elif observer.reads_pixels:
+        raise ValueError(frames_message(controller.name, observer.name))
 
 
 def check_pair(env_id: str, observer: str, controller: str) -> str:
@@ -204,11 +174,16 @@ def check_pair(env_id: str, observer: str, controller: str) -> str:
     acts on it (:func:`check_controller`); ValueError naming what is allowed otherwise.
     Builds no env."""
     system = system_for_id(env_id)
-    _, _, plugin = observer_setup(system, observer)
-    if plugin is not None:
-        entries.load_factory(plugin)
-    check_controller(controller, system, observer)
+    check_pair_of(system, observer, controller)
     return system.env_id
+
+
+def check_pair_of(system: System, observer: str, controller: str) -> None:
+    """:func:`check_pair` for a resolved ``system``."""
+    entry = resolve_observer(system, observer)
+    if entry.plugin is not None:
+        entries.load_factory(entry.plugin)
+    check_controller(controller, system, entry)
 
 
 def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
@@ -227,32 +202,47 @@ def names_of(kind: str, names: Sequence[str] | str, allowed: str) -> list[str]:
     return names
 
 
-def _observer_entry(system: System, name: str, options: dict) -> ObserverEntry:
-    obs_mode, pipeline_options, plugin = observer_setup(system, name)
-    if plugin is None:
-        require_observer_modules(system, name)  # the learned ones: PyTorch
-        return ObserverEntry(name, obs_mode, pipeline_options, None, {})
-    load_factory(plugin)  # ValueError naming the entry if it does not import
-    return ObserverEntry(name, obs_mode, None, plugin, options)
+def _observer_entry(system: System, task: Task, name: str, options: dict) -> ObserverEntry:
+    entry = resolve_observer(system, name, task=task)
+    if entry.plugin is None:
+        require_observer_modules(system, entry)  # the learned ones: PyTorch
+        return entry
+    load_factory(entry.plugin)  # ValueError naming the entry if it does not import
+    return entry.with_options(options)
 
 
-def _controller_entry(system: System, name: str, options: dict) -> ControllerEntry:
+def resolve_controller(
+    system: System,
+    name: str,
+    options: Mapping[str, Any] | None = None,
+    designs: Mapping[str, ControllerDesign] | None = None,
+) -> ControllerEntry:
+    """The :class:`ControllerEntry` of controller ``name`` for ``system`` (whose
+    controllers are ``designs``, looked up if not given) with ``options``: a trained agent
+    ``ALGO:DIR`` (its env options read from its run, if it is one), a stable-baselines3
+    zip (checked), one of ``designs``, or an outside controller (its factory imported).
+    ValueError naming what fits for any other name (another system's controller, an
+    unknown one)."""
+    options = dict(options or {})
     spec = parse_agent_spec(name)
     if spec is not None:
         if is_policy_file(spec[1]):
-            return ControllerEntry(name, "policy", None, {})
+            check_policy_file(name, spec[1])
+            return ControllerEntry(name, "policy", None, options)
         try:
             env_options = trained_with(spec[1], spec[0]).env_options
-        except ValueError:  # not a run: check_controller names what is wrong
+        except ValueError:  # not a run: check_controller_reads names what is wrong
             env_options = {}
-        return ControllerEntry(name, "agent", None, {}, env_options)
-    if name in controllers_of(system):
-        return ControllerEntry(name, "design", None, {})
+        return ControllerEntry(name, "agent", None, options, env_options)
+    if name in (controllers_of(system) if designs is None else designs):
+        return ControllerEntry(name, "design", None, options)
     plugin = find_plugin("controller", name)
-    # an unknown name is refused by check_controller, naming what fits
-    return ControllerEntry(
-        name, "outside" if plugin else "design", plugin, options if plugin else {}
-    )
+    if plugin is None:
+        # refuses the name (no design of the system) naming those that fit
+        check_controller_fits(name, system, others=f", {AGENT_FORMS}, {OUTSIDE_FORMS}")
+        return ControllerEntry(name, "design", None, options)
+    load_factory(plugin)  # ValueError naming the entry if it does not import
+    return ControllerEntry(name, "outside", plugin, options)
 
 
 def _check_options(kind: str, given: dict, entries: Sequence[Any]) -> None:
@@ -266,7 +256,7 @@ def _check_options(kind: str, given: dict, entries: Sequence[Any]) -> None:
 
 
 def resolve_request(
-    env_id: str,
+    env: str | System,
     observers: Sequence[str] | str,
     controllers: Sequence[str] | str,
     seeds: Sequence[int],
@@ -278,7 +268,8 @@ def resolve_request(
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
 ) -> Request:
-    """The :class:`Request` of these inputs, after the checks that build no env: the env,
+    """The :class:`Request` of these inputs, after the checks that build no env: the env
+    (an id, resolved once, or its :class:`~observer_gym.envs.System`),
     the observers (the task's ``OBSERVERS`` or outside entries that import), the
     controllers (:func:`check_controller` for every pair; a
     multi-seed agent stands for its seeds' agents), non-empty lists
@@ -288,7 +279,7 @@ def resolve_request(
     Raises:
         ValueError: naming the bad value and what is allowed.
     """
-    system = system_for_id(env_id)
+    system = env if isinstance(env, System) else system_for_id(env)
     task = task_of(system)
     observer_options, controller_options = (
         dict(observer_options or {}),
@@ -296,7 +287,7 @@ def resolve_request(
     )
     observer_names = names_of("observers", observers, ", ".join(task.OBSERVERS))
     observer_entries = tuple(
-        _observer_entry(system, name, observer_options) for name in observer_names
+        _observer_entry(system, task, name, observer_options) for name in observer_names
     )
     named = names_of("controllers", controllers, "a controller name or ALGO:DIR")
     seed_groups = {name: expand_agent(name) for name in named if expand_agent(name) != [name]}
@@ -304,12 +295,15 @@ def resolve_request(
     duplicates = sorted({c for c in expanded if expanded.count(c) > 1})
     if duplicates:
         raise ValueError(f"controllers name {', '.join(map(repr, duplicates))} more than once")
-    for controller in expanded:
-        for observer in observer_names:
-            check_controller(controller, system, observer)
+    designs = controllers_of(system)
+    controller_entries = tuple(resolve_controller(system, name, None, designs) for name in expanded)
     controller_entries = tuple(
-        _controller_entry(system, name, controller_options) for name in expanded
+        entry._replace(options=dict(controller_options)) if entry.plugin else entry
+        for entry in controller_entries
     )
+    for controller_entry in controller_entries:
+        for observer_entry in observer_entries:
+            check_controller_reads(system, controller_entry, observer_entry)
     _check_options("observer", observer_options, observer_entries)
     _check_options("controller", controller_options, controller_entries)
     seeds = tuple(check_seeds(seeds))

@@ -17,12 +17,12 @@ from observer_gym.envs import system_for_id
 from observer_gym.train.core import entries
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.episode import EpisodeSpec, check_entries, run_episodes
-from observer_gym.train.experiments.request import Request, check_pair, resolve_request
+from observer_gym.train.experiments.request import Request, check_pair_of, resolve_request
 from observer_gym.train.experiments.videos import (
     RerunPlan,
     VideoPlan,
     plan_rerun,
-    plan_videos,
+    plan_videos_for,
     with_rerun,
     with_videos,
 )
@@ -113,7 +113,8 @@ def run_experiment(
     Raises:
         ValueError: an unknown env, observer or controller, a count < 1 or a negative seed.
     """
-    env_id = check_pair(env_id, observer, controller)  # the messages of the command's checks
+    system = system_for_id(env_id)  # resolved once: the request and its episodes carry it
+    check_pair_of(system, observer, controller)  # the command's messages first
     for name, value in (("episodes", episodes), ("workers", workers), ("steps", steps)):
         if value is not None and (int(value) != value or value < 1):
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -123,16 +124,13 @@ def run_experiment(
     if "obs_mode" in env_kwargs:
         raise ValueError("env_kwargs must not set obs_mode: the observer decides it")
     request = resolve_request(
-        env_id, [observer], [controller], range(seed, seed + episodes), workers, "local", None,
+        system, [observer], [controller], range(seed, seed + episodes), workers, "local", None,
         steps, env_kwargs, observer_options, controller_options,
     )  # fmt: skip
     observer_entry, controller_entry = request.observers[0], request.controllers[0]
-    videos = plan_videos(video_dir, video_episodes, episodes, env_id, [observer])
+    videos = plan_videos_for(video_dir, video_episodes, episodes, [observer_entry])
     rerun = plan_rerun(rerun_file, rerun_episode, episodes)
-    check_entries(
-        env_id, observer, controller, env_kwargs, observer_entry.options,
-        controller_entry.options, seed,
-    )  # fmt: skip
+    check_entries(system, observer_entry, controller_entry, env_kwargs, seed)
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "run")
     # and again once the folder is this run's alone (another command may have written it)
@@ -155,16 +153,14 @@ def _run_into(
     observer, controller = request.observers[0], request.controllers[0]
     task, env_kwargs, seeds = request.task, request.env_kwargs_for(controller), request.seeds
     specs = [
-        EpisodeSpec.of(
-            request.env_id,
-            observer.name,
-            controller.name,
+        EpisodeSpec.of_entries(
+            request.system,
+            observer,
+            controller,
             seed,
             max_steps=request.steps,
             env_kwargs=env_kwargs,
             reset_options=reset_options,
-            observer_options=observer.options,
-            controller_options=controller.options,
         )
         for seed in seeds
     ]

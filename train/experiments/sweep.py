@@ -40,7 +40,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.core.args import point_text, value_text
 from observer_gym.train.core.tasks import task_of
@@ -55,7 +54,7 @@ from observer_gym.train.experiments.sweep_plan import (
     check_out_dir,
     check_sweep,
 )
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
+from observer_gym.train.experiments.videos import VideoPlan, plan_videos_for, with_videos
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
@@ -99,7 +98,7 @@ def sweep_episode(spec: EpisodeSpec) -> dict[str, Any]:
     controller's description and the seconds it took (measured where it ran)."""
     tic_s = time.perf_counter()
     record = run_episode(spec)
-    values = episode_values(task_of(system_for_id(spec.env_id)), record)
+    values = episode_values(task_of(spec.system), record)  # once per episode spec
     return {
         "metrics": to_jsonable(values),
         "start": to_jsonable(record["state"][0]),
@@ -278,7 +277,7 @@ def assemble_results(
 
 def _base_config(plan: SweepPlan) -> Any:
     """The env's configuration with the sweep's fixed options (the keys at their defaults)."""
-    config_class = system_for_id(plan.env_id).env_class().config_class
+    config_class = plan.request.system.env_class().config_class
     return config_class.from_kwargs(**plan.env_kwargs)
 
 
@@ -369,8 +368,8 @@ def run_sweep(
         env_id, vary, observers, controllers, episodes, seed, out_dir, workers, backend,
         address, steps, env_kwargs, second_metric, observer_options, controller_options,
     )  # fmt: skip
-    videos = plan_videos(video_dir, video_episodes, episodes, plan.env_id, plan.observers)
-    for note in world_draw_notes(plan.env_id, plan.grid):
+    videos = plan_videos_for(video_dir, video_episodes, episodes, plan.request.observers)
+    for note in world_draw_notes(plan.request.system, plan.grid):
         warnings.warn(note, SweepWarning, stacklevel=2)
     out_dir = Path(out_dir)
     versions = _versions(plan)

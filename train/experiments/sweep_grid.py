@@ -29,7 +29,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from observer_gym.envs import system_for_id
+from observer_gym.envs import System, system_for_id
 from observer_gym.train.core.args import point_text, value_text
 
 # A sweep's keys and values: {key: values} or [(key, values), ...] (the command line's
@@ -133,12 +133,13 @@ def _pairs(vary: VaryInput) -> list[tuple[str, list[Any]]]:
 
 
 def check_grid(
-    env_id: str,
+    env_id: str | System,
     vary: VaryInput,
     env_kwargs: Mapping[str, Any] | None = None,
     obs_modes: Iterable[str] = ("state",),
 ) -> Grid:
-    """The grid of ``vary`` for ``env_id``, its values in the configuration's types.
+    """The grid of ``vary`` for ``env_id`` (an id, or the system resolved once by the
+    caller), its values in the configuration's types.
 
     Checks, in this order, naming what is allowed: every key is a field of the env's
     configuration (not ``obs_mode``, not one ``env_kwargs`` sets, none twice); every key
@@ -150,7 +151,7 @@ def check_grid(
     Raises:
         ValueError: one line naming the key, the value and what is allowed.
     """
-    system = system_for_id(env_id)
+    system = env_id if isinstance(env_id, System) else system_for_id(env_id)
     config_class = system.env_class().config_class
     fields = {f.name: f for f in dataclasses.fields(config_class) if f.init}
     allowed = [name for name in fields if name != "obs_mode"]
@@ -200,11 +201,12 @@ def check_grid(
     return grid
 
 
-def world_draw_notes(env_id: str, grid: Grid) -> list[str]:
+def world_draw_notes(env_id: str | System, grid: Grid) -> list[str]:
     """One sentence per varied key of ``grid`` that is a sensor option and also part of
     the world's dynamics (the env class's ``world_shaping_sensor_options``, e.g. a frame
     rate that is the control rate), so that episode i meets another world at each value."""
-    env_class = system_for_id(env_id).env_class()
+    system = env_id if isinstance(env_id, System) else system_for_id(env_id)
+    env_class = system.env_class()
     shaping = getattr(env_class, "world_shaping_sensor_options", ())
     return [
         f"varying {key} changes the world's steps too ({key} is also {env_class.__name__}'s "

@@ -196,15 +196,13 @@ class SweepPlan:
         # (pixel-valued ones in the agent camera's pixels: Request.env_kwargs_for)
         env_kwargs = self.request.env_kwargs_for(controller, cell.point)
         return [
-            EpisodeSpec.of(
-                self.env_id,
-                cell.observer,
-                cell.controller,
+            EpisodeSpec.of_entries(
+                self.request.system,
+                observer,
+                controller,
                 seed,
                 max_steps=self.steps,
                 env_kwargs=env_kwargs,
-                observer_options=observer.options,
-                controller_options=controller.options,
             )
             for seed in self.seeds
         ]
@@ -279,7 +277,8 @@ def check_sweep(
         address, steps, env_kwargs, observer_options, controller_options,
     )  # fmt: skip
     env_id, env_kwargs, task = request.env_id, request.env_kwargs, request.task
-    grid = check_grid(env_id, vary, env_kwargs, [entry.obs_mode for entry in request.observers])
+    modes = [entry.obs_mode for entry in request.observers]
+    grid = check_grid(request.system, vary, env_kwargs, modes)
     metrics = list(compare_metrics(task))
     if second_metric is None:
         second_metric = metrics[1] if len(metrics) > 1 else metrics[0]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from observer_gym.envs import system_for_id
 from observer_gym.extras import require_rerun, require_video
-from observer_gym.train.core.observer_env import observer_setup
+from observer_gym.train.core.observer_env import ObserverEntry, resolve_observer
 from observer_gym.train.experiments.episode import EpisodeSpec
 from observer_gym.train.reports.rerun_recording import RerunRequest, check_rerun_file
 from observer_gym.train.reports.video import (
@@ -48,6 +48,21 @@ def plan_videos(
     env_id: str,
     observers: Sequence[str],
 ) -> VideoPlan | None:
+    """The checked plan, None without ``video_dir``, for observers by name (the command
+    line's: each resolved once, then :func:`plan_videos_for`)."""
+    if video_dir is None:
+        return plan_videos_for(None, video_episodes, episodes, [])
+    system = system_for_id(env_id)
+    entries = [resolve_observer(system, observer) for observer in observers]
+    return plan_videos_for(video_dir, video_episodes, episodes, entries)
+
+
+def plan_videos_for(
+    video_dir: str | Path | None,
+    video_episodes: Sequence[int] | None,
+    episodes: int,
+    observers: Sequence[ObserverEntry],
+) -> VideoPlan | None:
     """The checked plan, None without ``video_dir``. Of several observers (compare,
     sweep) those that read camera images are filmed. Raises, before anything runs:
     :class:`~observer_gym.extras.ExtraNotInstalled` without the ``[video]`` extra,
@@ -59,8 +74,7 @@ def plan_videos(
             raise ValueError("video episodes were given without a video folder (--video DIR)")
         return None
     require_video()
-    system = system_for_id(env_id)
-    modes = {observer: observer_setup(system, observer)[0] for observer in observers}
+    modes = {observer.name: observer.obs_mode for observer in observers}
     filmed = frozenset(o for o, mode in modes.items() if mode == "rgb")
     if not filmed:
         first = next(iter(modes))
@@ -81,9 +95,9 @@ def with_videos(
     marked = []
     for k, spec in enumerate(specs):
         episode = k % episodes
-        if episode in plan.episodes and spec.observer in plan.observers:
+        if episode in plan.episodes and spec.observer.name in plan.observers:
             stem = prefix + video_stem(
-                spec.env_id, spec.observer, spec.controller, episode, spec.seed
+                spec.env_id, spec.observer.name, spec.controller.name, episode, spec.seed
             )
             spec = dataclasses.replace(spec, video=VideoRequest(str(plan.folder), stem))
         marked.append(spec)
@@ -128,6 +142,8 @@ def with_rerun(specs: Sequence[EpisodeSpec], plan: RerunPlan | None) -> list[Epi
         return list(specs)
     marked = list(specs)
     spec = marked[plan.episode]
-    name = video_stem(spec.env_id, spec.observer, spec.controller, plan.episode, spec.seed)
+    name = video_stem(
+        spec.env_id, spec.observer.name, spec.controller.name, plan.episode, spec.seed
+    )
     marked[plan.episode] = dataclasses.replace(spec, rerun=RerunRequest(str(plan.path), name))
     return marked

@@ -44,8 +44,8 @@ from minari.data_collector.callbacks import StepDataCallback
 from observer_gym.envs import System
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.core.observer_env import (
+    ObserverEntry,
     check_gym_make_options,
-    observer_setup,
     with_observer_env_options,
     wrap_observer,
 )
@@ -153,9 +153,8 @@ class RecordedStep(StepDataCallback):
 
 def recording_env(
     system: System,
-    observer: str,
+    observer: ObserverEntry,
     env_kwargs: Mapping[str, Any] | None = None,
-    observer_options: Mapping[str, Any] | None = None,
 ) -> minari.DataCollector:
     """:func:`~observer_gym.train.core.observer_env.make_env`'s env for ``observer`` (its
     steps, repeated here to put a wrapper between them), with :class:`KeepObservation`
@@ -163,11 +162,10 @@ def recording_env(
     observations of the obs mode (camera frames losslessly, no JPEG; measurements; the
     state for ``oracle``), the actions that reached the env and the infos with the
     observer's estimate (:class:`RecordedStep`). Call inside :func:`staged_datasets`."""
-    obs_mode, _, _ = observer_setup(system, observer)
-    options = with_observer_env_options(system, observer, env_kwargs)
+    options = with_observer_env_options(observer, env_kwargs)
     check_gym_make_options(options)
-    kept = KeepObservation(gym.make(system.env_id, obs_mode=obs_mode, **options))
-    observed = wrap_observer(kept, system, observer, observer_options)
+    kept = KeepObservation(gym.make(system.env_id, obs_mode=observer.obs_mode, **options))
+    observed = wrap_observer(kept, observer)
     return minari.DataCollector(
         observed,
         step_data_callback=RecordedStep,

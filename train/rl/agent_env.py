@@ -44,7 +44,7 @@ from gymnasium.wrappers import FrameStackObservation
 
 from observer_gym.envs import system_for_id
 from observer_gym.train.core.checks import agent_observer
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.features import wrap_features
 from observer_gym.train.rl.measurement_input import wrap_measurements
@@ -177,7 +177,8 @@ def make_agent_env(
         )
         return RandomizedEnv(make_inner, env_id, randomize)
     feeding = observer_for(env_id, obs, estimate_from, observer)
-    env = make_env(system_for_id(env_id), feeding, env_kwargs)
+    system = system_for_id(env_id)
+    env = make_env(system, resolve_observer(system, feeding), env_kwargs)
     return finish_agent_env(env, obs, image, features, measurement_stack)
 
 

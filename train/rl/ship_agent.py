@@ -24,7 +24,7 @@ import numpy as np
 
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
-from observer_gym.train.core.observer_env import make_env
+from observer_gym.train.core.observer_env import make_env, resolve_observer
 from observer_gym.train.reports.outputs import to_jsonable, write_json_atomic
 from observer_gym.train.rl.agent import Agent
 from observer_gym.train.rl.normalizer_file import record_final_files
@@ -54,7 +54,8 @@ def fingerprint_observation(agent: Agent) -> Any:
     options, the agent's wrappers), reset with :data:`FINGERPRINT_SEED`."""
     config = agent.config
     system = system_for_id(config["env_id"])
-    env = agent.wrap_env(make_env(system, config["observer"], config["env_kwargs"]))
+    observer = resolve_observer(system, config["observer"])
+    env = agent.wrap_env(make_env(system, observer, config["env_kwargs"]))
     try:
         observation, _ = env.reset(seed=FINGERPRINT_SEED)
     finally:

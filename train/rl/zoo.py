@@ -48,7 +48,7 @@ import yaml
 
 from observer_gym.envs import System, system_of
 from observer_gym.envs.registration import PACKAGE_SYSTEMS
-from observer_gym.train.core.observer_env import wrap_observer
+from observer_gym.train.core.observer_env import resolve_observer, wrap_observer
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.rl.agent_env import (
     OBS_TYPES,
@@ -95,7 +95,8 @@ def agent_wrapper(
     """
     system = system_of(env)
     feeding = observer_for(system.env_id, obs, "measurements", observer)
-    obs_mode = task_of(system).OBSERVERS[feeding][0]
+    entry = resolve_observer(system, feeding)
+    obs_mode = entry.obs_mode
     made_with = cast("CameraEnv", env.unwrapped).config.obs_mode  # system_of said it is one
     if made_with != obs_mode:
         raise ValueError(
@@ -104,9 +105,7 @@ def agent_wrapper(
             f"env takes its env_kwargs from --eval-env-kwargs: add "
             f"--eval-env-kwargs \"obs_mode:'{obs_mode}'\" and the file's other env_kwargs)"
         )
-    return finish_agent_env(
-        wrap_observer(env, system, feeding), obs, image, features, measurement_stack
-    )
+    return finish_agent_env(wrap_observer(env, entry), obs, image, features, measurement_stack)
 
 
 class ZooFile(NamedTuple):

@@ -16,9 +16,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from observer_gym.envs import system_for_id
+from observer_gym.train.core.observer_env import resolve_observer
 from observer_gym.train.experiments.benchmark.records import metric_value
 from observer_gym.train.experiments.benchmark.suite import Level, References, SystemSuite
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.experiments.sweep import sweep_episode
 
 IDLE = "observer_gym.train.experiments.benchmark.idle:make_idle"
@@ -39,8 +42,13 @@ def episode_values(
 ) -> np.ndarray:  # fmt: skip
     """The headline metric of each episode of ``observer`` + ``controller`` on ``level``
     with ``seeds``, as a benchmark run measures it."""
+    system = system_for_id(suite.env_id)  # resolved once for the episodes
+    observer_entry = resolve_observer(system, observer)
+    controller_entry = resolve_controller(system, controller)
     specs = [
-        EpisodeSpec.of(suite.env_id, observer, controller, seed, env_kwargs=level.env_options)
+        EpisodeSpec.of_entries(
+            system, observer_entry, controller_entry, seed, env_kwargs=level.env_options
+        )
         for seed in seeds
     ]
     values = np.zeros(len(specs))

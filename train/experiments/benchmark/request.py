@@ -8,11 +8,12 @@ from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 from observer_gym.envs import system_for_id
-from observer_gym.train.core.observer_env import observer_env_options
+from observer_gym.train.core.observer_env import observer_env_options, resolve_observer
 from observer_gym.train.experiments.benchmark.levels import plan_digest
 from observer_gym.train.experiments.benchmark.suite import DEFAULT_VERSION, Level, SystemSuite
 from observer_gym.train.experiments.camera_scale import options_in_entry_pixels
 from observer_gym.train.experiments.episode import EpisodeSpec, entry_identities
+from observer_gym.train.experiments.request import resolve_controller
 
 __all__ = ["BenchmarkRequest", "command_line"]
 
@@ -98,17 +99,25 @@ class BenchmarkRequest(NamedTuple):
         """Where an outside observer and controller come from
         (:func:`~observer_gym.train.experiments.episode.entry_identities`); {} for the
         package's own."""
-        return entry_identities(self.suite.env_id, self.observer, self.controller)
+        system = system_for_id(self.suite.env_id)
+        return entry_identities(
+            resolve_observer(system, self.observer),
+            resolve_controller(system, self.controller),
+        )
 
     def digest(self) -> str:
         return plan_digest(self.identity())
 
     def specs(self, level: Level) -> list[EpisodeSpec]:
+        """The level's episodes, the system and entries resolved once for them."""
+        system = system_for_id(self.suite.env_id)
+        observer = resolve_observer(system, self.observer, self.observer_options)
+        controller = resolve_controller(system, self.controller, self.controller_options)
         return [
-            EpisodeSpec.of(
-                self.suite.env_id,
-                self.observer,
-                self.controller,
+            EpisodeSpec.of_entries(
+                system,
+                observer,
+                controller,
                 seed,
                 # the level's sensor options (in the agent camera's pixels) win over the
                 # agent's own
@@ -116,8 +125,6 @@ class BenchmarkRequest(NamedTuple):
                     **self.agent_env_options,
                     **options_in_entry_pixels(level.env_options, self.camera_scale),
                 },
-                observer_options=self.observer_options,
-                controller_options=self.controller_options,
             )
             for seed in level.seeds(self.episodes)
         ]

@@ -27,6 +27,7 @@ import numpy as np
 
 from observer_gym.envs import system_for_id
 from observer_gym.envs.json_file import read_json
+from observer_gym.train.core.observer_env import resolve_observer
 from observer_gym.train.core.tasks import task_of
 from observer_gym.train.experiments.delay_rl.delivery import measure_delivery
 from observer_gym.train.experiments.delay_rl.layout import (
@@ -44,6 +45,7 @@ from observer_gym.train.experiments.delay_rl.plan import (
 )
 from observer_gym.train.experiments.delay_rl.table import StudyTable, derive_table, write_table
 from observer_gym.train.experiments.episode import EpisodeSpec, run_episodes
+from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.reports.folder_lock import LOCK_FILE, folder_lock
 from observer_gym.train.reports.outputs import package_versions, write_json_atomic
 from observer_gym.train.reports.ray_tasks import local_cpus
@@ -220,6 +222,7 @@ def _evaluate(
     plan: StudyPlan, out_dir: Path, workers: int, progress: bool, say: Callable[[str], None]
 ) -> int:
     """Evaluate every seed's agent of every evaluation cell not yet recorded."""
+    system = system_for_id(plan.env_id)  # resolved once; each agent and observer per seed
     written = 0
     for trained_at, name, at in plan.eval_cells():
         path = eval_path(out_dir, trained_at, name, at)
@@ -231,14 +234,12 @@ def _evaluate(
             run_dir = seed_dir(folder, seed)
             config = read_config(run_dir)
             env_kwargs = {**config["env_kwargs"], **LEVELS[at].env_kwargs()}
+            observer = resolve_observer(system, config["observer"])
+            agent = resolve_controller(system, f"{plan.algo}:{run_dir}")
             for episode in range(plan.eval_episodes):
                 specs.append(
-                    EpisodeSpec.of(
-                        plan.env_id,
-                        config["observer"],
-                        f"{plan.algo}:{run_dir}",
-                        plan.eval_seed + episode,
-                        env_kwargs=env_kwargs,
+                    EpisodeSpec.of_entries(
+                        system, observer, agent, plan.eval_seed + episode, env_kwargs=env_kwargs
                     )
                 )
                 owners.append(seed)
@@ -260,6 +261,7 @@ def _references(
     """The classical controller on each input's belief at each level, not yet recorded."""
     system = system_for_id(plan.env_id)
     controller = REFERENCE_CONTROLLERS[system.name]
+    design = resolve_controller(system, controller)
     yaml_kwargs = _yaml_env_kwargs(plan)
     written = 0
     for name, agent_input in plan.input_records.items():
@@ -270,13 +272,10 @@ def _references(
             if path.exists():
                 continue
             env_kwargs = {**yaml_kwargs, **LEVELS[at].env_kwargs()}
+            observer = resolve_observer(system, agent_input.reference_observer)
             specs = [
-                EpisodeSpec.of(
-                    plan.env_id,
-                    agent_input.reference_observer,
-                    controller,
-                    plan.eval_seed + episode,
-                    env_kwargs=env_kwargs,
+                EpisodeSpec.of_entries(
+                    system, observer, design, plan.eval_seed + episode, env_kwargs=env_kwargs
                 )
                 for episode in range(plan.eval_episodes)
             ]
