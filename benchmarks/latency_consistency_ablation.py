@@ -23,6 +23,9 @@ rows are paired on the same seeds):
   (a quarter of its variance, in w1, w2 and w2's start);
 - ``motion terms x 0.25``: BallTable ``kf``'s motion model error
   (``motion_model_error_q``) at a quarter of its variance;
+- ``tilt Q 0.02 rad/s``: BallTable ``kf``'s tilt filter with the white rate noise of
+  0.02 rad/s it had before (now the arm's measured departure from the lag model,
+  observer.py ``tilt_departure_q``);
 - ``pixels at their own float32 spacing``: BallTable ``kf``'s R with each pixel's float32
   rounding at its own spacing (2^-15 to 2^-17 px under 320 px) instead of the bound the
   sensor declares (2^-13 px, that of 1024-2048 px; envs/sensor.py).
@@ -53,6 +56,7 @@ VARIANTS = (
     "pushes' Q x 0.25",
     "floor x 0.5",
     "motion terms x 0.25",
+    "tilt Q 0.02 rad/s",
     "pixels at their own float32 spacing",
 )
 
@@ -108,6 +112,13 @@ def _patch(variant: str) -> dict:
 
         motion = observer.motion_model_error_q
         observer.motion_model_error_q = lambda *args: 0.25 * motion(*args)
+    elif variant == "tilt Q 0.02 rad/s":
+        from observer_gym.envs.ball_table.config import BallTableConfig
+        from observer_gym.estimation.ball_table import observer
+
+        config = BallTableConfig()
+        lag = observer.TiltLagModel.from_arm(config.arm_position_gain, config.physics_dt_s, 0.02)
+        observer.tilt_departure_q = lambda alpha, dt_s: lag.matrices(round(dt_s, 9))[2]
     elif variant == "pixels at their own float32 spacing":
         from observer_gym.estimation.ball_table import noise
 

@@ -276,8 +276,12 @@ class TiltBallFilters:
         if action is not None:
             self.tilt_cmd = np.asarray(action, dtype=float)
         Phi, Gamma, Q = self.tilt_model.matrices(dt_s)
+        lag_after = Phi @ lag_before + Gamma @ self.tilt_cmd
+        if self.measured_model_error:
+            rate_after = self.tilt_model.rate(lag_after, self.tilt_cmd)
+            Q = tilt_departure_q((rate_after - rate_before) / dt_s, dt_s)
         self.tilt_kf.predict(Phi, Q, Gamma, self.tilt_cmd)
-        self._lag_tilt = Phi @ lag_before + Gamma @ self.tilt_cmd
+        self._lag_tilt = lag_after
         self._pending = (dt_s, tilt_before, lag_before, rate_before)
         self.time_s = time_s
 
@@ -571,6 +575,26 @@ def rate_model_var(rate_radps: np.ndarray) -> np.ndarray:
     # sigma_e^2 = floor^2 + (c_x theta_x' theta_y')^2 on x, floor^2 + (c_y theta_x'^2)^2 on y
     quadratic = np.array([c_x * rate_x * rate_y, c_y * rate_x**2])
     return np.square(CALM_RATE_MODEL_STD_RADPS) + np.square(quadratic)
+
+
+# How far the arm's tilt departs from the lag model over one 20 ms step (theta(k+1) -
+# Phi theta(k) - Gamma u(k), the truth on both sides), as s_i^2 = f_i^2 + (c_i |alpha|)^2
+# with alpha the lag model's angular acceleration over the step: the floor f is its RMS
+# once calm (steps 50-300: 12 and 21 urad on tilt_x and tilt_y), c from least squares of
+# e_i^2 - f_i^2 on |alpha|^2 (9.8 and 8.8 urad per rad/s^2); 8 episodes of the LQR with
+# pushes at 0.5 Hz, 0.24 and 0.22 mrad RMS over the first 15 steps.
+TILT_DEPARTURE_FLOOR_RAD = (1.2e-5, 2.1e-5)
+TILT_DEPARTURE_ALPHA_COEF_S2 = (9.8e-6, 8.8e-6)
+TILT_DEPARTURE_STEP_S = 0.02
+
+
+def tilt_departure_q(angular_accel_radps2: np.ndarray, dt_s: float) -> np.ndarray:
+    """``kf``'s tilt filter's Q (2, 2) over ``dt_s``: the arm's measured departure from
+    the lag model over a step (:data:`TILT_DEPARTURE_FLOOR_RAD`), taken as white over
+    other intervals (times dt / 20 ms)."""
+    alpha_sq = float(np.sum(np.square(angular_accel_radps2)))
+    f, c = np.asarray(TILT_DEPARTURE_FLOOR_RAD), np.asarray(TILT_DEPARTURE_ALPHA_COEF_S2)
+    return np.diag((f**2 + c**2 * alpha_sq) * (dt_s / TILT_DEPARTURE_STEP_S))
 
 
 def tilt_covariance_blocks(
