@@ -5,9 +5,11 @@ rule's R against the detections' scatter; the model floors against the simulator
 Cells: 3 episodes (seeds 0-2) x 300 steps with pushes at 0.5 Hz (the consistency study's
 conditions), closed loop with the LQR on the observer's own estimate, perfect-detector
 measurements. Measured with this code (median of the 3, episodes in brackets): kf and
-kf-latency 0.49 (0.70, 0.49, 0.26) at 0 px, 0.84 at 0.5 px, 0.74 at 2 px, 0.44 (0.80,
-0.44, 0.29) at 20 % drops; kf 1.01 (1.17, 1.01, 0.75) and kf-latency 0.63 (1.12, 0.63,
-0.42) at a latency of 0.1 s; ekf 1.06, 0.51, 0.96, 0.85 and 0.52 at 0.1 s (0.66, 0.46,
+kf-latency 0.49 (0.70, 0.49, 0.26) at 0 px, 0.85 at 0.5 px, 0.79 at 2 px, 0.44 (0.82,
+0.44, 0.29) at 20 % drops; kf 1.01 (1.17, 1.01, 0.75) and kf-latency 0.64 (1.16, 0.64,
+0.43) at a latency of 0.1 s (0.84, 0.74 and 0.63 at 0.5 px, 2 px and 0.1 s before their
+tilt filter's Q was the arm's measured departure from the lag model); ekf 1.06, 0.51,
+0.96, 0.85 and 0.52 at 0.1 s (0.66, 0.46,
 1.19, 0.52 and 1.30 before it had kf's lever arm and measured model error). Before kf's
 measured model errors (estimation/ball_table/noise.py, "Q"; observer.py,
 ``measured_model_error``) kf read 0.10, 0.61, 1.94, 0.09 and 0.47, kf-latency the same
