@@ -13,7 +13,7 @@ near zero between pushes and far above the claim in the steps after one, so an
 episode's NEES follows the push energy its seed drew: seeds 100-107 drew 31 % of the
 expected (10 pushes in 8 episodes against 24), and read 0.24-0.29 per dof in the ball's
 block where seeds 0-7 (94 %) read 0.82-1.02. Seeds 200-203 drew 116 %, 11 %, 26 % and
-276 % of it (2, 4, 2 and 7 pushes). Measured with this code (median; episodes 200-203):
+278 % of it (2, 4, 2 and 7 pushes). Measured with this code (median; episodes 200-203):
 kf 0.40 (0.62, 0.19, 0.16, 0.97), 0.54, 0.82 and 1.45 (1.50, 1.13, 1.41, 2.42) at 0,
 0.05, 0.1 and 0.15 s; kf-latency 0.41 (0.62, 0.13, 0.20, 1.07), 0.59, 0.59 and 0.66
 (0.97, 0.16, 0.35, 1.69): the two seeds with little pushing read 0.13-0.35.
