@@ -24,12 +24,13 @@ model leaves out, 0.003 px (before: 0.26, 0.45, 1.19, 0.18 and 0.59); under cali
 error (0 px) it reads 0.93 at 1 degree of rotation error and 1.10 at 2 % focal error
 (0.63 and 0.70 before the lever arm; 754 and 4.2 in the consistency study before the
 translation states: a pose error read as tilt).
-With R x 100 at 0 px the ratio falls (the tests below): kf and kf-latency to 0.32 (0.36,
-0.322, 0.17), just below the band's 1/3, because at 0 px R governs only the ball's
-position and the tilt: the ball's velocity is the pushes' (Q) and the tilt rate's
-variance its model error's.
-On perfect pixels kf's tilt reads ~0.01 per dof (2 of the 8): the geometry stage's
-floor on the ball, 3e-5 m, is twice its RMS (0.016 and 0.008 mm on x and y over 20
+With R x 100 at 0 px the ratio falls (the tests below): kf and kf-latency to 0.326
+(0.37, 0.326, 0.17; 0.322 before the tilt's measured Q), just below the band's 1/3,
+because at 0 px R governs only the ball's position and the tilt: the ball's velocity is
+the pushes' (Q) and the tilt rate's variance its model error's.
+On perfect pixels kf's tilt reads 0.03-0.04 per dof (2 of the 8; 0.005 before its Q was
+the arm's measured departure from the lag model, 0.001 under latency): the geometry
+stage's floor on the ball, 3e-5 m, is twice its RMS (0.016 and 0.008 mm on x and y over 20
 episodes), and both it and the declared float32 rounding of the pixels (2^-13 px /
 sqrt(12), the spacing of float32 at 1024-2048 px, where a 320 x 240 image needs 2^-15)
 are larger than the errors they stand for; both cover what kf's calibration report
