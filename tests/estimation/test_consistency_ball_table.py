@@ -5,9 +5,11 @@ rule's R against the detections' scatter; the model floors against the simulator
 Cells: 3 episodes (seeds 0-2) x 300 steps with pushes at 0.5 Hz (the consistency study's
 conditions), closed loop with the LQR on the observer's own estimate, perfect-detector
 measurements. Measured with this code (median of the 3, episodes in brackets): kf and
-kf-latency 0.49 (0.70, 0.49, 0.26) at 0 px, 0.84 at 0.5 px, 0.74 at 2 px, 0.44 (0.80,
-0.44, 0.29) at 20 % drops; kf 1.01 (1.17, 1.01, 0.75) and kf-latency 0.63 (1.12, 0.63,
-0.42) at a latency of 0.1 s; ekf 1.06, 0.51, 0.96, 0.85 and 0.52 at 0.1 s (0.66, 0.46,
+kf-latency 0.49 (0.70, 0.49, 0.26) at 0 px, 0.85 at 0.5 px, 0.79 at 2 px, 0.44 (0.82,
+0.44, 0.29) at 20 % drops; kf 1.01 (1.17, 1.01, 0.75) and kf-latency 0.64 (1.16, 0.64,
+0.43) at a latency of 0.1 s (0.84, 0.74 and 0.63 at 0.5 px, 2 px and 0.1 s before their
+tilt filter's Q was the arm's measured departure from the lag model); ekf 1.06, 0.51,
+0.96, 0.85 and 0.52 at 0.1 s (0.66, 0.46,
 1.19, 0.52 and 1.30 before it had kf's lever arm and measured model error). Before kf's
 measured model errors (estimation/ball_table/noise.py, "Q"; observer.py,
 ``measured_model_error``) kf read 0.10, 0.61, 1.94, 0.09 and 0.47, kf-latency the same
@@ -22,12 +24,13 @@ model leaves out, 0.003 px (before: 0.26, 0.45, 1.19, 0.18 and 0.59); under cali
 error (0 px) it reads 0.93 at 1 degree of rotation error and 1.10 at 2 % focal error
 (0.63 and 0.70 before the lever arm; 754 and 4.2 in the consistency study before the
 translation states: a pose error read as tilt).
-With R x 100 at 0 px the ratio falls (the tests below): kf and kf-latency to 0.32 (0.36,
-0.322, 0.17), just below the band's 1/3, because at 0 px R governs only the ball's
-position and the tilt: the ball's velocity is the pushes' (Q) and the tilt rate's
-variance its model error's.
-On perfect pixels kf's tilt reads ~0.01 per dof (2 of the 8): the geometry stage's
-floor on the ball, 3e-5 m, is twice its RMS (0.016 and 0.008 mm on x and y over 20
+With R x 100 at 0 px the ratio falls (the tests below): kf and kf-latency to 0.326
+(0.37, 0.326, 0.17; 0.322 before the tilt's measured Q), just below the band's 1/3,
+because at 0 px R governs only the ball's position and the tilt: the ball's velocity is
+the pushes' (Q) and the tilt rate's variance its model error's.
+On perfect pixels kf's tilt reads 0.03-0.04 per dof (2 of the 8; 0.005 before its Q was
+the arm's measured departure from the lag model, 0.001 under latency): the geometry
+stage's floor on the ball, 3e-5 m, is twice its RMS (0.016 and 0.008 mm on x and y over 20
 episodes), and both it and the declared float32 rounding of the pixels (2^-13 px /
 sqrt(12), the spacing of float32 at 1024-2048 px, where a 320 x 240 image needs 2^-15)
 are larger than the errors they stand for; both cover what kf's calibration report
