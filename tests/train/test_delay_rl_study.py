@@ -12,7 +12,7 @@ import pytest
 from observer_gym.envs.json_file import read_json
 from observer_gym.train.cli import main
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]  # the toy study: 8 min at load 7
 
 ARGS = [
     "study",
