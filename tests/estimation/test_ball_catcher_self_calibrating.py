@@ -18,6 +18,7 @@ from observer_gym.estimation.ball_catcher import EndpointObserver, SelfCalibrati
 from observer_gym.estimation.ball_catcher.self_calibrating import BoxTrack
 from observer_gym.estimation.calibration import moved_camera
 from observer_gym.train.core.observer_env import make_env as make_observer_env
+from observer_gym.train.core.observer_env import resolve_observer
 from observer_gym.train.experiments.benchmark.suite import load_suite
 
 ENV_ID = "observer_gym/BallCatcher-v1"
@@ -237,16 +238,16 @@ def test_endpoint_needs_the_hole_reports(make_env):
 
 
 def test_the_observers_env_option_travels_and_a_contradiction_is_refused():
-    env = make_observer_env(system_for_id(ENV_ID), "endpoint-measurements", LAB)
+    system = system_for_id(ENV_ID)
+    endpoint = resolve_observer(system, "endpoint-measurements")
+    env = make_observer_env(system, endpoint, LAB)
     try:
         assert env.unwrapped.config.hole_measurements is True
         assert "hole_uv_px" in env.unwrapped.observation_space.spaces
     finally:
         env.close()
     with pytest.raises(ValueError, match="needs the env option hole_measurements=True"):
-        make_observer_env(
-            system_for_id(ENV_ID), "endpoint-measurements", {"hole_measurements": False}
-        )
+        make_observer_env(system, endpoint, {"hole_measurements": False})
 
 
 @pytest.mark.parametrize(

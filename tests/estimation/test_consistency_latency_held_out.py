@@ -129,13 +129,13 @@ def test_the_tilt_departure_model_claims_the_sim():
     study = SYSTEMS["BallTable-v0"]
     errors, claimed = [], []
     for seed in range(8):
-        spec = EpisodeSpec(
-            "observer_gym/BallTable-v0",
+        spec = EpisodeSpec.of(
+            "BallTable-v0",
             "kf-measurements",
             study.controller,
             seed,
-            study.steps,
-            dict(study.env_kwargs),
+            max_steps=study.steps,
+            env_kwargs=dict(study.env_kwargs),
         )
         record = run_episode(spec)
         tilt, actions = record["state"][:, 4:6], record["actions"]
