@@ -1,5 +1,6 @@
 """The learned observers (``learned``, ``learned-kf``) on the benchmark: their leaderboard
-kind, their refusal without PyTorch and (slow) a quick run of each on every system."""
+kind, their refusal without PyTorch, (slow) a quick run of each on every system, and their
+published rows (docs/results/benchmark/v1/<system>/learned*-measurements--<reference>/)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,12 @@ import pytest
 from observer_gym import extras
 from observer_gym.extras import RL_INSTALL
 from observer_gym.train.cli import main
-from observer_gym.train.experiments.benchmark.leaderboard import Row
+from observer_gym.train.experiments.benchmark.leaderboard import Row, read_rows, slug
 from observer_gym.train.experiments.benchmark.suite import load_suite
 
+REPO = Path(__file__).resolve().parents[2]
+ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
+PAGE = REPO / "docs" / "leaderboard.md"
 ENVS = ("BallTable-v0", "BallCatcher-v1", "TargetFollower-v0")
 LEARNED = ("learned-measurements", "learned-kf-measurements")
 
@@ -95,3 +99,16 @@ def test_a_quick_run_of_a_learned_observer_checks_out(env_id, observer, tmp_path
     capsys.readouterr()
     assert main(["benchmark", "--check", str(out)]) == 0
     assert "OK" in capsys.readouterr().out
+
+
+def test_every_system_has_a_published_learned_row_of_each_family():
+    rows = {(row.env, row.observer, row.controller): row for row in read_rows(ROOT, verify=False)}
+    page = PAGE.read_text(encoding="utf-8")
+    for env_id in ENVS:
+        suite = load_suite(env_id)
+        for observer in LEARNED:
+            row = rows[(f"observer_gym/{env_id}", observer, suite.controller)]
+            assert row.folder == ROOT / suite.system.name / slug(observer, suite.controller)
+            assert row.kind == "learned"
+            line = f"| `{observer}` | `{suite.controller}` | learned | "
+            assert line in page, f"{env_id}: no row {line!r} on {PAGE}"
