@@ -49,6 +49,11 @@ from observer_gym.train.reports.outputs import output_set, write_text_atomic
 PUBLISHED = (EPISODES_CSV, SCORES_JSON, TABLE_MD)
 PROG = "python -m observer_gym.train.experiments.benchmark.leaderboard"
 AGENT_PREFIXES = ("ppo:", "sac:", "td3:")
+# the observer families (a name without its -measurements suffix) of the kinds other than
+# classical: those that read the simulator's truth, and the learned ones
+# (estimation/<system>/learned*.py, docs/learned_observers.md)
+TRUE_STATE_OBSERVERS = ("oracle", "oracle-visible")
+LEARNED_OBSERVERS = ("learned", "learned-kf")
 # An entry's observer or controller name on the leaderboard: a built-in or installed name
 # (kf-measurements, lqr), an import path (package.module:factory) or an agent
 # (ppo:NAME, ppo:runs/x): letters, digits and _ . : / + = , @ -, at most 120 characters,
@@ -128,12 +133,16 @@ class Row(NamedTuple):
     @property
     def kind(self) -> str:
         """``agent`` (a trained policy), ``true state`` (an observer that reads the
-        simulator's truth: ``oracle``, ``oracle-visible``) or ``classical`` (an observer on
-        the camera and a designed controller)."""
+        simulator's truth: ``oracle``, ``oracle-visible``), ``learned`` (a learned observer
+        on the camera, ``learned``, ``learned-kf``, and a designed controller) or
+        ``classical`` (any other observer on the camera and a designed controller)."""
         if self.controller.startswith(AGENT_PREFIXES):
             return "agent"
-        if self.observer.split("-measurements")[0] in ("oracle", "oracle-visible"):
+        family = self.observer.removesuffix("-measurements")
+        if family in TRUE_STATE_OBSERVERS:
             return "true state"
+        if family in LEARNED_OBSERVERS:
+            return "learned"
         return "classical"
 
 
@@ -315,7 +324,11 @@ def markdown(rows: Sequence[Row], root: str, figures_dir: str, command: str) -> 
         "level's mean score and the IQM over the levels, with their 95 % bootstrap "
         "intervals. Entries are ranked by the IQM; two entries whose intervals overlap are "
         "not told apart by this suite. Kinds: `classical` is an observer on the camera with a "
-        "designed controller, `agent` a trained policy (train/rl/agents/), `true state` an "
+        "designed controller, `learned` a learned observer on the camera (`learned`, "
+        "`learned-kf`: a network that maps the newest frames' detections to the state, alone "
+        "or as a Kalman filter's measurement model; "
+        "[learned_observers.md](learned_observers.md)) with a designed controller, "
+        "`agent` a trained policy (train/rl/agents/), `true state` an "
         "observer that reads the simulator's truth, for analysis: `oracle` (no camera; "
         "with the reference controller 1 by definition) and `oracle-visible` (the truth "
         "while the camera sees the target, predicted otherwise). Env options: what a row's "
