@@ -243,6 +243,23 @@ def remove_stale_temps(folder: str | os.PathLike, all_temps: bool = False) -> li
     return removed
 
 
+def check_writable_folder(folder: str | os.PathLike, what: str) -> Path:
+    """``folder``, created if needed, once a file could be made in it (a probe, removed);
+    else WriteError "cannot write WHAT: REASON" (one line). Then removes the temps there of
+    writers that are gone (:func:`remove_stale_temps`). For a command's up-front check
+    of where it will write, before anything runs."""
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-probe.tmp-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise WriteError(f"cannot write {what}: {exc.strerror or exc}") from exc
+    remove_stale_temps(path)
+    return path
+
+
 def _report_killed_runs(folder: Path) -> None:
     """Warn of each earlier run whose marker is in ``folder`` but whose writer is gone
     (killed before it finished), and remove its marker."""

@@ -51,7 +51,7 @@ from scipy.spatial.transform import Rotation
 from observer_gym.train.core.atomic_write import WriteError, replace_atomically, temp_path_for
 from observer_gym.train.reports.consistency import nees_per_step
 from observer_gym.train.reports.episode_frames import delivered_frames
-from observer_gym.train.reports.outputs import remove_stale_temps
+from observer_gym.train.reports.outputs import check_writable_folder
 from observer_gym.train.reports.video import (
     ERROR_ENTRIES,
     ESTIMATE_RGB,
@@ -100,15 +100,7 @@ def check_rerun_file(path: str | os.PathLike) -> Path:
         raise ValueError(f"--rerun takes a file ending in .rrd, got {str(path)!r}")
     if path.is_dir():
         raise ValueError(f"--rerun {path} is a folder; give a file ending in .rrd")
-    folder = path.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / f".rerun-probe.tmp-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise WriteError(f"cannot write {path}: {exc.strerror or exc}") from exc
-    remove_stale_temps(folder)
+    check_writable_folder(path.parent, str(path))
     return path
 
 

@@ -43,7 +43,7 @@ from observer_gym.train.reports.episode_frames import (
     marker_pixels,
     projection_for,
 )
-from observer_gym.train.reports.outputs import remove_stale_temps
+from observer_gym.train.reports.outputs import check_writable_folder
 
 # The overlays' colours (RGB, as the frames are)
 ESTIMATE_RGB = (255, 0, 255)
@@ -90,16 +90,7 @@ def check_video_folder(folder: str | os.PathLike) -> Path:
     cannot write is refused at once. Removes the temps there of writers that are gone (a
     run killed with SIGKILL: :func:`~observer_gym.train.reports.outputs.remove_stale_temps`,
     with a warning naming them)."""
-    path = Path(folder)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".video-probe.tmp-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise WriteError(f"cannot write videos into {path}: {exc.strerror or exc}") from exc
-    remove_stale_temps(path)
-    return path
+    return check_writable_folder(folder, f"videos into {Path(folder)}")
 
 
 def check_video_observer(obs_mode: str, observer: str) -> None:
