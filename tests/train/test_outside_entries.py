@@ -27,16 +27,6 @@ CONTROLLER = f"{PACKAGE}.control:make_controller_"
 
 
 @pytest.fixture
-def outside(tmp_path, monkeypatch):
-    """The package on sys.path (this process and the workers it spawns)."""
-    root = write_package(tmp_path / "site")
-    monkeypatch.syspath_prepend(str(root))
-    forget_package()
-    yield root
-    forget_package()
-
-
-@pytest.fixture
 def installed(tmp_path, monkeypatch):
     """The package installed with its entry points (its dist-info on sys.path)."""
     root = write_package(tmp_path / "site", entry_points=True)

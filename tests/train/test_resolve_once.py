@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from outside_package import PACKAGE, forget_package, write_package
+from outside_package import PACKAGE
 
 import observer_gym
 from observer_gym.train.core.tasks import ball_table
@@ -100,16 +100,6 @@ def test_a_spec_pickles_and_its_episode_looks_no_name_up():
     np.testing.assert_array_equal(records[0]["state"], here["state"])
     np.testing.assert_array_equal(records[0]["actions"], here["actions"])
     assert len(here["actions"]) == 5
-
-
-@pytest.fixture
-def outside(tmp_path, monkeypatch):
-    """The outside package on sys.path (this process and the workers it spawns)."""
-    root = write_package(tmp_path / "site")
-    monkeypatch.syspath_prepend(str(root))
-    forget_package()
-    yield root
-    forget_package()
 
 
 def _outside_specs() -> list[EpisodeSpec]:
