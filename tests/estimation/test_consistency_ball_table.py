@@ -127,7 +127,13 @@ CALIBRATION = {
 }
 
 
-@pytest.mark.parametrize("condition", CALIBRATION)
+@pytest.mark.parametrize(  # the rotation cell (3.2 s at load 2) in the slow step
+    "condition",
+    [
+        pytest.param(c, marks=pytest.mark.slow) if c.startswith("rotation") else c
+        for c in CALIBRATION
+    ],
+)
 def test_ekf_is_within_the_band_under_calibration_error(condition):
     """The pixel EKF absorbs a camera pose error as the table's translation and reports
     the rest (estimation/ball_table/pixel_ekf.py, fit_calibration_cov): measured 0.93

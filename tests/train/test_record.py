@@ -164,6 +164,7 @@ def test_replaying_the_actions_from_the_recorded_seed_gives_the_observations(rec
         np.testing.assert_array_equal(states, episode.state)
 
 
+@pytest.mark.slow  # rendered frames: 3.2 s at load 2; the measurements' replay stays
 def test_camera_frames_are_recorded_losslessly_and_replay(tmp_path):
     out = tmp_path / "frames"
     record_experiment(ENV, "kf", CONTROLLER, 1, 3, out, steps=4, progress=False)
