@@ -12,6 +12,7 @@ from observer_gym.train.cli.args import (
     add_entry_option_arguments,
     command_error,
     controller_name,
+    randomize_option,
     recorded_args,
 )
 from observer_gym.train.core.args import (
@@ -82,7 +83,44 @@ def _record_arguments(parser: argparse.ArgumentParser) -> None:
         "a gym.make option of the env, repeatable (e.g. camera_preset=single); the observer "
         "sets obs_mode",
     )
+    parser.add_argument(
+        "--randomize",
+        type=randomize_option,
+        action="append",
+        default=[],
+        metavar="KEY=LOW:HIGH|KEY=A|B",
+        help=(
+            "draw the env option KEY anew for every episode, repeatable: KEY=LOW:HIGH a "
+            "number uniform in [LOW, HIGH] (an integer option: an integer in LOW..HIGH), "
+            "KEY=A|B|... one of the values (e.g. latency_s=0:0.05, frame_drop_prob=0:0.2); "
+            "the options and then the world's seed of each episode are drawn from one "
+            "generator seeded with --seed, as the learned observers' training data are, and "
+            "kept in the episode's metadata (seed, drawn_options). Not with --env-option of "
+            "the same KEY"
+        ),
+    )
     parser.add_argument("--no-progress", action="store_true", help="do not show the progress bar")
+
+
+def _checked_randomize(args: argparse.Namespace, env_id: str) -> dict[str, dict] | None:
+    """``--randomize`` checked (each key once, none also an ``--env-option``, every range
+    end and choice taken by the env), or None; ValueError naming what is wrong."""
+    from observer_gym.train.core.checks import observer_mode
+    from observer_gym.train.rl.randomize import check_randomize
+
+    keys = [key for key, _ in args.randomize]
+    repeated = sorted({key for key in keys if keys.count(key) > 1})
+    if repeated:
+        raise ValueError(f"--randomize gives {', '.join(repeated)} more than once; give each once")
+    checked = check_randomize(
+        env_id,
+        observer_mode(env_id, args.observer),
+        dict(args.env_option),
+        dict(args.randomize),
+        fixed=dict(args.env_option),
+        fixed_by="--env-option",
+    )
+    return checked or None
 
 
 def _run_record(args: argparse.Namespace) -> int:
@@ -96,6 +134,7 @@ def _run_record(args: argparse.Namespace) -> int:
         env_id = check_observer(args.env, args.observer)
         check_pair_of(system_for_id(env_id), args.observer, args.controller)
         check_env_options(env_id, observer_mode(env_id, args.observer), dict(args.env_option))
+        randomize = _checked_randomize(args, env_id)
         check_new_folder(args.out)
     except ValueError as exc:  # an observer, controller, env option or folder refused
         return command_error("record", exc)
@@ -118,6 +157,7 @@ def _run_record(args: argparse.Namespace) -> int:
             observer_options=dict(args.observer_option),
             controller_options=dict(args.controller_option),
             cli_args=recorded_args(args),
+            randomize=randomize,
         )
     except EpisodeError as exc:  # an episode failed part-way: nothing written
         print(error_line("observer-gym record", exc), file=sys.stderr)
@@ -138,7 +178,8 @@ COMMAND = Command(
     help="record closed-loop episodes as a Minari dataset",
     description=(
         "Run closed-loop episodes of an env with an observer and a controller (episode i "
-        "resets with seed + i) and keep them as a Minari dataset in a new folder --out: "
+        "resets with seed + i; with --randomize each draws its options and world seed) "
+        "and keep them as a Minari dataset in a new folder --out: "
         "the observations of the observer's obs mode, the actions, rewards, terminations "
         "and truncations, and in the infos the true state, the frames' capture and "
         "delivery times and calibration, and the observer's estimate and covariance "

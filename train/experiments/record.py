@@ -16,12 +16,13 @@ from __future__ import annotations
 import dataclasses
 import sys
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from observer_gym.extras import require_record
 from observer_gym.train.core import entries
+from observer_gym.train.core.observer_env import with_observer_env_options
 from observer_gym.train.experiments.episode import (
     EpisodeError,
     build_controller,
@@ -35,6 +36,7 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.progress import progress_bar
+from observer_gym.train.rl.randomize import RandomizedEnv, check_randomize
 
 
 def check_new_folder(out_dir: str | Path) -> Path:
@@ -60,12 +62,21 @@ def record_experiment(
     observer_options: Mapping[str, Any] | None = None,
     controller_options: Mapping[str, Any] | None = None,
     cli_args: Mapping[str, Any] | None = None,
+    randomize: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` closed-loop episodes and keep them as a Minari dataset in the new
     folder ``out_dir``.
 
     Episode i resets with ``seed + i`` (and ``reset_options``) and runs to the env's end or
-    ``steps`` steps. ``out_dir`` then holds the dataset, ``observer_gym/SYSTEM-OBSERVER-
+    ``steps`` steps. With ``randomize`` (env option -> ``{"low": LOW, "high": HIGH}`` or
+    ``{"choices": [...]}``, :mod:`observer_gym.train.rl.randomize`'s forms) each episode
+    instead draws its options and then its world's seed from one generator seeded with
+    ``seed``, as the learned observers' collections draw theirs
+    (:data:`WORLD_SEEDS_BELOW`), and its world is rebuilt with them (the controller, unless
+    a trained agent, designed anew on it); each episode's metadata holds its world's
+    ``seed`` and its ``drawn_options``, and ``record.json``'s episodes the same.
+
+    ``out_dir`` then holds the dataset, ``observer_gym/SYSTEM-OBSERVER-
     CONTROLLER-v0/data`` (:func:`~observer_gym.train.reports.dataset.dataset_id_for`; load
     it with ``minari.load_dataset(ID)`` and ``MINARI_DATASETS_PATH=out_dir``, or
     :func:`~observer_gym.train.reports.dataset.load_recording`), and ``record.json``
@@ -79,7 +90,8 @@ def record_experiment(
     Raises:
         ExtraNotInstalled: minari (the ``[record]`` extra) is not installed.
         ValueError: an unknown env, observer or controller, a count < 1, a negative seed,
-            or ``out_dir`` exists.
+            a randomisation the env refuses (naming the option and what is allowed), or
+            ``out_dir`` exists.
         EpisodeError: an episode failed part-way (nothing is written).
     """
     require_record()
@@ -96,20 +108,41 @@ def record_experiment(
     )  # fmt: skip
     observer_entry, controller_entry = request.observers[0], request.controllers[0]
     system = request.system
+    gym_options = request.env_kwargs_for(controller_entry)
+    checked = check_randomize(
+        env_id,
+        observer_entry.obs_mode,
+        with_observer_env_options(observer_entry, gym_options),
+        randomize,
+        fixed=env_kwargs,
+        fixed_by="env_kwargs",
+    )
 
     from observer_gym.train.reports import dataset  # needs minari: after require_record
 
     dataset_id = dataset.dataset_id_for(system.name, observer, controller)
-    gym_options = request.env_kwargs_for(controller_entry)
+    per_episode = None if not checked else randomized_worlds(env_id, checked)
     with (
         entries.objects_in_use(entries.objects_for(observer, controller)),
         dataset.staged_datasets(out_dir) as staging,
     ):
-        collector = dataset.recording_env(system, observer_entry, gym_options)
-        env = collector.unwrapped
+        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode)
         try:
-            built = build_controller(controller_entry, collector, system)
-            played = _play(built, collector, request.seeds, steps, reset_options, progress)
+            world = dataset.world_stack(collector)
+            env = world.unwrapped
+            spec = world.spec  # the env of the observations, with its obs_mode
+            if checked:  # the fixed options only: each episode's drawn ones are its own
+                kept = {k: v for k, v in spec.kwargs.items() if k not in checked}
+                spec = dataclasses.replace(spec, kwargs=kept)
+            built = build_controller(controller_entry, world, system)
+            redesign = None
+            if checked and controller_entry.kind not in ("agent", "policy"):
+                redesign = lambda: build_controller(  # noqa: E731
+                    controller_entry, dataset.world_stack(collector), system
+                )
+            played = _play(
+                built, collector, request.seeds, steps, reset_options, progress, redesign
+            )
             observed = observer_entry.record()
             record = to_jsonable(
                 {
@@ -117,7 +150,8 @@ def record_experiment(
                     "config": {
                         "env_id": env_id,
                         "env_kwargs": {"obs_mode": observed["obs_mode"], **gym_options},
-                        "env_config": dataclasses.asdict(env.config),
+                        # randomised: each episode's drawn_options over env_kwargs
+                        "env_config": None if checked else dataclasses.asdict(env.config),
                         "observer": observer,
                         **{k: v for k, v in observed.items() if k != "obs_mode"},
                         "observer_options": observer_entry.options,
@@ -128,6 +162,7 @@ def record_experiment(
                         "seed": seed,
                         "steps": steps,
                         "reset_options": reset_options,
+                        "randomize": checked or None,
                         "out_dir": str(out_dir),
                         "cli_args": cli_args,
                         "command": sys.argv if cli_args is not None else None,
@@ -136,23 +171,89 @@ def record_experiment(
                     "episodes": played,
                 }
             )
-            with warnings.catch_warnings():  # Minari's advice to name an author and a link
-                warnings.simplefilter("ignore", UserWarning)
-                written = collector.create_dataset(
-                    dataset_id=dataset_id,
-                    eval_env=env.spec,  # the env of the observations, with its obs_mode
-                    algorithm_name=f"observer {observer}, controller {controller}",
-                    author="observer-gym record",
-                    description=(
-                        f"{env_id} with observer {observer} and controller {controller}: "
-                        f"{episodes} episode(s) from seed {seed}, recorded by observer-gym"
-                    ),
-                )
-            written.storage.update_metadata({"observer_gym": record})
+            write_dataset(
+                collector,
+                staging,
+                record,
+                spec,
+                algorithm_name=f"observer {observer}, controller {controller}",
+                description=(
+                    f"{env_id} with observer {observer} and controller {controller}: "
+                    f"{episodes} episode(s) from seed {seed}, recorded by observer-gym"
+                ),
+            )
         finally:
             collector.close()  # closes the env; removes Minari's temporary folder
-        write_json_atomic(staging / dataset.RECORD_FILE, record)
     return record
+
+
+# each randomised episode's world seed is drawn uniform in 0..this - 1 after its options,
+# as the learned observers' collections draw theirs
+WORLD_SEEDS_BELOW = 2**31
+
+
+def randomized_worlds(
+    env_id: str, randomize: Mapping[str, Mapping[str, Any]], integers: bool = True
+) -> Any:
+    """The ``per_episode`` of :func:`~observer_gym.train.reports.dataset.recording_env` for
+    a checked randomisation: a :class:`~observer_gym.train.rl.randomize.RandomizedEnv`
+    drawing options then world seeds below :data:`WORLD_SEEDS_BELOW` (integer options as
+    integers unless ``integers`` is False: every range a float, as the learned observers'
+    collections draw)."""
+
+    def per_episode(make_stack: Any) -> RandomizedEnv:
+        return RandomizedEnv(
+            make_stack, env_id, randomize, world_seeds_below=WORLD_SEEDS_BELOW, integers=integers
+        )
+
+    return per_episode
+
+
+def episode_reset_kwargs(
+    index: int, seed: int, randomized: bool, reset_options: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """The DataCollector's reset arguments of episode ``index``: ``seed + index``; for a
+    randomised recording ``seed`` at the first (seeding the draws) and no seed after (the
+    draws go on; Minari told not to seed the reset itself)."""
+    from observer_gym.train.reports.dataset import MINARI_AUTOSEED
+
+    if not randomized:
+        return {"seed": seed + index, "options": reset_options}
+    if index == 0:
+        return {"seed": seed, "options": reset_options}
+    return {"seed": None, "options": {**(reset_options or {}), MINARI_AUTOSEED: False}}
+
+
+def write_dataset(
+    collector: Any,
+    staging: Path,
+    record: dict[str, Any],
+    spec: Any,
+    algorithm_name: str,
+    description: str,
+) -> None:
+    """Write the collector's episodes as the dataset ``record["dataset_id"]`` into
+    ``staging`` (inside :func:`~observer_gym.train.reports.dataset.staged_datasets`), with
+    ``record`` in its metadata (``observer_gym``) and in ``record.json``; a randomised
+    recording's episodes (``world_seed`` and ``drawn_options`` in ``record["episodes"]``)
+    get theirs in their episode metadata."""
+    from observer_gym.train.reports import dataset
+
+    with warnings.catch_warnings():  # Minari's advice to name an author and a link
+        warnings.simplefilter("ignore", UserWarning)
+        written = collector.create_dataset(
+            dataset_id=record["dataset_id"],
+            eval_env=spec,
+            algorithm_name=algorithm_name,
+            author="observer-gym record",
+            description=description,
+        )
+    written.storage.update_metadata({"observer_gym": record})
+    if any("drawn_options" in episode for episode in record["episodes"]):
+        dataset.set_drawn_episodes(
+            written, [(e["seed"], e["drawn_options"]) for e in record["episodes"]]
+        )
+    write_json_atomic(staging / dataset.RECORD_FILE, record)
 
 
 def _play(
@@ -162,21 +263,34 @@ def _play(
     steps: int | None,
     reset_options: Mapping[str, Any] | None,
     progress: bool,
+    redesign: Callable[[], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """The episodes of ``seeds`` on ``env`` (the DataCollector) as
     :func:`~observer_gym.train.experiments.episode.run_episode_here` plays them; each
-    episode's seed, steps and how it ended."""
+    episode's seed, steps and how it ended. A randomised recording (``env`` above a
+    RandomizedEnv) resets as :func:`episode_reset_kwargs` says, records each episode's
+    world seed and drawn options, and designs the controller anew on each episode's
+    world with ``redesign`` (if given)."""
+    randomized = env.unwrapped if isinstance(env.unwrapped, RandomizedEnv) else None
     # a trained agent sees the env through its own wrappers; the collector is beneath
     played_env = getattr(controller, "wrap_env", lambda env: env)(env)
-    observe_info = getattr(controller, "observe_info", lambda info: None)
     played = []
     with progress_bar(total=len(seeds), unit="episode", desc="record", disable=not progress) as bar:
-        for seed in seeds:
-            controller.reset()
+        for index, seed in enumerate(seeds):
             step = 0
             terminated = truncated = False
+            reset_kwargs = episode_reset_kwargs(
+                index, seeds[0], randomized is not None, reset_options
+            )
             try:
-                obs, info = played_env.reset(seed=seed, options=reset_options)
+                if redesign is None:
+                    controller.reset()
+                    obs, info = played_env.reset(**reset_kwargs)
+                else:  # a design on the episode's world, which the reset rebuilds
+                    obs, info = played_env.reset(**reset_kwargs)
+                    controller = redesign()
+                    controller.reset()
+                observe_info = getattr(controller, "observe_info", lambda info: None)
                 observe_info(info)
                 while not (terminated or truncated) and (steps is None or step < steps):
                     action, _ = controller.predict(obs)
@@ -185,8 +299,16 @@ def _play(
                     step += 1
             except ValueError as exc:  # an observer's or controller's fault: which, when
                 raise EpisodeError(f"{exc} (episode seed {seed}, after {step} steps)") from None
-            played.append(
-                {"seed": seed, "steps": step, "terminated": terminated, "truncated": truncated}
-            )
+            episode: dict[str, Any] = {
+                "seed": seed,
+                "steps": step,
+                "terminated": terminated,
+                "truncated": truncated,
+            }
+            if randomized is not None:
+                assert randomized.world_seed is not None  # reset above
+                episode["seed"] = randomized.world_seed
+                episode["drawn_options"] = dict(randomized.options)
+            played.append(episode)
             bar.update(1)
     return played

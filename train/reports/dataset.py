@@ -31,7 +31,7 @@ import os
 import re
 import shutil
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -57,6 +57,11 @@ from observer_gym.train.reports.outputs import OutputFolderWarning, process_aliv
 NAMESPACE = "observer_gym"
 # the file beside the dataset naming it and what was recorded (record.json)
 RECORD_FILE = "record.json"
+# DataCollector.reset's option that, False, keeps it from seeding a reset given no seed
+# (the world's seed is then drawn beneath it, as the episode's options are)
+MINARI_AUTOSEED = "minari_autoseed"
+# an episode's metadata key of the options drawn for it (randomised recordings)
+DRAWN_OPTIONS = "drawn_options"
 
 
 def dataset_id_for(system: str, observer: str, controller: str) -> str:
@@ -130,6 +135,9 @@ class KeepObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.kept_observation: Any = None
 
     def reset(self, **kwargs: Any) -> Any:
+        options = kwargs.get("options")
+        if options and MINARI_AUTOSEED in options:  # Minari's own option, no env's
+            kwargs["options"] = {k: v for k, v in options.items() if k != MINARI_AUTOSEED}
         obs, info = self.env.reset(**kwargs)
         self.kept_observation = obs
         return obs, info
@@ -140,37 +148,59 @@ class KeepObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, reward, terminated, truncated, info
 
 
+def world_stack(env: gym.Env) -> gym.Env:
+    """The env stack of the current episode's world under ``env``: ``env`` itself, or,
+    where the world is rebuilt every episode (a wrapper whose base env holds the
+    episode's stack as ``inner``: :class:`~observer_gym.train.rl.randomize.RandomizedEnv`),
+    that stack."""
+    inner = getattr(env.unwrapped, "inner", None)
+    return env if inner is None else inner
+
+
 class RecordedStep(StepDataCallback):
     """Minari's step callback with the observation of the env's obs mode
     (:class:`KeepObservation`'s) and :func:`step_info`'s info."""
 
     def __call__(self, env: gym.Env, obs: Any, info: dict[str, Any], **step: Any) -> Any:
         data = super().__call__(env, obs, info, **step)
-        data["observation"] = env.get_wrapper_attr("kept_observation")
-        data["info"] = step_info(env, info)
+        world = world_stack(env)
+        data["observation"] = world.get_wrapper_attr("kept_observation")
+        data["info"] = step_info(world, info)
         return data
+
+
+# a world rebuilt every episode: given the builder of the observer stack for drawn options
+# (over the fixed ones), the env that rebuilds it at each reset (a RandomizedEnv)
+PerEpisode = Callable[[Callable[[Mapping[str, Any]], gym.Env]], gym.Env]
 
 
 def recording_env(
     system: System,
     observer: ObserverEntry,
     env_kwargs: Mapping[str, Any] | None = None,
+    per_episode: PerEpisode | None = None,
 ) -> minari.DataCollector:
     """:func:`~observer_gym.train.core.observer_env.make_env`'s env for ``observer`` (its
     steps, repeated here to put a wrapper between them), with :class:`KeepObservation`
     beneath the observer and Minari's DataCollector above it: the collector records the
     observations of the obs mode (camera frames losslessly, no JPEG; measurements; the
     state for ``oracle``), the actions that reached the env and the infos with the
-    observer's estimate (:class:`RecordedStep`). Call inside :func:`staged_datasets`."""
-    options = with_observer_env_options(observer, env_kwargs)
-    check_gym_make_options(options)
-    kept = KeepObservation(gym.make(system.env_id, obs_mode=observer.obs_mode, **options))
-    observed = wrap_observer(kept, observer)
+    observer's estimate (:class:`RecordedStep`). With ``per_episode`` the collector is
+    above the env it makes of the stack's builder (options drawn per episode, the world
+    rebuilt at each reset). Call inside :func:`staged_datasets`."""
+
+    def make_stack(drawn: Mapping[str, Any]) -> gym.Env:
+        options = with_observer_env_options(observer, {**(env_kwargs or {}), **drawn})
+        check_gym_make_options(options)
+        kept = KeepObservation(gym.make(system.env_id, obs_mode=observer.obs_mode, **options))
+        return wrap_observer(kept, observer)
+
+    observed = make_stack({}) if per_episode is None else per_episode(make_stack)
     return minari.DataCollector(
         observed,
         step_data_callback=RecordedStep,
         record_infos=True,
-        observation_space=kept.observation_space,
+        observation_space=world_stack(observed).unwrapped.observation_space,
         jpeg_encoding=False,
     )
 
@@ -218,6 +248,22 @@ def staged_datasets(out_dir: str | os.PathLike) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
+def set_drawn_episodes(
+    dataset: minari.MinariDataset, drawn: list[tuple[int, Mapping[str, Any]]]
+) -> None:
+    """Write each episode's world seed and drawn options (``(seed, options)`` per episode,
+    in order) into its Minari episode metadata: ``seed`` (the seed the world was reset
+    with; Minari's own is None, the reset having been given none) and
+    ``drawn_options/KEY`` (read back as the ``drawn_options`` dict)."""
+    dataset.storage.update_episode_metadata(
+        [
+            {"seed": int(seed), **{f"{DRAWN_OPTIONS}/{k}": v for k, v in options.items()}}
+            for seed, options in drawn
+        ],
+        range(len(drawn)),
+    )
+
+
 def recording_record(out_dir: str | os.PathLike) -> dict[str, Any]:
     """What ``record.json`` of the recording ``out_dir`` holds (``dataset_id``, ``config``,
     ``versions``); ValueError if ``out_dir`` holds no recording."""
@@ -243,6 +289,9 @@ class RecordedEpisode:
 
     episode_id: int
     seed: int | None  # the reset's seed: replaying ``actions`` from it gives the episode
+    # the options drawn for the episode's world (a randomised recording), else empty:
+    # replaying needs them over the recording's fixed options
+    drawn_options: Mapping[str, Any]
     observations: Any  # (T + 1, ...) the env's obs mode (a dict of arrays for a Dict space)
     actions: np.ndarray  # (T, m)
     rewards: np.ndarray  # (T,)
@@ -259,14 +308,17 @@ def episodes_of(dataset: minari.MinariDataset) -> list[RecordedEpisode]:
     """The episodes of a recorded dataset (:func:`load_recording` or
     ``minari.load_dataset``), in order."""
     ids = list(dataset.episode_indices)
-    seeds = [metadata.get("seed") for metadata in dataset.storage.get_episode_metadata(ids)]
+    metadatas = list(dataset.storage.get_episode_metadata(ids))
     episodes = []
-    for episode, seed in zip(dataset.iterate_episodes(ids), seeds, strict=True):
+    for episode, metadata in zip(dataset.iterate_episodes(ids), metadatas, strict=True):
         infos = {key: np.asarray(value) for key, value in episode.infos.items()}
+        seed = metadata.get("seed")
+        drawn = {k: _plain(v) for k, v in metadata.get(DRAWN_OPTIONS, {}).items()}
         episodes.append(
             RecordedEpisode(
                 episode_id=int(episode.id),
                 seed=None if seed is None else int(seed),
+                drawn_options=drawn,
                 observations=episode.observations,
                 actions=np.asarray(episode.actions),
                 rewards=np.asarray(episode.rewards),
@@ -280,6 +332,11 @@ def episodes_of(dataset: minari.MinariDataset) -> list[RecordedEpisode]:
             )
         )
     return episodes
+
+
+def _plain(value: Any) -> Any:
+    """An HDF5 attribute as the Python value it was written from (a NumPy scalar's item)."""
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def read_recording(out_dir: str | os.PathLike) -> list[RecordedEpisode]:

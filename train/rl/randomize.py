@@ -274,6 +274,23 @@ def draw_options(
     return drawn
 
 
+def randomize_of_ranges(ranges: Mapping[str, tuple[Any, ...]]) -> dict[str, dict[str, Any]]:
+    """A declared table of ranges (a learned observer's ``TRAINING_RANGES``: ``(LOW, HIGH)``
+    numbers, or a tuple of text values to choose from) as a randomisation for
+    :func:`draw_options`: the same draws from the same generator."""
+    randomize: dict[str, dict[str, Any]] = {}
+    for key, values in ranges.items():
+        if values and all(isinstance(v, str) for v in values):
+            randomize[key] = _checked_spec(key, {"choices": list(values)})
+        elif len(values) == 2:
+            randomize[key] = _checked_spec(key, {"low": values[0], "high": values[1]})
+        else:
+            raise ValueError(
+                f"randomize {key}: expected (LOW, HIGH) or a tuple of text choices, got {values!r}"
+            )
+    return randomize
+
+
 def integer_options(env_id: str) -> frozenset[str]:
     """The options of ``env_id`` that are integers (drawn as integers)."""
     from observer_gym.envs import system_for_id
@@ -294,10 +311,14 @@ class RandomizedEnv(gym.Env):
             wrappers) for the options it is given, over the run's fixed ones.
         env_id: the env, whose integer options are drawn as integers.
         randomize: the checked randomisation (:func:`check_randomize`).
+        world_seeds_below: each world's seed is drawn uniform in 0..this - 1.
+        integers: draw the env's integer options as integers (else every range's draw
+            is a float, as the learned observers' collections draw theirs).
 
     Attributes:
         inner: the world of the current episode.
         options: the options drawn for it.
+        world_seed: the seed its reset was given (None before the first reset).
         episodes: how many worlds this env has built.
     """
 
@@ -306,10 +327,14 @@ class RandomizedEnv(gym.Env):
         make_inner: Callable[[Mapping[str, Any]], gym.Env],
         env_id: str,
         randomize: Mapping[str, Mapping[str, Any]],
+        world_seeds_below: int = 2**31 - 1,
+        integers: bool = True,
     ) -> None:
         self._make_inner = make_inner
         self.randomize = {k: dict(v) for k, v in randomize.items()}
-        self._integers = integer_options(env_id)
+        self._integers = integer_options(env_id) if integers else frozenset()
+        self._world_seeds_below = int(world_seeds_below)
+        self.world_seed: int | None = None
         # until the first reset(seed=...); training seeds every env's first reset
         self._rng = np.random.default_rng(0)
         self.options = draw_options(self.randomize, np.random.default_rng(0), self._integers)
@@ -326,11 +351,12 @@ class RandomizedEnv(gym.Env):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         drawn = draw_options(self.randomize, self._rng, self._integers)
-        world_seed = int(self._rng.integers(2**31 - 1))
+        world_seed = int(self._rng.integers(self._world_seeds_below))
         if not (self._first and drawn == self.options):
             self._rebuild(drawn)
         self._first = False
         assert self.inner is not None  # built above or at construction
+        self.world_seed = world_seed
         observation, info = self.inner.reset(seed=world_seed, options=options)
         return observation, {**info, "randomized": dict(self.options)}
 
@@ -352,6 +378,12 @@ class RandomizedEnv(gym.Env):
             )
         self.inner, self.options = inner, drawn
         self.episodes += 1
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator of the draws (seeded at ``reset(seed=...)``), for a player that
+        draws from the same stream between resets (a learned observer's action noise)."""
+        return self._rng
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         assert self.inner is not None, "reset the env first"
