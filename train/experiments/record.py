@@ -312,3 +312,111 @@ def _play(
             played.append(episode)
             bar.update(1)
     return played
+
+
+# a player of a recording made by a trainer: (the episode's world stack, the generator of
+# the draws) -> the episode's policy, (observation, info) -> the action given to the env
+Player = Callable[[Any, Any], Callable[[Any, Mapping[str, Any]], Any]]
+
+
+def record_played(
+    env_id: str,
+    observer: str,
+    out_dir: str | Path,
+    *,
+    randomize: Mapping[str, Mapping[str, Any]],
+    episodes: int,
+    seed: int,
+    steps: int | None,
+    player: Player,
+    player_name: str,
+    config: Mapping[str, Any],
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Record ``episodes`` episodes played by ``player`` (a trainer's collection: a
+    controller on the truth with action noise drawn from the same generator as the
+    options) as a Minari dataset in the new folder ``out_dir``, as
+    :func:`record_experiment` records (``record.json``, metadata, staging) with its
+    randomisation: each episode draws ``randomize``'s options (every range a float) and
+    then its world's seed from one generator seeded with ``seed``; ``player`` is given the
+    episode's world stack and that generator after the reset, and each step's action comes
+    from it, up to ``steps`` steps or the env's end. ``observer`` names the observer whose
+    env is recorded (its obs mode; its estimate in the infos if it has one); ``config`` is
+    kept in the record's ``config`` beside these arguments.
+
+    Returns:
+        What ``record.json`` holds.
+    """
+    require_record()
+    from observer_gym.envs import system_for_id
+    from observer_gym.train.core.observer_env import resolve_observer
+    from observer_gym.train.reports import dataset
+
+    out_dir = check_new_folder(out_dir)
+    system = system_for_id(env_id)
+    observer_entry = resolve_observer(system, observer)
+    gym_options = dict(env_kwargs or {})
+    checked = check_randomize(
+        system.env_id, observer_entry.obs_mode, gym_options, randomize, fixed=gym_options
+    )
+    dataset_id = dataset.dataset_id_for(system.name, observer, player_name)
+    per_episode = randomized_worlds(system.env_id, checked, integers=False)
+    with dataset.staged_datasets(out_dir) as staging:
+        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode)
+        try:
+            randomized = collector.unwrapped
+            assert isinstance(randomized, RandomizedEnv)
+            played = []
+            for index in range(episodes):
+                obs, info = collector.reset(**episode_reset_kwargs(index, seed, True, None))
+                policy = player(dataset.world_stack(collector), randomized.rng)
+                step = 0
+                terminated = truncated = False
+                while not (terminated or truncated) and (steps is None or step < steps):
+                    obs, _, terminated, truncated, info = collector.step(policy(obs, info))
+                    step += 1
+                assert randomized.world_seed is not None  # reset above
+                played.append(
+                    {
+                        "seed": randomized.world_seed,
+                        "steps": step,
+                        "terminated": terminated,
+                        "truncated": truncated,
+                        "drawn_options": dict(randomized.options),
+                    }
+                )
+            spec = dataset.world_stack(collector).spec
+            kept = {k: v for k, v in spec.kwargs.items() if k not in checked}
+            record = to_jsonable(
+                {
+                    "dataset_id": dataset_id,
+                    "config": {
+                        "env_id": system.env_id,
+                        "env_kwargs": {"obs_mode": observer_entry.obs_mode, **gym_options},
+                        "observer": observer,
+                        "player": player_name,
+                        **dict(config),
+                        "episodes": episodes,
+                        "seed": seed,
+                        "steps": steps,
+                        "randomize": checked,
+                        "out_dir": str(out_dir),
+                    },
+                    "versions": package_versions((*VERSIONED_PACKAGES, "minari")),
+                    "episodes": played,
+                }
+            )
+            write_dataset(
+                collector,
+                staging,
+                record,
+                dataclasses.replace(spec, kwargs=kept),
+                algorithm_name=player_name,
+                description=(
+                    f"{system.env_id}, {player_name}: {episodes} episode(s) with options "
+                    f"drawn from seed {seed}, recorded by observer-gym"
+                ),
+            )
+        finally:
+            collector.close()
+    return record

@@ -1,0 +1,87 @@
+"""The learned observers' training data read from recorded datasets (one format in the
+house): BallTable's arrays from a recording equal those of its collection before it
+recorded (a frozen copy below), and its trainer runs end to end from a dataset."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+pytest.importorskip("minari")
+
+from observer_gym.controllers import make_controller
+from observer_gym.estimation.ball_table.learned import (
+    ACTION_NOISE_RAD,
+    TRAINING_RANGES,
+    LearnedFeatures,
+)
+from observer_gym.train.experiments.learned_observers import ball_table
+from observer_gym.train.experiments.learned_observers.recorded import training_arrays
+from observer_gym.train.reports.dataset import read_recording
+
+
+def frozen_ball_table_collect(episodes: int, seed: int, steps: int) -> tuple[Any, Any, Any]:
+    """BallTable's ``collect`` (the LQR on the truth) as it was before it recorded: its
+    own loop over envs made per episode, the arrays kept in memory (frozen copy)."""
+    rng = np.random.default_rng(seed)
+    xs, ys, eps = [], [], []
+    for episode in range(episodes):
+        options = {key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()}
+        env = gym.make("observer_gym/BallTable-v0", obs_mode="measurements", **options)
+        try:
+            controller = make_controller("lqr", env)
+            box: Any = env.action_space
+            features = LearnedFeatures()
+            obs, info = env.reset(seed=int(rng.integers(2**31)))
+            action = None
+            for _ in range(steps):
+                capture_s = features.newest_capture_s(info)
+                if capture_s is not None:
+                    features.new_frame(obs, capture_s)
+                xs.append(features.vector(float(info["time_s"]), action))
+                ys.append(np.asarray(info["state"], dtype=float))
+                eps.append(episode)
+                planned, _ = controller.predict(info["state"], deterministic=True)
+                noise = rng.normal(0.0, ACTION_NOISE_RAD, 2)
+                action = np.clip(planned + noise, box.low, box.high)
+                obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
+                if terminated or truncated:
+                    break
+        finally:
+            env.close()
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
+def test_ball_table_arrays_from_a_recording_equal_the_old_collection(tmp_path):
+    episodes, seed, steps = 2, 7, 30
+    old_x, old_y, old_episode = frozen_ball_table_collect(episodes, seed, steps)
+    record = ball_table.record_episodes(tmp_path / "data", episodes, seed, steps)
+    x, y, episode = training_arrays("BallTable-v0", tmp_path / "data")
+    assert x.shape == old_x.shape == (episodes * steps, 58)
+    # the truth, the episode and every feature but the last action: bit for bit
+    np.testing.assert_array_equal(y, old_y)
+    np.testing.assert_array_equal(episode, old_episode)
+    np.testing.assert_array_equal(x[:, :-2], old_x[:, :-2])
+    # the last action: as it reached the env (float32), the old one unrounded (float64)
+    np.testing.assert_array_equal(x[:, -2:], old_x[:, -2:].astype(np.float32))
+    assert not np.array_equal(x[:, -2:], old_x[:, -2:])  # the rounding is real
+    # each episode's drawn options are in the recording, within the declared ranges
+    recorded = read_recording(tmp_path / "data")
+    for played, kept in zip(record["episodes"], recorded, strict=True):
+        assert kept.seed == played["seed"]
+        assert kept.drawn_options == pytest.approx(played["drawn_options"])
+        assert set(kept.drawn_options) == set(TRAINING_RANGES)
+        for key, value in kept.drawn_options.items():
+            low, high = TRAINING_RANGES[key]
+            assert low <= value <= high
+    assert len({tuple(sorted(e.drawn_options.items())) for e in recorded}) == episodes
+
+
+def test_training_arrays_refuse_another_recording(tmp_path):
+    with pytest.raises(ValueError, match="no reader of recorded training data for Nope-v0"):
+        training_arrays("Nope-v0", tmp_path)
+    with pytest.raises(ValueError, match="holds no recording"):
+        training_arrays("BallTable-v0", tmp_path)

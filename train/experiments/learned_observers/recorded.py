@@ -1,0 +1,86 @@
+"""A learned observer's training arrays from a recorded dataset (``observer-gym record``'s
+Minari format, :mod:`observer_gym.train.reports.dataset`): the one reader of the
+trainers' data.
+
+A system's collection (its ``collect`` in this package) records its episodes with
+:func:`~observer_gym.train.experiments.record.record_played` and reads them back here;
+``train --dataset DIR`` reads a recording made before. The arrays are the network's
+features replayed from each step's recorded observation, info and the action before it,
+and the truth of that step: (features (N, n_in), truth (N, n_out), episode (N,)), the
+steps before each action (a recording of T steps gives T samples per episode).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from observer_gym.train.reports.dataset import RecordedEpisode, read_recording, recording_record
+
+__all__ = ["READERS", "ball_table_arrays", "training_arrays"]
+
+Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _step_observation(observations: Any, t: int) -> Any:
+    """Step ``t``'s observation of a recorded episode (a dict of arrays for a Dict space)."""
+    if isinstance(observations, dict):
+        return {key: value[t] for key, value in observations.items()}
+    return observations[t]
+
+
+def ball_table_arrays(episodes: Sequence[RecordedEpisode]) -> Arrays:
+    """BallTable's training arrays (features (N, 58), truth (N, 8), episode (N,)): each
+    step's :class:`~observer_gym.estimation.ball_table.learned.LearnedFeatures` from the
+    recorded measurement, the newest frame's capture time (``frame_capture_time_s``, the
+    one camera's) and the action before it, as the action reached the env (float32)."""
+    from observer_gym.estimation.ball_table.learned import LearnedFeatures
+
+    xs, ys, eps = [], [], []
+    for index, episode in enumerate(episodes):
+        features = LearnedFeatures()
+        counts = episode.infos["frame_count"][:, 0]
+        captures = episode.infos["frame_capture_time_s"][:, 0]
+        for t in range(len(episode.actions)):
+            frames = [{"capture_time_s": captures[t]}] if counts[t] > 0 else []
+            capture_s = features.newest_capture_s({"frames": frames})
+            if capture_s is not None:
+                features.new_frame(_step_observation(episode.observations, t), capture_s)
+            action = None if t == 0 else episode.actions[t - 1]
+            xs.append(features.vector(float(episode.time_s[t]), action))
+            ys.append(np.asarray(episode.state[t], dtype=float))
+            eps.append(index)
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
+# env id -> the training arrays of its recorded episodes
+READERS: dict[str, Callable[[Sequence[RecordedEpisode]], Arrays]] = {
+    "BallTable-v0": ball_table_arrays,
+}
+
+
+def training_arrays(env_id: str, recording: str | os.PathLike) -> Arrays:
+    """The training arrays of the learned observer of ``env_id`` from the recording in the
+    folder ``recording``.
+
+    Raises:
+        ValueError: no reader for ``env_id`` (naming those there are), ``recording`` holds
+            no recording, or one of another env or obs mode.
+    """
+    env_id = env_id.removeprefix("observer_gym/")
+    if env_id not in READERS:
+        raise ValueError(
+            f"no reader of recorded training data for {env_id} yet; allowed: {', '.join(READERS)}"
+        )
+    config = recording_record(recording).get("config", {})
+    recorded_env = str(config.get("env_id", "")).removeprefix("observer_gym/")
+    obs_mode = config.get("env_kwargs", {}).get("obs_mode")
+    if recorded_env != env_id or obs_mode != "measurements":
+        raise ValueError(
+            f"{recording} holds a recording of {recorded_env or 'no env'} in obs mode "
+            f"{obs_mode!r}; {env_id}'s learned observer reads measurements of {env_id}"
+        )
+    return READERS[env_id](read_recording(recording))
