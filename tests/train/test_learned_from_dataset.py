@@ -56,7 +56,7 @@ def frozen_ball_table_collect(episodes: int, seed: int, steps: int) -> tuple[Any
 
 
 def test_ball_table_arrays_from_a_recording_equal_the_old_collection(tmp_path):
-    episodes, seed, steps = 2, 7, 30
+    episodes, seed, steps = 2, 7, 20
     old_x, old_y, old_episode = frozen_ball_table_collect(episodes, seed, steps)
     record = ball_table.record_episodes(tmp_path / "data", episodes, seed, steps)
     x, y, episode = training_arrays("BallTable-v0", tmp_path / "data")
@@ -85,3 +85,41 @@ def test_training_arrays_refuse_another_recording(tmp_path):
         training_arrays("Nope-v0", tmp_path)
     with pytest.raises(ValueError, match="holds no recording"):
         training_arrays("BallTable-v0", tmp_path)
+
+
+@pytest.mark.slow  # a recording and a fit: about 7 s
+def test_a_tiny_training_from_a_dataset_runs_end_to_end(tmp_path, capsys):
+    pytest.importorskip("torch")
+    from observer_gym.estimation.learned.network import checked_report
+    from observer_gym.train.experiments.learned_observers import train
+
+    ball_table.record_episodes(tmp_path / "data", 5, 3, 20)
+    out = tmp_path / "net.pt"
+    argv = ["--env", "BallTable-v0", "--episodes", "5", "--rounds", "1", "--epochs", "1"]
+    assert train.main([*argv, "--dataset", str(tmp_path / "data"), "--out", str(out)]) == 0
+    report = checked_report(out)
+    assert report["samples"] == 5 * 20  # every recorded step a sample
+    assert report["command"].endswith(f"--dataset {tmp_path / 'data'}")
+    assert "data" not in report  # nothing recorded: one round, read from the dataset
+    assert out.is_file()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (
+            ["--env", "TargetFollower-v0", "--dataset", "x"],
+            "not recorded yet; allowed for: BallTable-v0",
+        ),
+        (["--env", "BallTable-v0", "--dataset", "nothing-here"], "holds no recording"),
+    ],
+)
+def test_train_refuses_a_dataset_in_one_line(tmp_path, capsys, monkeypatch, extra, message):
+    pytest.importorskip("torch")
+    from observer_gym.train.experiments.learned_observers import train
+
+    monkeypatch.chdir(tmp_path)
+    assert train.main([*extra, "--rounds", "1", "--out", str(tmp_path / "n.pt")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "n.pt").exists()

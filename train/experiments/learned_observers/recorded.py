@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from observer_gym.train.reports.dataset import RecordedEpisode, read_recording, recording_record
+if TYPE_CHECKING:  # the dataset module imports minari, which READERS' users may not have
+    from observer_gym.train.reports.dataset import RecordedEpisode
 
 __all__ = ["READERS", "ball_table_arrays", "training_arrays"]
 
@@ -67,9 +68,15 @@ def training_arrays(env_id: str, recording: str | os.PathLike) -> Arrays:
     folder ``recording``.
 
     Raises:
+        ExtraNotInstalled: minari (the ``[record]`` extra) is not installed.
         ValueError: no reader for ``env_id`` (naming those there are), ``recording`` holds
             no recording, or one of another env or obs mode.
     """
+    from observer_gym.extras import require_record
+
+    require_record("reading a recording")
+    from observer_gym.train.reports.dataset import read_recording, recording_record
+
     env_id = env_id.removeprefix("observer_gym/")
     if env_id not in READERS:
         raise ValueError(

@@ -2,6 +2,7 @@
 
     python -m observer_gym.train.experiments.learned_observers.train --env BallTable-v0
         [--episodes N] [--rounds 4] [--seed 0] [--epochs 60] [--out FILE.pt]
+        [--dataset DIR] [--data DIR]
 
 Collects the system's training episodes (its ``collect`` in this package) in ``--rounds`` rounds
 (DAgger: the controller on the truth, then on the estimate of the network fitted to the
@@ -17,6 +18,16 @@ network's width is its ``HIDDEN`` (else 128), both in its ``estimation/<system>/
 The shipped weights' reports record the command under its former name,
 ``python -m observer_gym.estimation.learned.train``: the same arguments give the same
 weights here.
+BallTable's rounds are recorded (``observer-gym record``'s Minari format, with each
+episode's drawn sensor options in its metadata) into ``--data DIR`` (``DIR/round-K``, new
+folders; default ``observer-gym-out/learned-data-STAMP-PID``) and read back
+(:mod:`~observer_gym.train.experiments.learned_observers.recorded`); ``--dataset DIR``
+reads the first round from a recording made before (``collect(..., out_dir=DIR)`` or
+``record_episodes``) instead of recording it. The arrays a recording gives equal those
+the collection gave in memory before (the float32 of the actions as they reached the
+env: tests/train/test_learned_from_dataset.py), so the shipped weights, fitted on the
+earlier collection, are what this command fits. The other systems' rounds are still
+collected in memory (no ``--dataset``, ``--data``).
 A mistake is one line on stderr and exit code 2.
 """
 
@@ -56,6 +67,22 @@ def main(argv: list[str] | None = None) -> int:
         "--rounds", type=int, default=4, help="data rounds: 1 on the truth, then DAgger (4)"
     )
     parser.add_argument("--out", type=Path, default=None, help="weight file (.pt)")
+    parser.add_argument(
+        "--dataset",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the first round's episodes: a recording of the system's training episodes "
+        "(observer-gym record's Minari format; default: recorded into --data)",
+    )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the folder each round's recording is written to, DIR/round-K (default: "
+        "observer-gym-out/learned-data-STAMP-PID)",
+    )
     args = parser.parse_args(argv)
     from observer_gym.extras import TORCH_MODULES, ExtraNotInstalled, require_rl
 
@@ -86,6 +113,24 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    from observer_gym.train.experiments.learned_observers.recorded import READERS
+
+    recorded = env_id in READERS
+    if not recorded and (args.dataset is not None or args.data is not None):
+        print(
+            f"{PROG}: error: --dataset and --data: {env_id}'s training data are not recorded "
+            f"yet; allowed for: {', '.join(READERS)}",
+            file=sys.stderr,
+        )
+        return 2
+    if recorded:
+        from observer_gym.extras import ExtraNotInstalled, require_record
+
+        try:
+            require_record(PROG)
+        except ExtraNotInstalled as error:
+            print(f"{PROG}: error: {error}", file=sys.stderr)
+            return 2
     import numpy as np
 
     from observer_gym.estimation.learned.network import save_network
@@ -96,18 +141,44 @@ def main(argv: list[str] | None = None) -> int:
     if out.suffix != ".pt":
         print(f"{PROG}: error: --out must end in .pt, got {out}", file=sys.stderr)
         return 2
+    from observer_gym.train.experiments.learned_observers.recorded import training_arrays
+    from observer_gym.train.experiments.record import check_new_folder
+    from observer_gym.train.reports.outputs import default_out_dir
+
+    records = recorded and (args.dataset is None or args.rounds > 1)  # a round is recorded
+    data_dir = (args.data or default_out_dir("learned-data")) if records else None
+
+    def round_data(k: int, act_with: object = None) -> tuple:
+        """Round k's arrays (k = 0 the first): recorded into data_dir/round-(k+1) and read
+        back for a recorded system, else collected in memory."""
+        if data_dir is None:
+            return collect(args.episodes, args.seed + k, act_with=act_with)
+        return collect(
+            args.episodes, args.seed + k, act_with=act_with, out_dir=data_dir / f"round-{k + 1}"
+        )
+
     tic = time.perf_counter()
-    # round 1: the controller on the truth; each later round (DAgger): on the network
-    # fitted to every round before, the data of all rounds kept
-    data = Dataset(*collect(args.episodes, args.seed))
+    try:
+        if data_dir is not None:  # a round's folder that exists: refused before any runs
+            for k in range(args.dataset is not None, args.rounds):
+                check_new_folder(data_dir / f"round-{k + 1}")
+        # round 1: the controller on the truth (or a recording of it); each later round
+        # (DAgger): on the network fitted to every round before, the data of all rounds kept
+        if args.dataset is not None:
+            data = Dataset(*training_arrays(env_id, args.dataset))
+        else:
+            data = Dataset(*round_data(0))
+    except ValueError as exc:  # a folder that exists, a recording of something else
+        print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     net, report = fit(data, args.seed, epochs=args.epochs, hidden=hidden)
     rounds = [report["held_out"]]
     for k in range(1, args.rounds):
-        x, y, episode = collect(args.episodes, args.seed + k, act_with=net)
+        x, y, episode = round_data(k, act_with=net)
         data = Dataset(
             np.concatenate([data.features, x]),
             np.concatenate([data.truth, y]),
-            np.concatenate([data.episode, episode + k * args.episodes]),
+            np.concatenate([data.episode, episode + int(data.episode.max()) + 1]),
         )
         net, report = fit(data, args.seed, epochs=args.epochs, hidden=hidden)
         rounds.append(report["held_out"])
@@ -124,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         words += ["--rounds", str(args.rounds)]
     if args.out is not None:
         words += ["--out", str(args.out)]
+    if args.dataset is not None:
+        words += ["--dataset", str(args.dataset)]
     report = {
         "command": " ".join(words),
         "env": env_id,
@@ -132,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         "samples": len(data.truth),
         "features": int(data.features.shape[1]),
         "training_ranges": system.TRAINING_RANGES,
+        **({} if data_dir is None else {"data": str(data_dir)}),
         **report,
         "collect_s": round(collected_s, 1),
         "total_s": round(time.perf_counter() - tic, 1),
