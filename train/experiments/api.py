@@ -302,11 +302,14 @@ def record(
     controller_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     cli_args: Mapping[str, Any] | None = None,
+    randomize: Mapping[str, Any] | None = None,
 ) -> RecordResult:
     """Closed-loop episodes of ``controller`` on ``observer``'s estimate in ``env`` kept as
     a Minari dataset in the new folder ``out_dir``
     (:func:`observer_gym.train.experiments.record.record_experiment`; docs/record.md):
-    episode i resets with ``seed + i`` (or ``seeds``, consecutive). Needs the ``[record]``
+    episode i resets with ``seed + i`` (or ``seeds``, consecutive); with ``randomize``
+    (option -> ``{"low": LOW, "high": HIGH}`` or ``{"choices": [...]}``) each episode
+    draws those options and its world's seed from ``seed`` instead. Needs the ``[record]``
     extra (:class:`~observer_gym.extras.ExtraNotInstalled` otherwise); ValueError for a bad
     input or an ``out_dir`` that exists, before anything runs."""
     from observer_gym.train.experiments.record import record_experiment
@@ -327,6 +330,7 @@ def record(
             observer_options=observer_options,
             controller_options=controller_options,
             cli_args=cli_args,
+            randomize=randomize,
         )
     return RecordResult(Path(out_dir), written["dataset_id"], written["episodes"], written)
 

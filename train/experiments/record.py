@@ -129,11 +129,8 @@ def record_experiment(
         collector = dataset.recording_env(system, observer_entry, gym_options, per_episode)
         try:
             world = dataset.world_stack(collector)
-            env = world.unwrapped
-            spec = world.spec  # the env of the observations, with its obs_mode
-            if checked:  # the fixed options only: each episode's drawn ones are its own
-                kept = {k: v for k, v in spec.kwargs.items() if k not in checked}
-                spec = dataclasses.replace(spec, kwargs=kept)
+            env: Any = world.unwrapped
+            spec = fixed_spec(world, checked)
             built = build_controller(controller_entry, world, system)
             redesign = None
             if checked and controller_entry.kind not in ("agent", "policy"):
@@ -190,6 +187,17 @@ def record_experiment(
 # each randomised episode's world seed is drawn uniform in 0..this - 1 after its options,
 # as the learned observers' collections draw theirs
 WORLD_SEEDS_BELOW = 2**31
+
+
+def fixed_spec(world: Any, randomize: Mapping[str, Any]) -> Any:
+    """The env spec of the recording: ``world``'s (the env of the observations, with its
+    obs_mode), without the options ``randomize`` draws (each episode's own)."""
+    spec = world.spec
+    assert spec is not None  # made with gym.make
+    if not randomize:
+        return spec
+    kept = {k: v for k, v in spec.kwargs.items() if k not in randomize}
+    return dataclasses.replace(spec, kwargs=kept)
 
 
 def randomized_worlds(
@@ -385,8 +393,6 @@ def record_played(
                         "drawn_options": dict(randomized.options),
                     }
                 )
-            spec = dataset.world_stack(collector).spec
-            kept = {k: v for k, v in spec.kwargs.items() if k not in checked}
             record = to_jsonable(
                 {
                     "dataset_id": dataset_id,
@@ -410,7 +416,7 @@ def record_played(
                 collector,
                 staging,
                 record,
-                dataclasses.replace(spec, kwargs=kept),
+                fixed_spec(dataset.world_stack(collector), checked),
                 algorithm_name=player_name,
                 description=(
                     f"{system.env_id}, {player_name}: {episodes} episode(s) with options "

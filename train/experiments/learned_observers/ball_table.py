@@ -56,8 +56,9 @@ def player(act_with: Any = None) -> Any:
                 acted_on, _ = act_with.predict(features.vector(float(info["time_s"]), last[0]))
             planned, _ = controller.predict(acted_on, deterministic=True)
             noise = rng.normal(0.0, ACTION_NOISE_RAD, 2)
-            last[0] = np.clip(planned + noise, box.low, box.high)
-            return last[0].astype(np.float32)
+            action = np.clip(planned + noise, box.low, box.high)
+            last[0] = action
+            return action.astype(np.float32)
 
         return act
 
