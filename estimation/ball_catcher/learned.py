@@ -110,17 +110,6 @@ TRAINING_RANGES: dict[str, tuple[Any, ...]] = {
 }
 
 
-def draw_options(rng: np.random.Generator) -> dict[str, Any]:
-    """One training episode's env options from :data:`TRAINING_RANGES`."""
-    options: dict[str, Any] = {}
-    for key, values in TRAINING_RANGES.items():
-        if all(isinstance(v, str) for v in values):
-            options[key] = values[int(rng.integers(len(values)))]
-        else:
-            options[key] = float(rng.uniform(*values))
-    return options
-
-
 class LearnedFeatures:
     """The feature vector of each step (see the module docstring) from the frames
     delivered so far (:meth:`add`) and the step's time (:meth:`vector`).

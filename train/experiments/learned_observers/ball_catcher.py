@@ -17,11 +17,12 @@ from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher import learned_detector
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.learned import (
+    TRAINING_RANGES,
     LearnedFeatures,
-    draw_options,
     image_centre_px,
 )
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
+from observer_gym.train.rl.randomize import draw_options, randomize_of_ranges
 
 if TYPE_CHECKING:  # frame_training imports torch, which importing this module must not
     from observer_gym.estimation.learned.frame_training import FrameDataset
@@ -39,9 +40,10 @@ def collect(
     :class:`~observer_gym.estimation.learned.network.GaussianMLP`) on that network's
     estimate and covariance (a DAgger round)."""
     rng = np.random.default_rng(seed)
+    randomize = randomize_of_ranges(TRAINING_RANGES)
     xs, ys, eps = [], [], []
     for episode in range(episodes):
-        options = draw_options(rng)
+        options = draw_options(randomize, rng)
         env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements", **options)
         try:
             unwrapped = env.unwrapped

@@ -28,6 +28,7 @@ from gymnasium import spaces
 from observer_gym.controllers import make_controller
 from observer_gym.estimation.learned.frame_detector import resized
 from observer_gym.estimation.learned.frame_training import FrameDataset
+from observer_gym.train.rl.randomize import draw_options, randomize_of_ranges
 
 __all__ = ["collect_lockstep"]
 
@@ -86,9 +87,10 @@ def collect_lockstep(
         samples_of = _resized_samples(net_size_px, labels_of)
 
     rng = np.random.default_rng(seed)
+    randomize = randomize_of_ranges(ranges)
     frames, values, detected, eps = [], [], [], []
     for episode in range(episodes):
-        options: dict[str, Any] = {k: float(rng.uniform(*b)) for k, b in ranges.items()}
+        options: dict[str, Any] = draw_options(randomize, rng)
         options |= dict(env_kwargs or {})
         noise = float(rng.uniform(*noise_range))
         env_seed = int(rng.integers(2**31))

@@ -22,6 +22,7 @@ from observer_gym.estimation.target_follower.learned import (
 )
 from observer_gym.estimation.target_follower.learned_detector import ACTION_NOISE
 from observer_gym.estimation.target_follower.state_layout import RobotStep
+from observer_gym.train.rl.randomize import draw_options, randomize_of_ranges
 
 if TYPE_CHECKING:  # frame_training imports torch, which importing this module must not
     from observer_gym.estimation.learned.frame_training import FrameDataset
@@ -42,10 +43,9 @@ def collect(
     rng = np.random.default_rng(seed)
     noise_std = np.asarray(ACTION_NOISE)
     xs, ys, eps = [], [], []
+    randomize = randomize_of_ranges(TRAINING_RANGES)
     for episode in range(episodes):
-        options: dict[str, Any] = {
-            key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()
-        }
+        options = draw_options(randomize, rng)
         env = gym.make("observer_gym/TargetFollower-v0", obs_mode="measurements", **options)
         try:
             base: Any = env.unwrapped
