@@ -1,9 +1,11 @@
 """The learned observers' training data read from recorded datasets (one format in the
-house): BallTable's arrays from a recording equal those of its collection before it
-recorded (a frozen copy below), and its trainer runs end to end from a dataset."""
+house): BallTable's and TargetFollower's arrays from a recording equal those of their
+collections before they recorded (frozen copies below), and the trainer runs end to end
+from a dataset."""
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -13,12 +15,21 @@ import pytest
 pytest.importorskip("minari")
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs.target_follower import StateIndex
 from observer_gym.estimation.ball_table.learned import (
     ACTION_NOISE_RAD,
     TRAINING_RANGES,
     LearnedFeatures,
 )
-from observer_gym.train.experiments.learned_observers import ball_table
+from observer_gym.estimation.target_follower.frames import FrameReader
+from observer_gym.estimation.target_follower.learned import N_OUT as TF_N_OUT
+from observer_gym.estimation.target_follower.learned import TRAINING_RANGES as TF_TRAINING_RANGES
+from observer_gym.estimation.target_follower.learned import LearnedFeatures as TFLearnedFeatures
+from observer_gym.estimation.target_follower.learned_detector import (
+    ACTION_NOISE as TF_ACTION_NOISE,
+)
+from observer_gym.estimation.target_follower.state_layout import RobotStep
+from observer_gym.train.experiments.learned_observers import ball_table, target_follower
 from observer_gym.train.experiments.learned_observers.recorded import training_arrays
 from observer_gym.train.reports.dataset import read_recording
 
@@ -80,6 +91,56 @@ def test_ball_table_arrays_from_a_recording_equal_the_old_collection(tmp_path):
     assert len({tuple(sorted(e.drawn_options.items())) for e in recorded}) == episodes
 
 
+def frozen_target_follower_collect(episodes: int, seed: int, steps: int) -> tuple[Any, Any, Any]:
+    """TargetFollower's ``collect`` (the VTC on the truth) as it was before it recorded
+    (frozen copy)."""
+    rng = np.random.default_rng(seed)
+    noise_std = np.asarray(TF_ACTION_NOISE)
+    xs, ys, eps = [], [], []
+    for episode in range(episodes):
+        options = {key: float(rng.uniform(*b)) for key, b in TF_TRAINING_RANGES.items()}
+        env = gym.make("observer_gym/TargetFollower-v0", obs_mode="measurements", **options)
+        try:
+            base: Any = env.unwrapped
+            controller = make_controller("vtc", env)
+            low, high = env.action_space.low, env.action_space.high  # type: ignore[attr-defined]
+            frames = FrameReader(base, owner="collect")
+            features = TFLearnedFeatures()
+            delta_y_m = base.calibration["delta_y_m"]
+            obs, info = env.reset(seed=int(rng.integers(2**31)))
+            action = None
+            for _ in range(steps):
+                robot = RobotStep.from_info(info, action, delta_y_m)
+                frame = frames.newest(obs, info)
+                truth = np.asarray(info["state"], dtype=float)
+                features.add(frame, robot)
+                if truth[StateIndex.TRACKING_VALID] >= 0.5 and features.any_detected:
+                    xs.append(features.vector(robot.time_s))
+                    ys.append(truth[:TF_N_OUT])
+                    eps.append(episode)
+                with warnings.catch_warnings():  # the VTC's first singular stop warns
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    planned, _ = controller.predict(truth, deterministic=True)
+                action = np.clip(planned + rng.normal(0.0, noise_std), low, high)
+                obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
+                if terminated or truncated:
+                    break
+        finally:
+            env.close()
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
+def test_target_follower_arrays_from_a_recording_equal_the_old_collection(tmp_path):
+    episodes, seed, steps = 2, 5, 30
+    old = frozen_target_follower_collect(episodes, seed, steps)
+    target_follower.record_episodes(tmp_path / "data", episodes, seed, steps)
+    new = training_arrays("TargetFollower-v0", tmp_path / "data")
+    assert len(old[0]) > 20 and set(old[2]) == {0, 1}  # both episodes tracked the target
+    for found, expected in zip(new, old, strict=True):  # bit for bit, every array
+        assert found.shape == expected.shape
+        np.testing.assert_array_equal(found, expected)
+
+
 def test_training_arrays_refuse_another_recording(tmp_path):
     with pytest.raises(ValueError, match="no reader of recorded training data for Nope-v0"):
         training_arrays("Nope-v0", tmp_path)
@@ -108,8 +169,8 @@ def test_a_tiny_training_from_a_dataset_runs_end_to_end(tmp_path, capsys):
     ("extra", "message"),
     [
         (
-            ["--env", "TargetFollower-v0", "--dataset", "x"],
-            "not recorded yet; allowed for: BallTable-v0",
+            ["--env", "BallCatcher-v1", "--dataset", "x"],
+            "not recorded yet; allowed for: BallTable-v0, TargetFollower-v0",
         ),
         (["--env", "BallTable-v0", "--dataset", "nothing-here"], "holds no recording"),
     ],

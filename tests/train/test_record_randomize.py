@@ -5,6 +5,8 @@ refused before anything is written."""
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -16,7 +18,8 @@ import minari
 
 from observer_gym.train.cli import main
 from observer_gym.train.experiments.record import WORLD_SEEDS_BELOW, record_experiment
-from observer_gym.train.reports.dataset import read_recording
+from observer_gym.train.reports.dataset import read_recording, recording_record
+from observer_gym.train.rl.randomize import union_space
 
 ENV, OBSERVER, CONTROLLER = "BallTable-v0", "kf-measurements", "lqr"
 SEED, EPISODES, STEPS = 11, 3, 10
@@ -63,6 +66,11 @@ def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err
     return code, err
+
+
+def episodes_id(out) -> str:
+    """The dataset id of the recording in ``out``."""
+    return recording_record(out)["dataset_id"]
 
 
 def expected_draws() -> list[tuple[dict, int]]:
@@ -165,3 +173,45 @@ def test_the_command_records_drawn_options(tmp_path, capsys):
     (episode,) = read_recording(out)
     assert set(episode.drawn_options) == {"latency_s"}
     assert 0.01 <= episode.drawn_options["latency_s"] <= 0.02
+
+
+def test_the_union_of_spaces_holds_each_and_refuses_another_structure():
+    low = gym.spaces.Dict(
+        {"px": gym.spaces.Box(-1.0, 1.0, (2,), np.float64), "seen": gym.spaces.MultiBinary(1)}
+    )
+    high = gym.spaces.Dict(
+        {"px": gym.spaces.Box(np.array([-3.0, 0.0]), np.array([0.5, 2.0]), dtype=np.float64)}
+    )
+    with pytest.raises(ValueError, match="different structure"):
+        union_space([low, high])
+    wide = gym.spaces.Dict(
+        {
+            "px": gym.spaces.Box(np.array([-3.0, 0.0]), np.array([0.5, 2.0]), dtype=np.float64),
+            "seen": gym.spaces.MultiBinary(1),
+        }
+    )
+    joined = union_space([low, wide])
+    np.testing.assert_array_equal(joined["px"].low, [-3.0, -1.0])
+    np.testing.assert_array_equal(joined["px"].high, [1.0, 2.0])
+    assert joined["seen"] == gym.spaces.MultiBinary(1)
+    with pytest.raises(ValueError, match="different structure"):  # no bounds: equal or refused
+        union_space([gym.spaces.Discrete(2), gym.spaces.Discrete(3)])
+
+
+def test_a_draw_that_widens_the_bounds_is_recorded_in_their_union(tmp_path):
+    # TargetFollower's pixel bounds grow with measurement_noise_px
+    out = tmp_path / "dataset"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # Minari's "not in observation space"
+        record_experiment(
+            "TargetFollower-v0", "kf-measurements", "vtc", 3, 1, out, steps=3,
+            progress=False, randomize={"measurement_noise_px": {"low": 0.0, "high": 5.0}},
+        )  # fmt: skip
+    episodes = read_recording(out)
+    assert len({e.drawn_options["measurement_noise_px"] for e in episodes}) == 3
+    space = minari.MinariDataset(out / episodes_id(out) / "data").observation_space
+    bounds = [gym.make("observer_gym/TargetFollower-v0", obs_mode="measurements",
+                       measurement_noise_px=p).observation_space["target_px"].high[0]
+              for p in (0.0, 5.0)]  # fmt: skip
+    assert bounds[1] > bounds[0]
+    assert space["target_px"].high[0] == pytest.approx(bounds[1])

@@ -36,7 +36,12 @@ from observer_gym.train.reports.outputs import (
     write_json_atomic,
 )
 from observer_gym.train.reports.progress import progress_bar
-from observer_gym.train.rl.randomize import RandomizedEnv, check_randomize
+from observer_gym.train.rl.randomize import (
+    RandomizedEnv,
+    check_randomize,
+    end_values,
+    union_space,
+)
 
 
 def check_new_folder(out_dir: str | Path) -> Path:
@@ -126,7 +131,8 @@ def record_experiment(
         entries.objects_in_use(entries.objects_for(observer, controller)),
         dataset.staged_datasets(out_dir) as staging,
     ):
-        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode)
+        space = recorded_space(system.env_id, observer_entry, gym_options, checked)
+        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode, space)
         try:
             world = dataset.world_stack(collector)
             env: Any = world.unwrapped
@@ -211,10 +217,40 @@ def randomized_worlds(
 
     def per_episode(make_stack: Any) -> RandomizedEnv:
         return RandomizedEnv(
-            make_stack, env_id, randomize, world_seeds_below=WORLD_SEEDS_BELOW, integers=integers
+            make_stack,
+            env_id,
+            randomize,
+            world_seeds_below=WORLD_SEEDS_BELOW,
+            integers=integers,
+            bounds_may_differ=True,
         )
 
     return per_episode
+
+
+def recorded_space(
+    env_id: str,
+    observer: Any,
+    env_kwargs: Mapping[str, Any],
+    randomize: Mapping[str, Mapping[str, Any]],
+) -> Any:
+    """The observation space of a randomised recording of ``observer``'s obs mode: the
+    union (:func:`~observer_gym.train.rl.randomize.union_space`) of the env's at every
+    choice and range end, each varied alone (a draw may widen a bound: TargetFollower's
+    pixel bounds grow with ``measurement_noise_px``); None without a randomisation."""
+    import gymnasium as gym
+
+    if not randomize:
+        return None
+    spaces = []
+    for drawn in end_values(randomize):
+        options = with_observer_env_options(observer, {**env_kwargs, **drawn})
+        env = gym.make(env_id, obs_mode=observer.obs_mode, **options)
+        try:
+            spaces.append(env.observation_space)
+        finally:
+            env.close()
+    return union_space(spaces)
 
 
 def episode_reset_kwargs(
@@ -370,7 +406,8 @@ def record_played(
     dataset_id = dataset.dataset_id_for(system.name, observer, player_name)
     per_episode = randomized_worlds(system.env_id, checked, integers=False)
     with dataset.staged_datasets(out_dir) as staging:
-        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode)
+        space = recorded_space(system.env_id, observer_entry, gym_options, checked)
+        collector = dataset.recording_env(system, observer_entry, gym_options, per_episode, space)
         try:
             randomized = collector.unwrapped
             assert isinstance(randomized, RandomizedEnv)

@@ -90,7 +90,12 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
       (C, 4, 4), m: its camera pose in the world; NaN without a frame;
     - with an observer's estimate (not for ``oracle`` or ``pixels``): ``estimate_mean``
       (n,), ``estimate_covariance`` (n, n) and ``estimate_nis`` () (NaN when the step's
-      update has none).
+      update has none);
+    - where the env's info has them (BallTable, TargetFollower): ``applied_action``
+      (m,), the last action as the env applied it (``info["applied_action"]``; NaN
+      before the first), and ``camera_T_world_cam`` (4, 4), m: the camera's nominal pose
+      in the world now (``info["camera"]["T_world_cam"]``), which TargetFollower's
+      learned observer's features read.
     """
     cameras = int(env.unwrapped.rig.num_cameras)  # type: ignore[attr-defined]
     row: dict[str, np.ndarray] = {
@@ -114,6 +119,16 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
         row["K_nominal"][c], row["K_true"][c] = frame.K, frame.K_true
         row["T_world_cam_nominal"][c] = frame.T_world_cam
         row["T_world_cam_true"][c] = frame.T_world_cam_true
+    if "applied_action" in info:  # None before the first action (BallTable's reset)
+        applied = info["applied_action"]
+        row["applied_action"] = (
+            np.full(env.unwrapped.action_space.shape, np.nan)  # type: ignore[arg-type]
+            if applied is None
+            else np.array(applied, dtype=np.float64)
+        )
+    camera = info.get("camera")
+    if isinstance(camera, Mapping) and "T_world_cam" in camera:
+        row["camera_T_world_cam"] = np.array(camera["T_world_cam"], dtype=np.float64)
     estimate = info.get("estimate")
     if estimate is not None:
         row["estimate_mean"] = np.array(estimate["mean"], dtype=np.float64)
@@ -179,6 +194,7 @@ def recording_env(
     observer: ObserverEntry,
     env_kwargs: Mapping[str, Any] | None = None,
     per_episode: PerEpisode | None = None,
+    observation_space: gym.Space | None = None,
 ) -> minari.DataCollector:
     """:func:`~observer_gym.train.core.observer_env.make_env`'s env for ``observer`` (its
     steps, repeated here to put a wrapper between them), with :class:`KeepObservation`
@@ -187,7 +203,9 @@ def recording_env(
     state for ``oracle``), the actions that reached the env and the infos with the
     observer's estimate (:class:`RecordedStep`). With ``per_episode`` the collector is
     above the env it makes of the stack's builder (options drawn per episode, the world
-    rebuilt at each reset). Call inside :func:`staged_datasets`."""
+    rebuilt at each reset), and ``observation_space`` the dataset's (one holding every
+    episode's observations; default the first world's). Call inside
+    :func:`staged_datasets`."""
 
     def make_stack(drawn: Mapping[str, Any]) -> gym.Env:
         options = with_observer_env_options(observer, {**(env_kwargs or {}), **drawn})
@@ -200,7 +218,11 @@ def recording_env(
         observed,
         step_data_callback=RecordedStep,
         record_infos=True,
-        observation_space=world_stack(observed).unwrapped.observation_space,
+        observation_space=(
+            world_stack(observed).unwrapped.observation_space
+            if observation_space is None
+            else observation_space
+        ),
         jpeg_encoding=False,
     )
 

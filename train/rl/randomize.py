@@ -291,6 +291,53 @@ def randomize_of_ranges(ranges: Mapping[str, tuple[Any, ...]]) -> dict[str, dict
     return randomize
 
 
+def space_structure(space: gym.Space) -> Any:
+    """What of ``space`` a draw must keep when bounds may differ: its type, and a Box's
+    shape and dtype (a Dict's and a Tuple's per entry; any other space whole)."""
+    if isinstance(space, gym.spaces.Box):
+        return ("Box", space.shape, space.dtype)
+    if isinstance(space, gym.spaces.Dict):
+        return ("Dict", tuple((k, space_structure(v)) for k, v in space.spaces.items()))
+    if isinstance(space, gym.spaces.Tuple):
+        return ("Tuple", tuple(space_structure(v) for v in space.spaces))
+    return space
+
+
+def union_space(spaces: list[gym.Space]) -> gym.Space:
+    """The smallest space holding every one of ``spaces`` (of one
+    :func:`space_structure`): a Box's low the least of theirs, its high the greatest; a
+    Dict's and a Tuple's per entry; any other space must be equal in all. ValueError if
+    their structures differ."""
+    first = spaces[0]
+    if any(space_structure(s) != space_structure(first) for s in spaces):
+        raise ValueError(f"spaces of different structure cannot be joined: {spaces}")
+    if isinstance(first, gym.spaces.Box):
+        low = np.min([np.asarray(s.low) for s in spaces], axis=0)  # type: ignore[attr-defined]
+        high = np.max([np.asarray(s.high) for s in spaces], axis=0)  # type: ignore[attr-defined]
+        return gym.spaces.Box(low, high, first.shape, first.dtype)  # type: ignore[arg-type]
+    if isinstance(first, gym.spaces.Dict):
+        return gym.spaces.Dict(
+            {k: union_space([s[k] for s in spaces]) for k in first.spaces}  # type: ignore[index]
+        )
+    if isinstance(first, gym.spaces.Tuple):
+        return gym.spaces.Tuple(
+            [union_space([s[i] for s in spaces]) for i in range(len(first.spaces))]  # type: ignore[index]
+        )
+    return first  # a space without bounds: equal in all (its structure is itself)
+
+
+def end_values(randomize: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Every choice and range end of ``randomize``, each varied alone with the others at
+    their first value (as :func:`check_spaces` builds them), the first values first."""
+    first = {k: s["choices"][0] if "choices" in s else s["low"] for k, s in randomize.items()}
+    ends = [first]
+    for key, spec in randomize.items():
+        for value in spec["choices"][1:] if "choices" in spec else [spec["high"]]:
+            if value != first[key]:
+                ends.append({**first, key: value})
+    return ends
+
+
 def integer_options(env_id: str) -> frozenset[str]:
     """The options of ``env_id`` that are integers (drawn as integers)."""
     from observer_gym.envs import system_for_id
@@ -312,6 +359,10 @@ class RandomizedEnv(gym.Env):
         env_id: the env, whose integer options are drawn as integers.
         randomize: the checked randomisation (:func:`check_randomize`).
         world_seeds_below: each world's seed is drawn uniform in 0..this - 1.
+        bounds_may_differ: a draw may change the bounds of a space, not its structure
+            (types, shapes, dtypes: :func:`space_structure`); for a recording, whose
+            observation space is the union of the draws' (:func:`union_space`), not for
+            an agent, which reads the bounds.
         integers: draw the env's integer options as integers (else every range's draw
             is a float, as the learned observers' collections draw theirs).
 
@@ -329,7 +380,9 @@ class RandomizedEnv(gym.Env):
         randomize: Mapping[str, Mapping[str, Any]],
         world_seeds_below: int = 2**31 - 1,
         integers: bool = True,
+        bounds_may_differ: bool = False,
     ) -> None:
+        self._same = space_structure if bounds_may_differ else (lambda space: space)
         self._make_inner = make_inner
         self.randomize = {k: dict(v) for k, v in randomize.items()}
         self._integers = integer_options(env_id) if integers else frozenset()
@@ -365,10 +418,9 @@ class RandomizedEnv(gym.Env):
             self.inner.close()
             self.inner = None
         inner = self._make_inner(drawn)
-        if (
-            inner.observation_space != self.observation_space
-            or inner.action_space != self.action_space
-        ):
+        if self._same(inner.observation_space) != self._same(self.observation_space) or self._same(
+            inner.action_space
+        ) != self._same(self.action_space):
             inner.close()
             raise ValueError(
                 f"randomized options {drawn} change the env's spaces "

@@ -13,7 +13,7 @@ steps before each action (a recording of T steps gives T samples per episode).
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -21,7 +21,7 @@ import numpy as np
 if TYPE_CHECKING:  # the dataset module imports minari, which READERS' users may not have
     from observer_gym.train.reports.dataset import RecordedEpisode
 
-__all__ = ["READERS", "ball_table_arrays", "training_arrays"]
+__all__ = ["READERS", "ball_table_arrays", "target_follower_arrays", "training_arrays"]
 
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -57,9 +57,66 @@ def ball_table_arrays(episodes: Sequence[RecordedEpisode]) -> Arrays:
     return np.array(xs), np.array(ys), np.array(eps)
 
 
-# env id -> the training arrays of its recorded episodes
-READERS: dict[str, Callable[[Sequence[RecordedEpisode]], Arrays]] = {
-    "BallTable-v0": ball_table_arrays,
+def target_follower_arrays(
+    episodes: Sequence[RecordedEpisode], config: Mapping[str, Any]
+) -> Arrays:
+    """TargetFollower's training arrays (features (N, 37), truth (N, 6), episode (N,)):
+    each step's :class:`~observer_gym.estimation.target_follower.learned.LearnedFeatures`
+    from the recorded measurement, the newest frame's capture time, nominal K and camera
+    pose, and the robot's step (``camera_T_world_cam``, ``applied_action``), kept where the
+    target is tracked and a frame has shown it. Each episode's frames are read as the env
+    made with the recording's options and its drawn ones reads them
+    (:class:`~observer_gym.estimation.target_follower.frames.FrameReader`)."""
+    import gymnasium as gym
+
+    from observer_gym.envs.target_follower import StateIndex
+    from observer_gym.estimation.target_follower.frames import FrameReader
+    from observer_gym.estimation.target_follower.learned import N_OUT, LearnedFeatures
+    from observer_gym.estimation.target_follower.state_layout import RobotStep
+
+    fixed = dict(config.get("env_kwargs", {}))
+    xs, ys, eps = [], [], []
+    for index, episode in enumerate(episodes):
+        env = gym.make("observer_gym/TargetFollower-v0", **{**fixed, **episode.drawn_options})
+        try:
+            base: Any = env.unwrapped
+            frames = FrameReader(base, owner="recording")
+            delta_y_m = base.calibration["delta_y_m"]
+        finally:
+            env.close()
+        features = LearnedFeatures()
+        infos = episode.infos
+        for t in range(len(episode.actions)):
+            newest = []
+            if infos["frame_count"][t, 0] > 0:
+                newest = [
+                    {
+                        "camera_id": 0,
+                        "capture_time_s": infos["frame_capture_time_s"][t, 0],
+                        "K": infos["K_nominal"][t, 0],
+                        "T_world_cam": infos["T_world_cam_nominal"][t, 0],
+                    }
+                ]
+            info = {
+                "time_s": float(episode.time_s[t]),
+                "camera": {"T_world_cam": infos["camera_T_world_cam"][t]},
+                "applied_action": infos["applied_action"][t],
+                "frames": newest,
+            }
+            robot = RobotStep.from_info(info, None, delta_y_m)
+            features.add(frames.newest(_step_observation(episode.observations, t), info), robot)
+            truth = np.asarray(episode.state[t], dtype=float)
+            if truth[StateIndex.TRACKING_VALID] >= 0.5 and features.any_detected:
+                xs.append(features.vector(robot.time_s))
+                ys.append(truth[:N_OUT])
+                eps.append(index)
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
+# env id -> the training arrays of its recorded episodes, given the recording's config
+READERS: dict[str, Callable[[Sequence[RecordedEpisode], Mapping[str, Any]], Arrays]] = {
+    "BallTable-v0": lambda episodes, config: ball_table_arrays(episodes),
+    "TargetFollower-v0": target_follower_arrays,
 }
 
 
@@ -90,4 +147,4 @@ def training_arrays(env_id: str, recording: str | os.PathLike) -> Arrays:
             f"{recording} holds a recording of {recorded_env or 'no env'} in obs mode "
             f"{obs_mode!r}; {env_id}'s learned observer reads measurements of {env_id}"
         )
-    return READERS[env_id](read_recording(recording))
+    return READERS[env_id](read_recording(recording), config)
