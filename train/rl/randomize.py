@@ -314,7 +314,7 @@ def union_space(spaces: list[gym.Space]) -> gym.Space:
     if isinstance(first, gym.spaces.Box):
         low = np.min([np.asarray(s.low) for s in spaces], axis=0)  # type: ignore[attr-defined]
         high = np.max([np.asarray(s.high) for s in spaces], axis=0)  # type: ignore[attr-defined]
-        return gym.spaces.Box(low, high, first.shape, first.dtype)  # type: ignore[arg-type]
+        return gym.spaces.Box(low, high, first.shape, first.dtype)
     if isinstance(first, gym.spaces.Dict):
         return gym.spaces.Dict(
             {k: union_space([s[k] for s in spaces]) for k in first.spaces}  # type: ignore[index]
