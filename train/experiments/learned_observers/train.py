@@ -18,15 +18,16 @@ network's width is its ``HIDDEN`` (else 128), both in its ``estimation/<system>/
 The shipped weights' reports record the command under its former name,
 ``python -m observer_gym.estimation.learned.train``: the same arguments give the same
 weights here.
-BallTable's rounds are recorded (``observer-gym record``'s Minari format, with each
-episode's drawn sensor options in its metadata) into ``--data DIR`` (``DIR/round-K``, new
-folders; default ``observer-gym-out/learned-data-STAMP-PID``) and read back
-(:mod:`~observer_gym.train.experiments.learned_observers.recorded`); ``--dataset DIR``
-reads the first round from a recording made before (``collect(..., out_dir=DIR)`` or
-``record_episodes``) instead of recording it. The arrays a recording gives equal those
-the collection gave in memory before (the float32 of the actions as they reached the
-env: tests/train/test_learned_from_dataset.py), so the shipped weights, fitted on the
-earlier collection, are what this command fits. The other systems' rounds are still
+BallTable's and TargetFollower's rounds are recorded (``observer-gym record``'s Minari
+format, with each episode's drawn sensor options in its metadata) into ``--data DIR``
+(``DIR/round-K``, new folders; default ``observer-gym-out/learned-data-STAMP-PID``) and
+read back (:mod:`~observer_gym.train.experiments.learned_observers.recorded`);
+``--dataset DIR`` reads the first round from a recording made before (``collect(...,
+out_dir=DIR)``, ``record_episodes``, or ``observer-gym record`` in the measurements obs
+mode) instead of recording it. The arrays a recording gives equal those the collection
+gave in memory before (TargetFollower's bit for bit, BallTable's with the action feature
+as the float32 that reached the env: tests/train/test_learned_from_dataset.py); the
+shipped weights were fitted on the earlier collection. BallCatcher's rounds are still
 collected in memory (no ``--dataset``, ``--data``).
 A mistake is one line on stderr and exit code 2.
 """
