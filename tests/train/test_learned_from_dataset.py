@@ -184,3 +184,30 @@ def test_train_refuses_a_dataset_in_one_line(tmp_path, capsys, monkeypatch, extr
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
     assert not (tmp_path / "n.pt").exists()
+
+
+@pytest.mark.slow  # a DAgger round of 5 whole episodes recorded with the network acting: ~15 s
+def test_a_dagger_round_is_recorded_into_the_data_folder(tmp_path):
+    pytest.importorskip("torch")
+    from observer_gym.estimation.learned.network import checked_report
+    from observer_gym.train.experiments.learned_observers import train
+
+    ball_table.record_episodes(tmp_path / "first", 5, 3, 20)
+    out, data = tmp_path / "net.pt", tmp_path / "data"
+    argv = ["--env", "BallTable-v0", "--episodes", "5", "--rounds", "2", "--epochs", "1"]
+    argv += ["--dataset", str(tmp_path / "first"), "--data", str(data), "--out", str(out)]
+    assert train.main(argv) == 0
+    report = checked_report(out)
+    recorded = read_recording(data / "round-2")  # round 1 came from --dataset
+    assert not (data / "round-1").exists()
+    assert len(recorded) == 5 and report["data"] == str(data)
+    assert report["samples"] == 5 * 20 + sum(len(e.actions) for e in recorded)
+    x, _, _ = training_arrays("BallTable-v0", data / "round-2")
+    assert len(x) == sum(len(e.actions) for e in recorded)
+    # round 2 (k = 1) drew its sensors from the generator of --seed (0) + 1
+    rng = np.random.default_rng(0 + 1)
+    first = {key: float(rng.uniform(*bounds)) for key, bounds in TRAINING_RANGES.items()}
+    assert recorded[0].drawn_options == first
+    # a second run into the same data folder is refused in one line, before any episode
+    assert train.main([*argv[:-2], "--out", str(tmp_path / "again.pt")]) == 2
+    assert not (tmp_path / "again.pt").exists()
