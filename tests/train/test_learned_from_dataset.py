@@ -15,7 +15,12 @@ import pytest
 pytest.importorskip("minari")
 
 from observer_gym.controllers import make_controller
+from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.envs.target_follower import StateIndex
+from observer_gym.estimation.ball_catcher.frames import FrameReader as BCFrameReader
+from observer_gym.estimation.ball_catcher.learned import TRAINING_RANGES as BC_TRAINING_RANGES
+from observer_gym.estimation.ball_catcher.learned import LearnedFeatures as BCLearnedFeatures
+from observer_gym.estimation.ball_catcher.learned import image_centre_px
 from observer_gym.estimation.ball_table.learned import (
     ACTION_NOISE_RAD,
     TRAINING_RANGES,
@@ -29,7 +34,11 @@ from observer_gym.estimation.target_follower.learned_detector import (
     ACTION_NOISE as TF_ACTION_NOISE,
 )
 from observer_gym.estimation.target_follower.state_layout import RobotStep
-from observer_gym.train.experiments.learned_observers import ball_table, target_follower
+from observer_gym.train.experiments.learned_observers import (
+    ball_catcher,
+    ball_table,
+    target_follower,
+)
 from observer_gym.train.experiments.learned_observers.recorded import training_arrays
 from observer_gym.train.reports.dataset import read_recording
 
@@ -141,6 +150,64 @@ def test_target_follower_arrays_from_a_recording_equal_the_old_collection(tmp_pa
         np.testing.assert_array_equal(found, expected)
 
 
+def frozen_ball_catcher_collect(episodes: int, seed: int) -> tuple[Any, Any, Any]:
+    """BallCatcher's ``collect`` (``intercept`` on the truth) as it was before it recorded,
+    with its own draw of the options (frozen copy)."""
+    rng = np.random.default_rng(seed)
+    xs, ys, eps = [], [], []
+    for episode in range(episodes):
+        options: dict[str, Any] = {}
+        for key, values in BC_TRAINING_RANGES.items():
+            if all(isinstance(v, str) for v in values):
+                options[key] = values[int(rng.integers(len(values)))]
+            else:
+                options[key] = float(rng.uniform(*values))
+        env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements", **options)
+        try:
+            unwrapped: Any = env.unwrapped
+            controller = make_controller("intercept", env)
+            pixels = BCFrameReader(unwrapped.config, owner="collect")
+            features = BCLearnedFeatures(unwrapped.num_cameras, image_centre_px(unwrapped))
+            _, info = env.reset(seed=int(rng.integers(2**31)))
+            while True:
+                for frame in info["frames"]:
+                    uv = pixels.detect(frame)
+                    features.add(int(frame["camera_id"]), float(frame["capture_time_s"]), uv)
+                x = features.vector(float(info["time_s"]))
+                if info["ball_in_flight"]:
+                    xs.append(x)
+                    ys.append(np.asarray(info["state"][BALL], dtype=float))
+                    eps.append(episode)
+                acted_on = np.asarray(info["state"], dtype=float)
+                action, _ = controller.predict(acted_on, deterministic=True)
+                _, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    break
+        finally:
+            env.close()
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
+def test_ball_catcher_arrays_from_a_recording_equal_the_old_collection(tmp_path):
+    old = frozen_ball_catcher_collect(2, 9)
+    record = ball_catcher.record_episodes(tmp_path / "data", 2, 9)
+    new = training_arrays("BallCatcher-v1", tmp_path / "data")
+    assert len(old[0]) > 50 and set(old[2]) == {0, 1}
+    # a camera preset (text choices) drawn per episode too
+    assert {e["drawn_options"]["camera_preset"] for e in record["episodes"]} <= set(
+        BC_TRAINING_RANGES["camera_preset"]
+    )
+    for found, expected in zip(new, old, strict=True):  # bit for bit, every array
+        assert found.shape == expected.shape
+        np.testing.assert_array_equal(found, expected)
+
+
+def test_training_arrays_refuse_another_systems_recording(tmp_path):
+    ball_table.record_episodes(tmp_path / "data", 1, 0, 2)
+    with pytest.raises(ValueError, match="holds a recording of BallTable-v0 in obs mode"):
+        training_arrays("TargetFollower-v0", tmp_path / "data")
+
+
 def test_training_arrays_refuse_another_recording(tmp_path):
     with pytest.raises(ValueError, match="no reader of recorded training data for Nope-v0"):
         training_arrays("Nope-v0", tmp_path)
@@ -169,8 +236,8 @@ def test_a_tiny_training_from_a_dataset_runs_end_to_end(tmp_path, capsys):
     ("extra", "message"),
     [
         (
-            ["--env", "BallCatcher-v1", "--dataset", "x"],
-            "not recorded yet; allowed for: BallTable-v0, TargetFollower-v0",
+            ["--env", "BallCatcher-v1", "--dataset", "nothing-here"],
+            "holds no recording",
         ),
         (["--env", "BallTable-v0", "--dataset", "nothing-here"], "holds no recording"),
     ],

@@ -95,7 +95,11 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
       (m,), the last action as the env applied it (``info["applied_action"]``; NaN
       before the first), and ``camera_T_world_cam`` (4, 4), m: the camera's nominal pose
       in the world now (``info["camera"]["T_world_cam"]``), which TargetFollower's
-      learned observer's features read.
+      learned observer's features read;
+    - BallCatcher: ``ball_in_flight`` () (``info["ball_in_flight"]``: before the ball's
+      first touch of the box) and, in the measurements obs mode, ``frame_uv_px`` (C, 2),
+      px: the newest delivered frame's ball pixel as the frame reports it
+      (``info["frames"][i]["uv_px"]``, float64), NaN without a detection or a frame.
     """
     cameras = int(env.unwrapped.rig.num_cameras)  # type: ignore[attr-defined]
     row: dict[str, np.ndarray] = {
@@ -119,6 +123,16 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
         row["K_nominal"][c], row["K_true"][c] = frame.K, frame.K_true
         row["T_world_cam_nominal"][c] = frame.T_world_cam
         row["T_world_cam_true"][c] = frame.T_world_cam_true
+    base: Any = env.unwrapped
+    if base.config.obs_mode == "measurements" and "uv_px" in getattr(
+        base.observation_space, "spaces", {}
+    ):  # each delivered frame's own measurement (BallCatcher), float64 as the info has it
+        row["frame_uv_px"] = np.full((cameras, 2), np.nan)
+        for frame in info["frames"]:  # in delivery order: the last of a camera's wins
+            uv = frame.get("uv_px")
+            row["frame_uv_px"][int(frame["camera_id"])] = np.nan if uv is None else uv
+    if "ball_in_flight" in info:
+        row["ball_in_flight"] = np.asarray(bool(info["ball_in_flight"]))
     if "applied_action" in info:  # None before the first action (BallTable's reset)
         applied = info["applied_action"]
         row["applied_action"] = (

@@ -5,6 +5,8 @@ learned_detector.py describe the data, its ranges and the networks fitted on it)
 from __future__ import annotations
 
 import math
+import tempfile
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -13,7 +15,6 @@ import numpy as np
 from observer_gym.controllers import make_controller
 from observer_gym.controllers.ball_catcher import InterceptController
 from observer_gym.envs.ball_catcher import BallCatcherEnv
-from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.estimation.ball_catcher import learned_detector
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.learned import (
@@ -22,59 +23,94 @@ from observer_gym.estimation.ball_catcher.learned import (
     image_centre_px,
 )
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
-from observer_gym.train.rl.randomize import draw_options, randomize_of_ranges
+from observer_gym.train.rl.randomize import randomize_of_ranges
 
 if TYPE_CHECKING:  # frame_training imports torch, which importing this module must not
     from observer_gym.estimation.learned.frame_training import FrameDataset
 
-__all__ = ["collect", "collect_frames", "frame_samples"]
+__all__ = ["collect", "collect_frames", "frame_samples", "player", "record_episodes"]
 
 
-def collect(
-    episodes: int, seed: int, act_with: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (N, 65), truth (N, 6): the ball's position and velocity, episode (N,))
-    from ``episodes`` throws (estimation/ball_catcher/learned.py's docstring), the
-    free-flight steps only, reproducible from ``seed``. The ``intercept`` controller acts
-    on the truth, or with ``act_with`` (a
+# the observer whose env a training recording keeps: the measurements, no filter
+OBSERVER = "detections"
+
+
+def player(act_with: Any = None) -> Any:
+    """The training throws' player (:func:`~observer_gym.train.experiments.record.
+    record_played`): the ``intercept`` controller on the truth, or with ``act_with`` (a
     :class:`~observer_gym.estimation.learned.network.GaussianMLP`) on that network's
-    estimate and covariance (a DAgger round)."""
-    rng = np.random.default_rng(seed)
-    randomize = randomize_of_ranges(TRAINING_RANGES)
-    xs, ys, eps = [], [], []
-    for episode in range(episodes):
-        options = draw_options(randomize, rng)
-        env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements", **options)
-        try:
-            unwrapped = env.unwrapped
-            assert isinstance(unwrapped, BallCatcherEnv)
-            controller = make_controller("intercept", env)
-            assert isinstance(controller, InterceptController)
-            pixels = FrameReader(unwrapped.config, owner="collect")
-            features = LearnedFeatures(unwrapped.num_cameras, image_centre_px(unwrapped))
-            _, info = env.reset(seed=int(rng.integers(2**31)))
-            while True:
+    estimate and covariance (a DAgger round); no action noise."""
+
+    def policy_for(world: gym.Env, rng: np.random.Generator) -> Any:
+        unwrapped = world.unwrapped
+        assert isinstance(unwrapped, BallCatcherEnv)
+        controller = make_controller("intercept", world)
+        assert isinstance(controller, InterceptController)
+        pixels = FrameReader(unwrapped.config, owner="collect")
+        features = LearnedFeatures(unwrapped.num_cameras, image_centre_px(unwrapped))
+
+        def act(obs: Any, info: Any) -> np.ndarray:
+            if act_with is None:
+                acted_on = np.asarray(info["state"], dtype=float)
+            else:
                 for frame in info["frames"]:
                     uv = pixels.detect(frame)
                     features.add(int(frame["camera_id"]), float(frame["capture_time_s"]), uv)
-                x = features.vector(float(info["time_s"]))
-                if info["ball_in_flight"]:
-                    xs.append(x)
-                    ys.append(np.asarray(info["state"][BALL], dtype=float))
-                    eps.append(episode)
-                if act_with is None:
-                    acted_on = np.asarray(info["state"], dtype=float)
-                else:
-                    ball, ball_covariance = act_with.predict(x)
-                    acted_on, covariance = state_estimate(ball, ball_covariance, info)
-                    controller.observe_info({"estimate": {"covariance": covariance}})
-                action, _ = controller.predict(acted_on, deterministic=True)
-                _, _, terminated, truncated, info = env.step(action)
-                if terminated or truncated:
-                    break
-        finally:
-            env.close()
-    return np.array(xs), np.array(ys), np.array(eps)
+                ball, ball_covariance = act_with.predict(features.vector(float(info["time_s"])))
+                acted_on, covariance = state_estimate(ball, ball_covariance, info)
+                controller.observe_info({"estimate": {"covariance": covariance}})
+            action, _ = controller.predict(acted_on, deterministic=True)
+            return action
+
+        return act
+
+    return policy_for
+
+
+def record_episodes(
+    out_dir: str | Path, episodes: int, seed: int, act_with: Any = None
+) -> dict[str, Any]:
+    """Record ``episodes`` training throws (estimation/ball_catcher/learned.py's
+    docstring) into the new folder ``out_dir``: each draws its sensor from
+    :data:`TRAINING_RANGES` and then its world's seed, from ``seed``; the :func:`player`
+    acts to the throw's end. Returns what its ``record.json`` holds."""
+    from observer_gym.train.experiments.record import record_played
+
+    return record_played(
+        "BallCatcher-v1",
+        OBSERVER,
+        out_dir,
+        randomize=randomize_of_ranges(TRAINING_RANGES),
+        episodes=episodes,
+        seed=seed,
+        steps=None,
+        player=player(act_with),
+        player_name="intercept-on-truth" if act_with is None else "intercept-on-learned",
+        config={},
+    )
+
+
+def collect(
+    episodes: int, seed: int, act_with: Any = None, out_dir: str | Path | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(features (N, 65), truth (N, 6): the ball's position and velocity, episode (N,))
+    from ``episodes`` throws (estimation/ball_catcher/learned.py's docstring), the
+    free-flight steps only, reproducible from ``seed``: recorded
+    (:func:`record_episodes`) into the new folder ``out_dir`` (a temporary one, removed
+    after, if None) and read back
+    (:func:`~observer_gym.train.experiments.learned_observers.recorded.training_arrays`).
+    The ``intercept`` controller acts on the truth, or with ``act_with`` (a
+    :class:`~observer_gym.estimation.learned.network.GaussianMLP`) on that network's
+    estimate and covariance (a DAgger round)."""
+    from observer_gym.train.experiments.learned_observers.recorded import training_arrays
+
+    if out_dir is not None:
+        record_episodes(out_dir, episodes, seed, act_with)
+        return training_arrays("BallCatcher-v1", out_dir)
+    with tempfile.TemporaryDirectory(prefix="ball_catcher-collect-") as tmp:
+        folder = Path(tmp) / "recording"
+        record_episodes(folder, episodes, seed, act_with)
+        return training_arrays("BallCatcher-v1", folder)
 
 
 def _crop(

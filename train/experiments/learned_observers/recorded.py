@@ -21,7 +21,13 @@ import numpy as np
 if TYPE_CHECKING:  # the dataset module imports minari, which READERS' users may not have
     from observer_gym.train.reports.dataset import RecordedEpisode
 
-__all__ = ["READERS", "ball_table_arrays", "target_follower_arrays", "training_arrays"]
+__all__ = [
+    "READERS",
+    "ball_catcher_arrays",
+    "ball_table_arrays",
+    "target_follower_arrays",
+    "training_arrays",
+]
 
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -113,10 +119,60 @@ def target_follower_arrays(
     return np.array(xs), np.array(ys), np.array(eps)
 
 
+def ball_catcher_arrays(episodes: Sequence[RecordedEpisode], config: Mapping[str, Any]) -> Arrays:
+    """BallCatcher's training arrays (features (N, 65), truth (N, 6): the ball's position
+    and velocity, episode (N,)): each step's
+    :class:`~observer_gym.estimation.ball_catcher.learned.LearnedFeatures` from each
+    camera's delivered frame (``frame_capture_time_s``, ``frame_uv_px``), the free-flight
+    steps only (``ball_in_flight``).
+
+    Raises:
+        ValueError: a step delivered two frames of one camera (a recording keeps a
+            camera's newest only), or the recording lacks ``frame_uv_px``.
+    """
+    import gymnasium as gym
+
+    from observer_gym.envs.ball_catcher.layout import BALL
+    from observer_gym.estimation.ball_catcher.frames import FrameReader
+    from observer_gym.estimation.ball_catcher.learned import LearnedFeatures, image_centre_px
+
+    fixed = dict(config.get("env_kwargs", {}))
+    xs, ys, eps = [], [], []
+    for index, episode in enumerate(episodes):
+        infos = episode.infos
+        if "frame_uv_px" not in infos:
+            raise ValueError("the recording keeps no frame_uv_px (BallCatcher's measurements)")
+        env = gym.make("observer_gym/BallCatcher-v1", **{**fixed, **episode.drawn_options})
+        try:
+            base: Any = env.unwrapped
+            pixels = FrameReader(base.config, owner="recording")
+            features = LearnedFeatures(base.num_cameras, image_centre_px(base))
+        finally:
+            env.close()
+        for t in range(len(episode.actions)):
+            counts = infos["frame_count"][t]
+            if counts.max(initial=0) > 1:
+                raise ValueError(
+                    f"episode {index} step {t} delivered {int(counts.max())} frames of one "
+                    "camera; a recording keeps each camera's newest only"
+                )
+            for camera in np.flatnonzero(counts):
+                uv = infos["frame_uv_px"][t, camera]
+                frame = {"uv_px": None if np.isnan(uv).any() else uv}
+                capture_s = float(infos["frame_capture_time_s"][t, camera])
+                features.add(int(camera), capture_s, pixels.detect(frame))
+            if infos["ball_in_flight"][t]:
+                xs.append(features.vector(float(episode.time_s[t])))
+                ys.append(np.asarray(episode.state[t][BALL], dtype=float))
+                eps.append(index)
+    return np.array(xs), np.array(ys), np.array(eps)
+
+
 # env id -> the training arrays of its recorded episodes, given the recording's config
 READERS: dict[str, Callable[[Sequence[RecordedEpisode], Mapping[str, Any]], Arrays]] = {
     "BallTable-v0": lambda episodes, config: ball_table_arrays(episodes),
     "TargetFollower-v0": target_follower_arrays,
+    "BallCatcher-v1": ball_catcher_arrays,
 }
 
 

@@ -18,17 +18,17 @@ network's width is its ``HIDDEN`` (else 128), both in its ``estimation/<system>/
 The shipped weights' reports record the command under its former name,
 ``python -m observer_gym.estimation.learned.train``: the same arguments give the same
 weights here.
-BallTable's and TargetFollower's rounds are recorded (``observer-gym record``'s Minari
-format, with each episode's drawn sensor options in its metadata) into ``--data DIR``
-(``DIR/round-K``, new folders; default ``observer-gym-out/learned-data-STAMP-PID``) and
-read back (:mod:`~observer_gym.train.experiments.learned_observers.recorded`);
-``--dataset DIR`` reads the first round from a recording made before (``collect(...,
-out_dir=DIR)``, ``record_episodes``, or ``observer-gym record`` in the measurements obs
-mode) instead of recording it. The arrays a recording gives equal those the collection
-gave in memory before (TargetFollower's bit for bit, BallTable's with the action feature
-as the float32 that reached the env: tests/train/test_learned_from_dataset.py); the
-shipped weights were fitted on the earlier collection. BallCatcher's rounds are still
-collected in memory (no ``--dataset``, ``--data``).
+Each round is recorded (``observer-gym record``'s Minari format, with each episode's
+drawn sensor options in its metadata) into ``--data DIR`` (``DIR/round-K``, new folders;
+default ``observer-gym-out/learned-data-STAMP-PID``) and read back
+(:mod:`~observer_gym.train.experiments.learned_observers.recorded`); ``--dataset DIR``
+reads the first round from a recording made before (``collect(..., out_dir=DIR)``, the
+system's ``record_episodes``, or ``observer-gym record`` in the measurements obs mode)
+instead of recording it. Needs the ``[record]`` extra besides ``[rl]``. The arrays a
+recording gives equal those the collection gave in memory before (TargetFollower's and
+BallCatcher's bit for bit, BallTable's with the action feature as the float32 that
+reached the env: tests/train/test_learned_from_dataset.py); the shipped weights were
+fitted on the earlier collection.
 A mistake is one line on stderr and exit code 2.
 """
 
@@ -114,24 +114,13 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    from observer_gym.train.experiments.learned_observers.recorded import READERS
+    from observer_gym.extras import require_record
 
-    recorded = env_id in READERS
-    if not recorded and (args.dataset is not None or args.data is not None):
-        print(
-            f"{PROG}: error: --dataset and --data: {env_id}'s training data are not recorded "
-            f"yet; allowed for: {', '.join(READERS)}",
-            file=sys.stderr,
-        )
+    try:
+        require_record(PROG)
+    except ExtraNotInstalled as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
-    if recorded:
-        from observer_gym.extras import ExtraNotInstalled, require_record
-
-        try:
-            require_record(PROG)
-        except ExtraNotInstalled as error:
-            print(f"{PROG}: error: {error}", file=sys.stderr)
-            return 2
     import numpy as np
 
     from observer_gym.estimation.learned.network import save_network
@@ -146,14 +135,13 @@ def main(argv: list[str] | None = None) -> int:
     from observer_gym.train.experiments.record import check_new_folder
     from observer_gym.train.reports.outputs import default_out_dir
 
-    records = recorded and (args.dataset is None or args.rounds > 1)  # a round is recorded
+    records = args.dataset is None or args.rounds > 1  # a round is recorded
     data_dir = (args.data or default_out_dir("learned-data")) if records else None
 
     def round_data(k: int, act_with: object = None) -> tuple:
         """Round k's arrays (k = 0 the first): recorded into data_dir/round-(k+1) and read
-        back for a recorded system, else collected in memory."""
-        if data_dir is None:
-            return collect(args.episodes, args.seed + k, act_with=act_with)
+        back."""
+        assert data_dir is not None  # a round is recorded
         return collect(
             args.episodes, args.seed + k, act_with=act_with, out_dir=data_dir / f"round-{k + 1}"
         )
