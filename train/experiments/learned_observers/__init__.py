@@ -6,7 +6,8 @@ collection: ``collect`` (the ``learned`` network's features and the truth, the
 controller on the truth or, a DAgger round, on a network's estimate: its episodes
 recorded as a Minari dataset by ``record_episodes`` and read back by ``recorded.py``,
 the one reader of recorded training data) and ``collect_frames`` (the learned detector's
-frames and labels, with ``frame_data.py``'s lockstep episodes, kept in memory). ``train.py`` and ``train_detector.py`` the commands::
+frames and labels, with ``frame_data.py``'s lockstep episodes, kept in memory).
+``train.py`` and ``train_detector.py`` the commands::
 
     python -m observer_gym.train.experiments.learned_observers.train --env ENV
     python -m observer_gym.train.experiments.learned_observers.train_detector --env ENV
