@@ -215,3 +215,14 @@ def test_a_draw_that_widens_the_bounds_is_recorded_in_their_union(tmp_path):
               for p in (0.0, 5.0)]  # fmt: skip
     assert bounds[1] > bounds[0]
     assert space["target_px"].high[0] == pytest.approx(bounds[1])
+
+
+def test_the_python_function_randomizes_too(tmp_path):
+    import observer_gym
+
+    result = observer_gym.record(
+        ENV, OBSERVER, CONTROLLER, episodes=2, seed=SEED, steps=2, out_dir=tmp_path / "r",
+        randomize=RANDOMIZE, env_options=FIXED,
+    )  # fmt: skip
+    drawn = [e.drawn_options for e in read_recording(result.out_dir)]
+    assert drawn == [options for options, _ in expected_draws()[:2]]
