@@ -62,7 +62,10 @@ def _record_arguments(parser: argparse.ArgumentParser) -> None:
         "--seed",
         type=nonnegative_int,
         default=0,
-        help="episode i resets with seed + i (default: %(default)s)",
+        help=(
+            "episode i resets with seed + i; with --randomize the seed of the draws "
+            "(default: %(default)s)"
+        ),
     )
     parser.add_argument(
         "--out",

@@ -8,7 +8,10 @@ DataCollector between the observer env and the controller
 are what the observer was given (frames, measurements, or the state for ``oracle``), its
 actions what reached the env (after a trained agent's own wrappers), its infos hold the
 truth and the observer's estimate. One env serves all the episodes, each reset with its
-seed.
+seed; with a randomisation (``record --randomize``) each episode's world is rebuilt with
+the options it draws (:class:`~observer_gym.train.rl.randomize.RandomizedEnv` beneath the
+collector). :func:`record_played` records a trainer's own player the same way (the
+learned observers' training data).
 """
 
 from __future__ import annotations
