@@ -5,9 +5,11 @@ without; the refusals one line before anything runs."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -64,6 +66,46 @@ def logged_images(reader) -> int:
     return count
 
 
+def test_the_chosen_episodes_of_each_group_get_the_videos_names_with_rrd(tmp_path):
+    """Two pairs (groups) of three episodes, episodes 0 and 2 chosen, a cell's prefix:
+    each chosen episode's recording is its video's stem + .rrd in the folder; the others
+    get none."""
+    pytest.importorskip("rerun")
+    from observer_gym.train.experiments.episode import EpisodeSpec
+    from observer_gym.train.experiments.videos import (
+        plan_reruns,
+        plan_videos_for,
+        with_reruns,
+        with_videos,
+    )
+
+    specs = [
+        EpisodeSpec.of(TABLE, observer, "lqr", seed)
+        for observer in ("kf", "raw")
+        for seed in (7, 8, 9)
+    ]
+    prefix = "latency_s-0.04__"
+    reruns = plan_reruns(tmp_path / "rrd", [0, 2], 3)
+    videos = plan_videos_for(tmp_path / "v", [0, 2], 3, [spec.observer for spec in specs[::3]])
+    recorded = with_reruns(specs, reruns, 3, prefix)
+    filmed = with_videos(specs, videos, 3, prefix)
+    paths = [None if s.rerun is None else Path(s.rerun.path) for s in recorded]
+    assert paths == [
+        tmp_path / "rrd" / "latency_s-0.04__BallTable-v0_kf_lqr_episode0_seed7.rrd",
+        None,
+        tmp_path / "rrd" / "latency_s-0.04__BallTable-v0_kf_lqr_episode2_seed9.rrd",
+        tmp_path / "rrd" / "latency_s-0.04__BallTable-v0_raw_lqr_episode0_seed7.rrd",
+        None,
+        tmp_path / "rrd" / "latency_s-0.04__BallTable-v0_raw_lqr_episode2_seed9.rrd",
+    ]
+    for rec, film in zip(recorded, filmed, strict=True):
+        assert (rec.rerun is None) == (film.video is None)
+        if rec.rerun is not None:
+            assert rec.rerun.name == film.video.stem == Path(rec.rerun.path).stem
+    # the episodes themselves are the specs given, the recording aside
+    assert [dataclasses.replace(s, rerun=None) for s in recorded] == specs
+
+
 def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:
     code = main(argv)
     err = capsys.readouterr().err
@@ -71,7 +113,7 @@ def one_line_error(capsys, argv: list[str]) -> tuple[int, str]:
     return code, err
 
 
-@pytest.mark.slow  # two comparisons of two pixel pairs, and their replays (~15 s)
+@pytest.mark.slow  # two comparisons of two pixel pairs (one in 2 processes), two replays
 def test_compare_writes_one_recording_per_pair_named_as_the_videos_and_changes_nothing(
     tmp_path, capsys
 ):
@@ -82,7 +124,8 @@ def test_compare_writes_one_recording_per_pair_named_as_the_videos_and_changes_n
     argv += ["--steps", str(STEPS), "--no-progress"]
     assert main([*argv, "--out", str(tmp_path / "plain")]) == 0
     folder = tmp_path / "rrd"
-    assert main([*argv, "--out", str(tmp_path / "recorded"), "--rerun", str(folder)]) == 0
+    recording = ["--rerun", str(folder), "--workers", "2"]  # written in worker processes
+    assert main([*argv, "--out", str(tmp_path / "recorded"), *recording]) == 0
     capsys.readouterr()
     plain = json.loads((tmp_path / "plain" / "results.json").read_text())
     recorded = json.loads((tmp_path / "recorded" / "results.json").read_text())
@@ -95,6 +138,48 @@ def test_compare_writes_one_recording_per_pair_named_as_the_videos_and_changes_n
     for observer in ("kf", "raw"):
         path = folder / f"BallTable-v0_{observer}_lqr_episode0_seed4.rrd"
         assert logged_images(RrdReader(path)) == delivered_images(observer, "lqr", 4, STEPS) > 0
+
+
+@pytest.mark.slow  # a sweep of two cells, and again (resumed)
+def test_a_sweep_names_each_cells_recordings_by_its_point_and_a_resume_records_none(
+    tmp_path, capsys
+):
+    pytest.importorskip("rerun")
+    argv = ["sweep", "--vary", "latency_s=0.0,0.04", "--observers", "kf-measurements"]
+    argv += ["--controllers", "lqr", "--episodes", "2", "--steps", "5", "--no-progress"]
+    argv += ["--out", str(tmp_path / "sweep")]
+    assert main([*argv, "--rerun", str(tmp_path / "rrd"), "--rerun-episodes", "1"]) == 0
+    assert sorted(p.name for p in (tmp_path / "rrd").iterdir()) == [
+        "latency_s-0.04__BallTable-v0_kf-measurements_lqr_episode1_seed1.rrd",
+        "latency_s-0.0__BallTable-v0_kf-measurements_lqr_episode1_seed1.rrd",
+    ]
+    # the cells are reused, not run again: no recording
+    assert main([*argv, "--rerun", str(tmp_path / "again")]) == 0
+    capsys.readouterr()
+    assert list((tmp_path / "again").iterdir()) == []
+
+
+@pytest.mark.slow  # starts Ray
+def test_ray_tasks_write_the_recordings(tmp_path):
+    pytest.importorskip("rerun")
+    pytest.importorskip("ray")
+    from rerun.chunk import RrdReader
+
+    import observer_gym
+
+    observer_gym.compare(
+        "BallTable-v0", ["oracle", "kf-measurements"], "lqr", seeds=[3], steps=5,
+        out_dir=tmp_path / "out", backend="ray", rerun_dir=tmp_path / "rrd",
+    )  # fmt: skip
+    names = sorted(p.name for p in (tmp_path / "rrd").iterdir())
+    assert names == [
+        "BallTable-v0_kf-measurements_lqr_episode0_seed3.rrd",
+        "BallTable-v0_oracle_lqr_episode0_seed3.rrd",
+    ]
+    for name in names:  # whole: the footer reads back; the truth at the reset and 5 steps
+        chunks = RrdReader(tmp_path / "rrd" / name).stream().to_chunks()
+        truths = sum(c.num_rows for c in chunks if c.entity_path == "/world/ball/truth")
+        assert truths == 6
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
