@@ -159,6 +159,29 @@ def test_a_sweep_names_each_cells_recordings_by_its_point_and_a_resume_records_n
     assert list((tmp_path / "again").iterdir()) == []
 
 
+@pytest.mark.slow  # two benchmarks of three full-length levels (27 s at load 5)
+def test_a_benchmark_names_each_levels_recording_by_the_level_and_scores_the_same(tmp_path, capsys):
+    pytest.importorskip("rerun")
+    argv = ["benchmark", "--env", "BallTable-v0", "--observer", "kf-measurements"]
+    argv += ["--controller", "lqr", "--episodes", "1", "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "plain")]) == 0
+    assert main([*argv, "--out", str(tmp_path / "recorded"), "--rerun", str(tmp_path / "rrd")]) == 0
+    capsys.readouterr()
+    names = sorted(p.name for p in (tmp_path / "rrd").iterdir())
+    levels = sorted(p.stem for p in (tmp_path / "plain" / "levels").glob("*.json"))
+    assert [name.split("__")[0] for name in names] == levels
+    for name in names:
+        assert name.split("__")[1].startswith("BallTable-v0_kf-measurements_lqr_episode0_seed")
+    for level in levels:
+        plain = json.loads((tmp_path / "plain" / "levels" / f"{level}.json").read_text())
+        recorded = json.loads((tmp_path / "recorded" / "levels" / f"{level}.json").read_text())
+        assert (plain["seeds"], plain["values"]) == (recorded["seeds"], recorded["values"])
+        assert (
+            f"{level}__BallTable-v0_kf-measurements_lqr_episode0_seed{plain['seeds'][0]}.rrd"
+            in names
+        )
+
+
 @pytest.mark.slow  # starts Ray
 def test_ray_tasks_write_the_recordings(tmp_path):
     pytest.importorskip("rerun")
