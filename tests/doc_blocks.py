@@ -32,7 +32,7 @@ FENCE = re.compile(r"^```(\S*)\s*$")
 # commands that the test does not run, for this reason.
 GENERATED = {
     "leaderboard.md": "the page's own generating command, which rewrites the tracked page; "
-    "tests/train/test_benchmark_leaderboard.py holds the page to that command's output"
+    "tests/train/experiments/test_benchmark_leaderboard.py holds the page to that command's output"
 }
 MARKER = re.compile(r"^<!-- doc-test: (skip|replace|fails|output)(?:: (.*?))? -->$")
 

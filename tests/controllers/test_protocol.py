@@ -40,7 +40,7 @@ SLOW_EPISODES = {"mpc", "lqr", "pid"}
     "name",
     [  # BallTable's 500-step episodes (mpc 20 s at load 7, lqr and pid 2 s idle): slow; their
         # closed loops stay in the default run (test_ball_table_ekf_calibration.py,
-        # test_closed_loop.py, tests/train/test_run.py's oracle episodes)
+        # test_closed_loop.py, tests/train/experiments/test_run.py's oracle episodes)
         pytest.param(name, marks=pytest.mark.slow) if name in SLOW_EPISODES else name
         for name in CONTROLLERS
     ],

@@ -3,7 +3,7 @@
 The toy of this folder (a camera above a point mass) is one module per layer plus a
 ``System`` record, registered by tests/conftest.py; nothing in the package names it. The
 env suite (tests/envs/test_envs.py, test_copies.py) and the per-layer checks
-(tests/train/test_systems.py) run on it with the package's systems; here it goes through
+(tests/train/core/test_systems.py) run on it with the package's systems; here it goes through
 ``run``, ``compare``, ``sweep`` and ``train`` as a user would call them.
 """
 

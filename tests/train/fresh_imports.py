@@ -1,7 +1,7 @@
 """Jobs that need an interpreter which has imported none of observer-gym, run in one
 subprocess: each job in its own child forked from this process, which imports nothing of
 the package, so the jobs share one interpreter start-up and none sees what another
-imported (tests/train/test_imports.py, tests/train/test_cli_errors.py).
+imported (tests/train/test_imports.py, tests/train/cli/test_cli_errors.py).
 
 ``python fresh_imports.py modules MODULE...``
     every MODULE imported alone; the third-party modules they load are imported once in

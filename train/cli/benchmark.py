@@ -24,6 +24,7 @@ from observer_gym.train.cli.args import (
     progress_display,
     recorded_args,
 )
+from observer_gym.train.cli.rerun_options import add_rerun_folder_arguments, rerun_folder_options
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import PER_ENV, env_name, folder_path, positive_int
 from observer_gym.train.core.messages import error_line
@@ -100,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "level on stderr)",
     )
     add_video_arguments(parser)
+    add_rerun_folder_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -153,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_pairs(args.env, [args.observer], [args.controller], {})
         videos = video_options(args)
+        reruns = rerun_folder_options(args)
     except ValueError as exc:
         return _error(exc)
 
@@ -162,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         check_out_dir,
         run_benchmark,
     )
-    from observer_gym.train.experiments.videos import plan_videos
+    from observer_gym.train.experiments.videos import plan_reruns, plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError
 
     try:
@@ -187,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
                 env_id=request.suite.env_id,
                 observers=[request.observer],
             )
+        if reruns:
+            plan_reruns(**reruns, episodes=request.episodes)
     except ValueError as exc:
         return _error(exc)
     progress = progress_display(PROG, args.no_progress)
@@ -198,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
             cli_args=recorded_args(args),
             on_level=progress.lines,
             **videos,
+            **reruns,
         )
     except KeyboardInterrupt:
         print(

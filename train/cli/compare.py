@@ -24,6 +24,7 @@ from observer_gym.train.cli.args import (
     add_output_arguments,
     recorded_args,
 )
+from observer_gym.train.cli.rerun_options import add_rerun_folder_arguments, rerun_folder_options
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
@@ -115,6 +116,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_output_arguments(parser, "compare")
     add_video_arguments(parser)
+    add_rerun_folder_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -163,13 +165,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_pairs(args.env, args.observers, args.controllers, dict(args.env_option))
         videos = video_options(args)
+        reruns = rerun_folder_options(args)
     except ValueError as exc:
         return _error(exc)
 
     # deferred: PyBullet, the controllers, SciPy
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.compare import check_comparison
-    from observer_gym.train.experiments.videos import plan_videos
+    from observer_gym.train.experiments.videos import plan_reruns, plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError, check_folder_kind
 
     options = {
@@ -191,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
             check_folder_kind(args.out, "compare")
         if videos:
             plan_videos(**videos, episodes=len(seeds), env_id=args.env, observers=args.observers)
+        if reruns:
+            plan_reruns(**reruns, episodes=len(seeds))
     except ValueError as exc:
         return _error(str(exc))
     try:
@@ -204,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             cli_args=recorded_args(args),
             **videos,
+            **reruns,
         )
     except OutputFolderError as exc:  # another command wrote the folder since the check
         return _error(str(exc))

@@ -26,6 +26,7 @@ from observer_gym.train.cli.args import (
     recorded_args,
 )
 from observer_gym.train.cli.compare import check_pairs, name_list
+from observer_gym.train.cli.rerun_options import add_rerun_folder_arguments, rerun_folder_options
 from observer_gym.train.cli.video_options import add_video_arguments, video_options
 from observer_gym.train.core.args import (
     PER_ENV,
@@ -132,6 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "cell on stderr)",
     )
     add_video_arguments(parser)
+    add_rerun_folder_arguments(parser)
 
 
 def _error(message: object) -> int:
@@ -156,13 +158,14 @@ def run(args: argparse.Namespace) -> int:
         modes = [observer_mode(args.env, o) for o in args.observers]
         check_grid(args.env, args.vary, env_options, modes)
         videos = video_options(args)
+        reruns = rerun_folder_options(args)
     except ValueError as exc:
         return _error(exc)
 
     # deferred: PyBullet's worlds, the controllers, SciPy, matplotlib
     from observer_gym.train.experiments import api
     from observer_gym.train.experiments.sweep_plan import check_sweep
-    from observer_gym.train.experiments.videos import plan_videos
+    from observer_gym.train.experiments.videos import plan_reruns, plan_videos
     from observer_gym.train.reports.outputs import OutputFolderError
 
     options = {
@@ -185,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
         check_sweep(**options, out_dir=args.out)
         if videos:
             plan_videos(**videos, episodes=args.episodes, env_id=args.env, observers=args.observers)
+        if reruns:
+            plan_reruns(**reruns, episodes=args.episodes)
     except ValueError as exc:
         return _error(exc)
     progress = progress_display("observer-gym sweep", args.no_progress)
@@ -201,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
             cli_args=recorded_args(args),
             on_cell=progress.lines,
             **videos,
+            **reruns,
         )
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (observer_gym.train.cli.main)
         print(

@@ -7,16 +7,19 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from observer_gym.extras import require_video
+from observer_gym.train.cli.episode_files import EpisodeFilesOption
 from observer_gym.train.core.args import folder_path, seed_list
+
+VIDEO = EpisodeFilesOption(
+    "--video", "DIR", "--video-episodes", ("video_dir", "video_episodes"), require_video
+)
 
 
 def add_video_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``--video DIR`` and ``--video-episodes I,J``."""
-    parser.add_argument(
-        "--video",
-        type=folder_path,
-        default=None,
-        metavar="DIR",
+    VIDEO.add_to(
+        parser,
         help=(
             "write an MP4 of the chosen episodes into DIR (one per camera): the camera "
             "images the observer received with its detection, the estimate and its 2-sigma "
@@ -24,13 +27,10 @@ def add_video_arguments(parser: argparse.ArgumentParser) -> None:
             "observers that read images only (needs pip install 'observer-gym[video]'; "
             "docs/watch.md)"
         ),
-    )
-    parser.add_argument(
-        "--video-episodes",
-        type=seed_list,
-        default=None,
-        metavar="I,J",
-        help="which episodes --video films, indices from 0 and ranges A-B (default: 0)",
+        type=folder_path,
+        episodes_help="which episodes --video films, indices from 0 and ranges A-B (default: 0)",
+        episodes_type=seed_list,
+        episodes_metavar="I,J",
     )
 
 
@@ -40,11 +40,4 @@ def video_options(args: argparse.Namespace) -> dict[str, Any]:
     (:class:`~observer_gym.extras.ExtraNotInstalled`, one line and exit code 2 from
     :func:`observer_gym.train.cli.main`), and ``--video-episodes`` without ``--video``
     (ValueError)."""
-    if args.video is None:
-        if args.video_episodes is not None:
-            raise ValueError("--video-episodes needs --video DIR")
-        return {}
-    from observer_gym.extras import require_video
-
-    require_video()
-    return {"video_dir": args.video, "video_episodes": args.video_episodes}
+    return VIDEO.options(args)

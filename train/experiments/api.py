@@ -355,6 +355,8 @@ def compare(
     cli_args: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_dir: str | Path | None = None,
+    rerun_episodes: Sequence[int] | None = None,
 ) -> ComparisonResult:
     """Every (observer, controller) pair on the same episodes (``seeds``, or ``episodes``
     from ``seed``: the module docstring), with intervals, paired
@@ -362,7 +364,8 @@ def compare(
     (:func:`observer_gym.train.experiments.compare.run_comparison`); locally in ``workers``
     processes or as Ray tasks (``backend="ray"``), with the same records. ``video_dir``:
     an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every pair whose
-    observer reads camera images (docs/watch.md).
+    observer reads camera images; ``rerun_dir``: a ``.rrd`` recording of the episodes
+    ``rerun_episodes`` (default ``[0]``) of every pair (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -400,6 +403,8 @@ def compare(
             controller_options=controller_options,
             video_dir=video_dir,
             video_episodes=video_episodes,
+            rerun_dir=rerun_dir,
+            rerun_episodes=rerun_episodes,
         )
     pairs = [
         PairResult(
@@ -445,6 +450,8 @@ def sweep(
     on_cell: Callable[[str], None] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_dir: str | Path | None = None,
+    rerun_episodes: Sequence[int] | None = None,
 ) -> SweepOutcome:
     """Every cell (grid point of ``vary`` x observer x controller) on the same seeds,
     resumable from ``out_dir`` (:func:`observer_gym.train.experiments.sweep.run_sweep`);
@@ -452,7 +459,9 @@ def sweep(
     ``progress`` draws a bar over the episodes; ``on_cell`` is called with one line for
     each cell as it finishes (the command prints it on stderr when no bar can be drawn).
     ``video_dir``: an MP4 of the episodes ``video_episodes`` (default ``[0]``) of every
-    cell run now whose observer reads camera images (docs/watch.md).
+    cell run now whose observer reads camera images; ``rerun_dir``: a ``.rrd`` recording
+    of the episodes ``rerun_episodes`` (default ``[0]``) of every cell run now
+    (docs/watch.md).
 
     Example:
         >>> import tempfile
@@ -493,6 +502,8 @@ def sweep(
             on_cell=on_cell,
             video_dir=video_dir,
             video_episodes=video_episodes,
+            rerun_dir=rerun_dir,
+            rerun_episodes=rerun_episodes,
         )
     text = sweep_text(
         result.results, result.out_dir, result.cells_run, result.cells_reused, result.wall_time_s

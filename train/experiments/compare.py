@@ -31,7 +31,14 @@ from observer_gym.train.experiments.episode import (
     run_episodes,
 )
 from observer_gym.train.experiments.request import Request, resolve_request
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos_for, with_videos
+from observer_gym.train.experiments.videos import (
+    RerunFolderPlan,
+    VideoPlan,
+    plan_reruns,
+    plan_videos_for,
+    with_reruns,
+    with_videos,
+)
 from observer_gym.train.reports.aggregate import across_seeds
 from observer_gym.train.reports.compare_report import format_seeds, pair_folders, write_comparison
 from observer_gym.train.reports.compare_stats import (
@@ -234,10 +241,16 @@ class PairRuns(NamedTuple):
         return {pair: self.records[k * n : (k + 1) * n] for k, pair in enumerate(self.pairs)}
 
 
-def run_pairs(request: Request, progress: bool = True, videos: VideoPlan | None = None) -> PairRuns:
+def run_pairs(
+    request: Request,
+    progress: bool = True,
+    videos: VideoPlan | None = None,
+    reruns: RerunFolderPlan | None = None,
+) -> PairRuns:
     """Run episode i of every (observer, controller) pair of ``request`` with
     ``seeds[i]``, all in one batch: locally in ``workers`` processes or as Ray tasks (the
-    same records); with ``videos``, the chosen episodes write their videos."""
+    same records); with ``videos`` and ``reruns``, the chosen episodes write their videos
+    and rerun recordings."""
     pairs = [(o, c) for c in request.controllers for o in request.observers]
     specs = [
         EpisodeSpec.of_entries(
@@ -251,7 +264,7 @@ def run_pairs(request: Request, progress: bool = True, videos: VideoPlan | None 
         for observer, controller in pairs
         for seed in request.seeds
     ]
-    specs = with_videos(specs, videos, len(request.seeds))
+    specs = with_reruns(with_videos(specs, videos, len(request.seeds)), reruns, len(request.seeds))
     tic_s = time.perf_counter()
     if request.backend == "ray":
         from observer_gym.train.experiments.ray_backend import (
@@ -282,6 +295,8 @@ def run_comparison(
     controller_options: Mapping[str, Any] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_dir: str | Path | None = None,
+    rerun_episodes: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Run every (observer, controller) pair on ``seeds``; write tables, plots, results.
 
@@ -320,6 +335,10 @@ def run_comparison(
         video_dir: write videos of the episodes ``video_episodes`` (indices, default the
             first) of every pair whose observer reads camera images into this folder
             (:mod:`observer_gym.train.experiments.videos`); the results are the same.
+        rerun_dir: write a rerun recording of the episodes ``rerun_episodes`` (indices,
+            default the first) of every pair into this folder, one ``.rrd`` each named as
+            the videos are (:func:`~observer_gym.train.experiments.videos.with_reruns`);
+            the results are the same.
 
     Returns:
         What ``results.json`` holds (JSON types): ``config``, ``versions``,
@@ -337,6 +356,7 @@ def run_comparison(
     )  # fmt: skip
     task, seeds = request.task, list(request.seeds)
     videos = plan_videos_for(video_dir, video_episodes, len(seeds), request.observers)
+    reruns = plan_reruns(rerun_dir, rerun_episodes, len(seeds))
     metrics = compare_metrics(task)
     out_dir = Path(out_dir)
     check_folder_kind(out_dir, "compare")
@@ -344,7 +364,7 @@ def run_comparison(
     with output_folder(
         out_dir, "compare", check=lambda folder: check_folder_kind(folder, "compare")
     ):
-        runs = run_pairs(request, progress, videos)
+        runs = run_pairs(request, progress, videos, reruns)
         observed = {entry.name: entry.record() for entry in request.observers}
         analysis = analyse_pairs(
             task, runs.pairs, pair_folders(runs.pairs), seeds, runs.records, observed

@@ -54,7 +54,14 @@ from observer_gym.train.experiments.sweep_plan import (
     check_out_dir,
     check_sweep,
 )
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos_for, with_videos
+from observer_gym.train.experiments.videos import (
+    RerunFolderPlan,
+    VideoPlan,
+    plan_reruns,
+    plan_videos_for,
+    with_reruns,
+    with_videos,
+)
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.compare_stats import (
     CONFIDENCE,
@@ -138,17 +145,19 @@ def run_cells(
     progress: bool = True,
     on_cell: Callable[[str], None] | None = None,
     videos: VideoPlan | None = None,
+    reruns: RerunFolderPlan | None = None,
 ) -> dict[str, dict]:
     """Run every episode of ``cells`` in one batch; write each cell to
     ``out_dir/cells/<id>.json`` (atomically) as soon as its last episode is in, then call
     ``on_cell`` with one line saying so (:func:`cell_line`), if given. Returns the cell
     files' contents by id. An error or Ctrl-C stops it; the cells written stay. With
-    ``videos``, the chosen episodes of each cell write their videos (file names begin
-    with the cell's grid point)."""
+    ``videos`` and ``reruns``, the chosen episodes of each cell write their videos and
+    rerun recordings (file names begin with the cell's grid point)."""
     specs, owner = [], []
     for k, cell in enumerate(cells):
         point = "".join(f"{safe_name(f'{key}-{value_text(v)}')}__" for key, v in cell.point.items())
         cell_specs = with_videos(plan.specs(cell), videos, len(plan.seeds), prefix=point)
+        cell_specs = with_reruns(cell_specs, reruns, len(plan.seeds), prefix=point)
         for i, spec in enumerate(cell_specs):
             specs.append(spec)
             owner.append((k, i))
@@ -308,6 +317,8 @@ def run_sweep(
     on_cell: Callable[[str], None] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_dir: str | Path | None = None,
+    rerun_episodes: Sequence[int] | None = None,
 ) -> SweepResult:
     """Run every cell (grid point x observer x controller) of a sweep on the same seeds,
     resuming from the cells ``out_dir`` already holds; write its outputs.
@@ -351,6 +362,9 @@ def run_sweep(
             first) of every cell run now whose observer reads camera images into this
             folder (:mod:`observer_gym.train.experiments.videos`; cells reused from an
             earlier run are not run again, so they get none).
+        rerun_dir: write a rerun recording of the episodes ``rerun_episodes`` (indices,
+            default the first) of every cell run now into this folder, one ``.rrd`` each
+            named as the videos are (cells reused get none).
 
     Raises:
         ValueError: a bad input, or an ``out_dir`` holding another sweep
@@ -369,6 +383,7 @@ def run_sweep(
         address, steps, env_kwargs, second_metric, observer_options, controller_options,
     )  # fmt: skip
     videos = plan_videos_for(video_dir, video_episodes, episodes, plan.request.observers)
+    reruns = plan_reruns(rerun_dir, rerun_episodes, episodes)
     for note in world_draw_notes(plan.request.system, plan.grid):
         warnings.warn(note, SweepWarning, stacklevel=2)
     out_dir = Path(out_dir)
@@ -392,7 +407,7 @@ def run_sweep(
         cells = finished_cells(out_dir, plan)
         reused = len(cells)
         todo = [cell for cell in plan.cells if cell.id not in cells]
-        ran = run_cells(out_dir, plan, todo, progress, on_cell, videos)
+        ran = run_cells(out_dir, plan, todo, progress, on_cell, videos, reruns)
         cells.update(ran)
         ran_s = time.perf_counter()
 

@@ -1,4 +1,4 @@
-"""``--video DIR`` and ``--rerun FILE.rrd`` for the experiments: which episodes get a video
+"""``--video DIR`` and ``--rerun`` for the experiments: which episodes get a video
 or a rerun recording, checked before any runs.
 
 :func:`plan_videos` checks a request for videos once, up front (the ``[video]`` extra
@@ -7,20 +7,26 @@ folder writable) and :func:`with_videos` marks the chosen episodes' specs, so th
 :func:`~observer_gym.train.experiments.episode.run_episode` writes their videos as they
 run (:mod:`observer_gym.train.reports.video`), in whichever process runs them;
 :func:`plan_rerun` and :func:`with_rerun` do the same for one episode's rerun recording
-(:mod:`observer_gym.train.reports.rerun_recording`).
+(``run``'s ``--rerun FILE.rrd``; :mod:`observer_gym.train.reports.rerun_recording`), and
+:func:`plan_reruns` and :func:`with_reruns` for a folder of them, one per chosen episode of
+each pair, cell or level (``--rerun DIR``), named as the videos are.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from observer_gym.envs import system_for_id
 from observer_gym.extras import require_rerun, require_video
 from observer_gym.train.core.observer_env import ObserverEntry, resolve_observer
 from observer_gym.train.experiments.episode import EpisodeSpec
-from observer_gym.train.reports.rerun_recording import RerunRequest, check_rerun_file
+from observer_gym.train.reports.rerun_recording import (
+    RerunRequest,
+    check_rerun_file,
+    check_rerun_folder,
+)
 from observer_gym.train.reports.video import (
     VideoRequest,
     check_video_folder,
@@ -92,14 +98,34 @@ def with_videos(
     cell)."""
     if plan is None:
         return list(specs)
+    folder = str(plan.folder)
+    return _marked(
+        specs,
+        episodes,
+        prefix,
+        lambda spec, episode: episode in plan.episodes and spec.observer.name in plan.observers,
+        lambda spec, stem: dataclasses.replace(spec, video=VideoRequest(folder, stem)),
+    )
+
+
+def _marked(
+    specs: Sequence[EpisodeSpec],
+    episodes: int,
+    prefix: str,
+    chosen: Callable[[EpisodeSpec, int], bool],
+    mark: Callable[[EpisodeSpec, str], EpisodeSpec],
+) -> list[EpisodeSpec]:
+    """``specs`` (groups of ``episodes``) with ``mark(spec, stem)`` on the episodes
+    ``chosen(spec, index in the group)`` picks; the stem ``prefix`` +
+    :func:`~observer_gym.train.reports.video.video_stem`."""
     marked = []
     for k, spec in enumerate(specs):
         episode = k % episodes
-        if episode in plan.episodes and spec.observer.name in plan.observers:
+        if chosen(spec, episode):
             stem = prefix + video_stem(
                 spec.env_id, spec.observer.name, spec.controller.name, episode, spec.seed
             )
-            spec = dataclasses.replace(spec, video=VideoRequest(str(plan.folder), stem))
+            spec = mark(spec, stem)
         marked.append(spec)
     return marked
 
@@ -140,10 +166,60 @@ def with_rerun(specs: Sequence[EpisodeSpec], plan: RerunPlan | None) -> list[Epi
     :class:`~observer_gym.train.reports.rerun_recording.RerunRequest` on the planned one."""
     if plan is None:
         return list(specs)
-    marked = list(specs)
-    spec = marked[plan.episode]
-    name = video_stem(
-        spec.env_id, spec.observer.name, spec.controller.name, plan.episode, spec.seed
+    path = str(plan.path)
+    return _marked(
+        specs,
+        len(specs),
+        "",
+        lambda spec, episode: episode == plan.episode,
+        lambda spec, name: dataclasses.replace(spec, rerun=RerunRequest(path, name)),
     )
-    marked[plan.episode] = dataclasses.replace(spec, rerun=RerunRequest(str(plan.path), name))
-    return marked
+
+
+@dataclasses.dataclass(frozen=True)
+class RerunFolderPlan:
+    """The folder the rerun recordings go to (one ``.rrd`` per recorded episode, named as
+    the videos are) and the episodes recorded of each pair, cell or level (indices in its
+    run)."""
+
+    folder: Path
+    episodes: tuple[int, ...]
+
+
+def plan_reruns(
+    rerun_dir: str | Path | None, rerun_episodes: Sequence[int] | None, episodes: int
+) -> RerunFolderPlan | None:
+    """The checked plan of ``--rerun DIR`` (compare, sweep, benchmark), None without
+    ``rerun_dir``. Raises, before anything runs:
+    :class:`~observer_gym.extras.ExtraNotInstalled` without the ``[rerun]`` extra,
+    ValueError for an episode index outside 0..episodes-1 (or indices given without a
+    folder) and a folder named ``*.rrd``,
+    :class:`~observer_gym.train.core.atomic_write.WriteError` for a folder that cannot be
+    written."""
+    if rerun_dir is None:
+        if rerun_episodes is not None:
+            raise ValueError("rerun episodes were given without a rerun folder (--rerun DIR)")
+        return None
+    require_rerun()
+    chosen = chosen_episodes(rerun_episodes, episodes, what="rerun")
+    return RerunFolderPlan(check_rerun_folder(rerun_dir), chosen)
+
+
+def with_reruns(
+    specs: Sequence[EpisodeSpec], plan: RerunFolderPlan | None, episodes: int, prefix: str = ""
+) -> list[EpisodeSpec]:
+    """``specs`` (groups of ``episodes`` consecutive episodes, one group per pair, cell or
+    level) with a :class:`~observer_gym.train.reports.rerun_recording.RerunRequest` on
+    the chosen episodes of each group: ``folder/<prefix><stem>.rrd``, the stem the video
+    of the same episode gets (:func:`with_videos`)."""
+    if plan is None:
+        return list(specs)
+    return _marked(
+        specs,
+        episodes,
+        prefix,
+        lambda spec, episode: episode in plan.episodes,
+        lambda spec, stem: dataclasses.replace(
+            spec, rerun=RerunRequest(str(plan.folder / f"{stem}.rrd"), stem)
+        ),
+    )

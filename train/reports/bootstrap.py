@@ -18,7 +18,7 @@
   from a ``RandomState(seed)`` of their own, whose stream is the global state's after
   ``np.random.seed(seed)``: the caller's random state is not touched.
 
-``tests/train/test_bootstrap.py`` holds these to rliable's own numbers where rliable is
+``tests/train/reports/test_bootstrap.py`` holds these to rliable's own numbers where rliable is
 installed.
 """
 

@@ -89,19 +89,39 @@ def check_rerun_file(path: str | os.PathLike) -> Path:
     cannot be made there. Removes the temps there of writers that are gone (a run killed
     with SIGKILL), as :func:`~observer_gym.train.reports.video.check_video_folder` does."""
     path = Path(path)
-    # rerun-sdk reads RERUN when a recording starts; asked here (its own values) so that
-    # the run is refused before any episode rather than failing after one
-    if os.environ.get("RERUN", "").strip().lower() in ("0", "off", "false"):
-        raise ValueError(
-            f"--rerun: rerun-sdk's logging is turned off here (RERUN={os.environ['RERUN']} "
-            "in the environment), so it would write nothing: unset RERUN or set RERUN=on"
-        )
+    _check_rerun_logging()
     if path.suffix != ".rrd":
         raise ValueError(f"--rerun takes a file ending in .rrd, got {str(path)!r}")
     if path.is_dir():
         raise ValueError(f"--rerun {path} is a folder; give a file ending in .rrd")
     check_writable_folder(path.parent, str(path))
     return path
+
+
+def check_rerun_folder(folder: str | os.PathLike) -> Path:
+    """``folder`` for one ``.rrd`` per recorded episode, checked before any episode runs
+    as :func:`check_rerun_file` checks a file: ValueError for a name ending in ``.rrd``
+    (a folder is asked for) or where rerun-sdk's logging is turned off; created if needed,
+    WriteError (one line) if files cannot be made in it, and the temps there of writers
+    that are gone removed."""
+    folder = Path(folder)
+    _check_rerun_logging()
+    if folder.suffix == ".rrd":
+        raise ValueError(
+            f"--rerun takes a folder here (one .rrd per recorded episode), got {str(folder)!r}"
+        )
+    return check_writable_folder(folder, f"rerun recordings into {folder}")
+
+
+def _check_rerun_logging() -> None:
+    """ValueError where the environment variable ``RERUN`` turns rerun-sdk's logging off.
+    rerun-sdk reads it when a recording starts; asked here (its own values) so that the
+    run is refused before any episode rather than failing after one."""
+    if os.environ.get("RERUN", "").strip().lower() in ("0", "off", "false"):
+        raise ValueError(
+            f"--rerun: rerun-sdk's logging is turned off here (RERUN={os.environ['RERUN']} "
+            "in the environment), so it would write nothing: unset RERUN or set RERUN=on"
+        )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -414,14 +414,16 @@ class EpisodeVideo:
         return strip
 
 
-def chosen_episodes(episodes: Sequence[int] | None, count: int) -> tuple[int, ...]:
-    """The episode indices to film (default the first); ValueError naming the allowed
-    range for one outside 0..count-1."""
+def chosen_episodes(
+    episodes: Sequence[int] | None, count: int, what: str = "video"
+) -> tuple[int, ...]:
+    """The episode indices to film or record (default the first); ValueError naming
+    ``what`` chose them and the allowed range for one outside 0..count-1."""
     chosen = (0,) if episodes is None else tuple(int(e) for e in episodes)
     bad = [e for e in chosen if not 0 <= e < count]
     if bad:
         raise ValueError(
-            f"video episodes {bad} are outside the run's episodes 0..{count - 1} "
+            f"{what} episodes {bad} are outside the run's episodes 0..{count - 1} "
             "(indices from 0: episode i resets with seed + i)"
         )
     return chosen

@@ -53,7 +53,14 @@ from observer_gym.train.experiments.camera_scale import (
 from observer_gym.train.experiments.episode import EpisodeSpec, iter_episodes
 from observer_gym.train.experiments.request import resolve_request
 from observer_gym.train.experiments.sweep import sweep_episode
-from observer_gym.train.experiments.videos import VideoPlan, plan_videos, with_videos
+from observer_gym.train.experiments.videos import (
+    RerunFolderPlan,
+    VideoPlan,
+    plan_reruns,
+    plan_videos,
+    with_reruns,
+    with_videos,
+)
 from observer_gym.train.reports.compare_report import safe_name
 from observer_gym.train.reports.outputs import (
     OutputFolderError,
@@ -266,16 +273,19 @@ def _run_levels(
     progress: bool,
     on_level: Callable[[str], None] | None = None,
     videos: VideoPlan | None = None,
+    reruns: RerunFolderPlan | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run every episode of ``levels`` in one batch; write each level's file as soon as
     its last episode is in (with its wall time: :func:`~observer_gym.train.experiments.
     benchmark.levels.level_file`) and call ``on_level`` with a line saying so
-    (:func:`level_line`); the level files' contents by name. With ``videos``, the chosen
-    episodes of each level write their videos (file names begin with the level's name)."""
+    (:func:`level_line`); the level files' contents by name. With ``videos`` and
+    ``reruns``, the chosen episodes of each level write their videos and rerun recordings
+    (file names begin with the level's name)."""
     specs, owner = [], []
     for k, level in enumerate(levels):
         prefix = f"{safe_name(level.name)}__"
         level_specs = with_videos(request.specs(level), videos, request.episodes, prefix)
+        level_specs = with_reruns(level_specs, reruns, request.episodes, prefix)
         for i, spec in enumerate(level_specs):
             specs.append(spec)
             owner.append((k, i))
@@ -325,12 +335,16 @@ def run_benchmark(
     on_level: Callable[[str], None] | None = None,
     video_dir: str | Path | None = None,
     video_episodes: Sequence[int] | None = None,
+    rerun_dir: str | Path | None = None,
+    rerun_episodes: Sequence[int] | None = None,
 ) -> BenchmarkResult:
     """Run (or resume) ``request`` into ``out_dir``; see the module docstring.
 
     ``video_dir``: videos of the episodes ``video_episodes`` (indices, default the first)
     of each level run now, if the observer reads camera images
     (:mod:`observer_gym.train.experiments.videos`; levels reused are not run again).
+    ``rerun_dir``: a rerun recording of the episodes ``rerun_episodes`` (default the
+    first) of each level run now, one ``.rrd`` each named as the videos are.
 
     ``progress`` draws a bar over the episodes; ``on_level`` is called with one line for
     each level as it finishes (:func:`level_line`; the command prints it on stderr when
@@ -348,6 +362,7 @@ def run_benchmark(
     videos = plan_videos(
         video_dir, video_episodes, request.episodes, request.suite.env_id, [request.observer]
     )
+    reruns = plan_reruns(rerun_dir, rerun_episodes, request.episodes)
     tic_s = time.perf_counter()
     with output_folder(out_dir, "benchmark", check=lambda p: check_out_dir(p, request)):
         write_json_atomic(
@@ -362,7 +377,7 @@ def run_benchmark(
         todo = [level for level in request.suite.levels if level.name not in finished]
         levels = {
             **finished,
-            **_run_levels(out_dir, request, todo, progress, on_level, videos),
+            **_run_levels(out_dir, request, todo, progress, on_level, videos, reruns),
         }
         records = [
             EpisodeRecord(level.name, i, seed, value)

@@ -27,7 +27,7 @@ system's ``record_episodes``, or ``observer-gym record`` in the measurements obs
 instead of recording it. Needs the ``[record]`` extra besides ``[rl]``. The arrays a
 recording gives equal those the collection gave in memory before (TargetFollower's and
 BallCatcher's bit for bit, BallTable's with the action feature as the float32 that
-reached the env: tests/train/test_learned_from_dataset.py); the shipped weights were
+reached the env: tests/train/experiments/test_learned_from_dataset.py); the shipped weights were
 fitted on the earlier collection.
 A mistake is one line on stderr and exit code 2.
 """

@@ -452,7 +452,7 @@ def fresh_command(tmp_path_factory) -> dict[str, tuple[int, list[str]]]:
     runs = _runs(folder)
     argvs = {case: _argv(CASES[case][0], runs, folder / "out") for case in FOUND_BEFORE_HEAVY}
     argvs |= {" ".join([*argv, "--help"]): [*argv, "--help"] for argv in HELP}
-    script = Path(__file__).with_name("fresh_imports.py")
+    script = Path(__file__).parents[1] / "fresh_imports.py"
     result = subprocess.run(
         [sys.executable, str(script), "cli", json.dumps(HEAVY)]
         + [json.dumps(argv) for argv in argvs.values()],

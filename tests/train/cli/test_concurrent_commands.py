@@ -5,7 +5,7 @@ logs, a new sweep's sweep.json. Before the lock, the second passed its checks an
 into the same folder (interleaved progress.csv and eval.csv rows; one sweep's folder
 holding both sweeps' cells); now it is refused with one line and exit code 75, and the
 first carries on alone. Each starts a child process that imports the whole stack, so
-they are slow tests; tests/train/test_folder_lock.py refuses every command against a
+they are slow tests; tests/train/reports/test_folder_lock.py refuses every command against a
 light lock-holding process in the default run."""
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from observer_gym.train.cli import main
 from observer_gym.train.rl import training
 from observer_gym.train.rl.training import train_agent
 
-PAUSED = Path(__file__).with_name("paused_command.py")
+PAUSED = Path(__file__).parents[1] / "paused_command.py"
 READY_TIMEOUT_S = 180.0
 TINY = {"n_steps": 64, "batch_size": 64, "checkpoint_freq": 64, "eval_freq": 10_000,
         "eval_episodes": 1}  # fmt: skip

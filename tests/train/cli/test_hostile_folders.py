@@ -26,7 +26,7 @@ from observer_gym.train.reports.outputs import OutputFolderError
 from observer_gym.train.rl import run_dir
 from observer_gym.train.rl.shipped import shipped_path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
 
 

@@ -23,7 +23,7 @@ from observer_gym.train.experiments.benchmark.leaderboard import (
     read_rows,
 )
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
 PAGE = REPO / "docs" / "leaderboard.md"
 COMMAND = generate_command("docs/results/benchmark/v1", "docs/leaderboard.md", "docs/results/img")

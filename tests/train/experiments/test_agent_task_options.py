@@ -1,4 +1,4 @@
-"""Issue 43, defect 5, beyond tests/train/test_hostile_entries.py's refusal: what does
+"""Issue 43, defect 5, beyond tests/train/core/test_hostile_entries.py's refusal: what does
 travel with an agent (its reward weights; the shipped rgb agent's camera and its set point
 in its own pixels) reaches every level; a gym.make option outside the config is refused."""
 
@@ -14,7 +14,7 @@ from observer_gym.train.experiments.benchmark.run import check_agent_task, check
 from observer_gym.train.experiments.benchmark.suite import load_suite
 from observer_gym.train.rl.run_dir import write_config
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 AGENTS = REPO / "train" / "rl" / "agents"
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
 

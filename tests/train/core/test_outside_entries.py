@@ -324,7 +324,7 @@ def test_list_has_one_line_for_every_system_observer_controller_and_shipped_agen
 
 
 # --- the tutorial's package (docs/your_method.md) ------------------------------------------
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "your_method"
+EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "your_method"
 
 
 def test_the_tutorials_alpha_beta_covariance_is_the_closed_form(monkeypatch):

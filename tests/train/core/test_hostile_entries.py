@@ -209,12 +209,12 @@ def test_an_objects_identity_is_its_content_in_every_process():
     assert here == entries.object_identity(_scaled(1.0))
     assert here != entries.object_identity(_scaled(0.25))
     code = (
-        "import sys; sys.path.insert(0, sys.argv[1]); from test_hostile_entries import _scaled;"
+        "import sys; sys.path[:0] = sys.argv[1:]; from test_hostile_entries import _scaled;"
         "from observer_gym.train.core import entries;"
         "print(entries.object_identity(_scaled(1.0)))"
     )
-    folder = str(Path(__file__).parent)
-    there = subprocess.run([sys.executable, "-c", code, folder], capture_output=True,
+    here_and_helpers = [str(Path(__file__).parent), str(Path(__file__).parents[1])]
+    there = subprocess.run([sys.executable, "-c", code, *here_and_helpers], capture_output=True,
                            text=True, check=True).stdout.strip()  # fmt: skip
     assert there == here
 

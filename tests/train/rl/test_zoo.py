@@ -142,7 +142,7 @@ def _documented_command(text: str) -> str:
 def test_the_documented_command_is_the_one_a_file_prints():
     """docs/training.md shows the command in ppo_ball_table_estimate.yml's header, and every
     header's command gives Zoo's evaluation env the file's env_kwargs."""
-    docs = Path(__file__).resolve().parents[2] / "docs" / "training.md"
+    docs = Path(__file__).resolve().parents[3] / "docs" / "training.md"
     entry = zoo.zoo_hyperparams("observer_gym/BallTable-v0", "ppo", "estimate")
     assert _documented_command(docs.read_text()) == zoo.zoo_command(entry)
     for entry in zoo.zoo_files():

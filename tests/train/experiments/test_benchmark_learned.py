@@ -15,7 +15,7 @@ from observer_gym.train.cli import main
 from observer_gym.train.experiments.benchmark.leaderboard import Row, read_rows, slug
 from observer_gym.train.experiments.benchmark.suite import load_suite
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ROOT = REPO / "docs" / "results" / "benchmark" / "v1"
 PAGE = REPO / "docs" / "leaderboard.md"
 ENVS = ("BallTable-v0", "BallCatcher-v1", "TargetFollower-v0")

@@ -20,7 +20,7 @@ from observer_gym.train.experiments.request import resolve_controller
 from observer_gym.train.rl.run_dir import agent_folder
 from observer_gym.train.rl.shipped import shipped_path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = ROOT / "examples" / "your_method"
 BALL_PD = "mylab.control:make_controller"
 

@@ -56,7 +56,7 @@ def test_a_cell_that_cannot_be_summarised_writes_nothing(value, tmp_path, capsys
     """A cell file whose metric is NaN (or text): before, the table, CSV and plot were
     rewritten and results.json then failed, the old one left beside them. Such a cell
     no longer passes the resume's check (its records do not match their sha256: it runs
-    again, tests/train/test_sweep_cells.py); here it is let through that check, to reach
+    again, tests/train/experiments/test_sweep_cells.py); here it is let through that check, to reach
     the summary."""
     out = tmp_path / "sweep"
     assert main([*SWEEP, "--out", str(out)]) == 0
