@@ -21,6 +21,7 @@ from observer_gym.estimation.ball_catcher.frames import FrameReader as BCFrameRe
 from observer_gym.estimation.ball_catcher.learned import TRAINING_RANGES as BC_TRAINING_RANGES
 from observer_gym.estimation.ball_catcher.learned import LearnedFeatures as BCLearnedFeatures
 from observer_gym.estimation.ball_catcher.learned import image_centre_px
+from observer_gym.estimation.ball_catcher.state_layout import state_estimate as bc_state_estimate
 from observer_gym.estimation.ball_table.learned import (
     ACTION_NOISE_RAD,
     TRAINING_RANGES,
@@ -29,7 +30,7 @@ from observer_gym.estimation.ball_table.learned import (
 from observer_gym.estimation.target_follower.frames import FrameReader
 from observer_gym.estimation.target_follower.learned import N_OUT as TF_N_OUT
 from observer_gym.estimation.target_follower.learned import TRAINING_RANGES as TF_TRAINING_RANGES
-from observer_gym.estimation.target_follower.learned import LearnedFeatures as TFLearnedFeatures
+from observer_gym.estimation.target_follower.learned import LearnedEstimator as TFLearnedEstimator
 from observer_gym.estimation.target_follower.learned_detector import (
     ACTION_NOISE as TF_ACTION_NOISE,
 )
@@ -43,9 +44,11 @@ from observer_gym.train.experiments.learned_observers.recorded import training_a
 from observer_gym.train.reports.dataset import read_recording
 
 
-def frozen_ball_table_collect(episodes: int, seed: int, steps: int) -> tuple[Any, Any, Any]:
-    """BallTable's ``collect`` (the LQR on the truth) as it was before it recorded: its
-    own loop over envs made per episode, the arrays kept in memory (frozen copy)."""
+def frozen_ball_table_collect(
+    episodes: int, seed: int, steps: int, act_with: Any = None
+) -> tuple[Any, Any, Any]:
+    """BallTable's ``collect`` as it was before it recorded: its own loop over envs made
+    per episode, the arrays kept in memory (frozen copy)."""
     rng = np.random.default_rng(seed)
     xs, ys, eps = [], [], []
     for episode in range(episodes):
@@ -64,7 +67,11 @@ def frozen_ball_table_collect(episodes: int, seed: int, steps: int) -> tuple[Any
                 xs.append(features.vector(float(info["time_s"]), action))
                 ys.append(np.asarray(info["state"], dtype=float))
                 eps.append(episode)
-                planned, _ = controller.predict(info["state"], deterministic=True)
+                if act_with is None:
+                    acted_on = info["state"]
+                else:
+                    acted_on, _ = act_with.predict(xs[-1])
+                planned, _ = controller.predict(acted_on, deterministic=True)
                 noise = rng.normal(0.0, ACTION_NOISE_RAD, 2)
                 action = np.clip(planned + noise, box.low, box.high)
                 obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
@@ -100,9 +107,10 @@ def test_ball_table_arrays_from_a_recording_equal_the_old_collection(tmp_path):
     assert len({tuple(sorted(e.drawn_options.items())) for e in recorded}) == episodes
 
 
-def frozen_target_follower_collect(episodes: int, seed: int, steps: int) -> tuple[Any, Any, Any]:
-    """TargetFollower's ``collect`` (the VTC on the truth) as it was before it recorded
-    (frozen copy)."""
+def frozen_target_follower_collect(
+    episodes: int, seed: int, steps: int, act_with: Any = None
+) -> tuple[Any, Any, Any]:
+    """TargetFollower's ``collect`` as it was before it recorded (frozen copy)."""
     rng = np.random.default_rng(seed)
     noise_std = np.asarray(TF_ACTION_NOISE)
     xs, ys, eps = [], [], []
@@ -114,7 +122,7 @@ def frozen_target_follower_collect(episodes: int, seed: int, steps: int) -> tupl
             controller = make_controller("vtc", env)
             low, high = env.action_space.low, env.action_space.high  # type: ignore[attr-defined]
             frames = FrameReader(base, owner="collect")
-            features = TFLearnedFeatures()
+            estimator = TFLearnedEstimator(act_with)
             delta_y_m = base.calibration["delta_y_m"]
             obs, info = env.reset(seed=int(rng.integers(2**31)))
             action = None
@@ -122,14 +130,18 @@ def frozen_target_follower_collect(episodes: int, seed: int, steps: int) -> tupl
                 robot = RobotStep.from_info(info, action, delta_y_m)
                 frame = frames.newest(obs, info)
                 truth = np.asarray(info["state"], dtype=float)
-                features.add(frame, robot)
-                if truth[StateIndex.TRACKING_VALID] >= 0.5 and features.any_detected:
-                    xs.append(features.vector(robot.time_s))
+                if act_with is None:
+                    estimator.features.add(frame, robot)
+                    acted_on = truth
+                else:
+                    acted_on, _, _ = estimator.step(frame, robot)
+                if truth[StateIndex.TRACKING_VALID] >= 0.5 and estimator.features.any_detected:
+                    xs.append(estimator.features.vector(robot.time_s))
                     ys.append(truth[:TF_N_OUT])
                     eps.append(episode)
                 with warnings.catch_warnings():  # the VTC's first singular stop warns
                     warnings.simplefilter("ignore", RuntimeWarning)
-                    planned, _ = controller.predict(truth, deterministic=True)
+                    planned, _ = controller.predict(acted_on, deterministic=True)
                 action = np.clip(planned + rng.normal(0.0, noise_std), low, high)
                 obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
                 if terminated or truncated:
@@ -150,9 +162,11 @@ def test_target_follower_arrays_from_a_recording_equal_the_old_collection(tmp_pa
         np.testing.assert_array_equal(found, expected)
 
 
-def frozen_ball_catcher_collect(episodes: int, seed: int) -> tuple[Any, Any, Any]:
-    """BallCatcher's ``collect`` (``intercept`` on the truth) as it was before it recorded,
-    with its own draw of the options (frozen copy)."""
+def frozen_ball_catcher_collect(
+    episodes: int, seed: int, act_with: Any = None
+) -> tuple[Any, Any, Any]:
+    """BallCatcher's ``collect`` as it was before it recorded, with its own draw of the
+    options (frozen copy)."""
     rng = np.random.default_rng(seed)
     xs, ys, eps = [], [], []
     for episode in range(episodes):
@@ -178,7 +192,12 @@ def frozen_ball_catcher_collect(episodes: int, seed: int) -> tuple[Any, Any, Any
                     xs.append(x)
                     ys.append(np.asarray(info["state"][BALL], dtype=float))
                     eps.append(episode)
-                acted_on = np.asarray(info["state"], dtype=float)
+                if act_with is None:
+                    acted_on = np.asarray(info["state"], dtype=float)
+                else:
+                    ball, ball_covariance = act_with.predict(x)
+                    acted_on, covariance = bc_state_estimate(ball, ball_covariance, info)
+                    controller.observe_info({"estimate": {"covariance": covariance}})
                 action, _ = controller.predict(acted_on, deterministic=True)
                 _, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
@@ -199,6 +218,49 @@ def test_ball_catcher_arrays_from_a_recording_equal_the_old_collection(tmp_path)
     )
     for found, expected in zip(new, old, strict=True):  # bit for bit, every array
         assert found.shape == expected.shape
+        np.testing.assert_array_equal(found, expected)
+
+
+@pytest.mark.parametrize("system", ["ball_table", "target_follower", "ball_catcher"])
+def test_a_dagger_rounds_arrays_equal_the_old_collections(tmp_path, system):
+    """The network acting (the shipped one): the recording's player acts as the earlier
+    collection did, so the arrays are the same (BallTable's action feature as float32)."""
+    pytest.importorskip("torch")
+    import importlib
+
+    from observer_gym.estimation.learned.network import load_network
+
+    net, _ = load_network(
+        importlib.import_module(f"observer_gym.estimation.{system}.learned").WEIGHTS
+    )
+    out = tmp_path / "data"
+    module = {
+        "ball_table": ball_table,
+        "target_follower": target_follower,
+        "ball_catcher": ball_catcher,
+    }[system]
+    if system == "ball_catcher":
+        old = frozen_ball_catcher_collect(1, 4, act_with=net)
+        module.record_episodes(out, 1, 4, act_with=net)
+    else:
+        frozen = {
+            "ball_table": frozen_ball_table_collect,
+            "target_follower": frozen_target_follower_collect,
+        }[system]
+        old = frozen(2, 4, 25, act_with=net)
+        module.record_episodes(out, 2, 4, 25, act_with=net)
+    env_id = {
+        "ball_table": "BallTable-v0",
+        "target_follower": "TargetFollower-v0",
+        "ball_catcher": "BallCatcher-v1",
+    }[system]
+    new = training_arrays(env_id, out)
+    assert len(old[0]) > 10
+    if system == "ball_table":
+        np.testing.assert_array_equal(new[0][:, :-2], old[0][:, :-2])
+        np.testing.assert_array_equal(new[0][:, -2:], old[0][:, -2:].astype(np.float32))
+        new, old = new[1:], old[1:]
+    for found, expected in zip(new, old, strict=True):
         np.testing.assert_array_equal(found, expected)
 
 
