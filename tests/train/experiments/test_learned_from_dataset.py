@@ -340,3 +340,21 @@ def test_a_dagger_round_is_recorded_into_the_data_folder(tmp_path):
     # a second run into the same data folder is refused in one line, before any episode
     assert train.main([*argv[:-2], "--out", str(tmp_path / "again.pt")]) == 2
     assert not (tmp_path / "again.pt").exists()
+
+
+def test_ball_catchers_reader_refuses_two_frames_of_one_camera_in_a_step(tmp_path):
+    from observer_gym.train.experiments.learned_observers.recorded import ball_catcher_arrays
+    from observer_gym.train.reports.dataset import RecordedEpisode
+
+    ball_catcher.record_episodes(tmp_path / "data", 1, 2)
+    (episode,) = read_recording(tmp_path / "data")
+    config = {"env_kwargs": {"obs_mode": "measurements"}}
+    assert len(ball_catcher_arrays([episode], config)[0]) > 0  # as recorded: read
+    counts = episode.infos["frame_count"].copy()
+    step = int(np.flatnonzero(counts[:, 0])[0])
+    counts[step, 0] = 2  # as if camera 0 had delivered two frames at that step
+    doubled = RecordedEpisode(
+        **{**vars(episode), "infos": {**episode.infos, "frame_count": counts}}
+    )
+    with pytest.raises(ValueError, match=f"step {step} delivered 2 frames of one camera"):
+        ball_catcher_arrays([doubled], config)
