@@ -109,7 +109,7 @@ class LearnedKFObserver(BallCatcherObserver):
         now_s = float(info["time_s"])
         used = False
         if detected and self.gate.new_frame():  # else its window overlaps the last fused
-            ball, covariance = self.learned.net.predict(self.learned.features.vector(now_s))
+            ball, covariance = self.learned.predict(now_s)  # the variance scaled as learned's
             # one 3-D position (3 rows); rejections in a row restart the filter as kf's do
             result = self.filter.add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
             used = self._counted(result, NETWORK, now_s, dof=3)
