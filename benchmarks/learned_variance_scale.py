@@ -9,6 +9,17 @@ network) and the autocorrelation of the normalised error at lags 1..k (new frame
 With ``--write``, the scale of ``learned`` goes into the weight file's report under
 ``variance_scale`` for the obs mode, with this command and the seeds.
 
+``--ranges study`` draws each episode's sensor across the consistency study's ranges
+(train/experiments/consistency_study.py, ``OPTIONS``): episode i varies one option,
+pixel noise, latency (with the study's jitter) and drops in turn, drawn uniformly over
+the study's values' span, the others at the study's defaults; the episodes' options are
+printed with their NEES/dof. ``--estimator geometric`` fits the scale as the geometric
+mean over episodes of each episode's mean error^2 / variance (``mean``: the mean over
+every step), so that the episodes' NEES/dof sit around 1 on a log scale: the band
+[1/3, 3] is symmetric in log, and a few episodes far outside the network's training
+range (whose mean error^2 / variance can be 10-100) do not set the scale of all the
+others.
+
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
 """
@@ -58,6 +69,23 @@ SYSTEMS: dict[str, tuple[str, str, int, dict[str, Any], slice]] = {
     ),
 }
 FROM_S = 0.1  # BallCatcher: errors from this long after the launch to the box's plane
+RANGED = ("measurement_noise_px", "latency_s", "frame_drop_prob")  # --ranges study, in turn
+
+
+def episode_options(args: argparse.Namespace, seed: int, base: dict[str, Any]) -> dict[str, Any]:
+    """The env options of the episode of ``seed``: ``base`` (``--ranges fixed``), or the
+    study's defaults with one option of :data:`RANGED` drawn over the study's span."""
+    if args.ranges == "fixed":
+        return dict(base)
+    from observer_gym.train.experiments import consistency_study as study
+
+    key = RANGED[(seed - args.seed) % len(RANGED)]
+    if args.obs_mode == "rgb" and key == "measurement_noise_px":
+        key = "latency_s"  # no pixel noise on rendered frames
+    low, high = min(study.OPTIONS[key]), max(study.OPTIONS[key])
+    value = float(np.random.default_rng(seed).uniform(low, high))
+    env_kwargs = study.SYSTEMS[args.env].env_kwargs
+    return {**env_kwargs, **study.OPTION_ENV_KWARGS.get(key, {}), key: value}
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -67,11 +95,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.noise_px is not None:
         options["measurement_noise_px"] = args.noise_px
     kwargs = {} if args.fuse_every is None else {"fuse_every": args.fuse_every}
-    errors, variances, nees, new_frame = [], [], [], []
+    errors, variances, nees, new_frame, episode = [], [], [], [], []
     catches = 0
+    drawn = []
     for seed in range(args.seed, args.seed + args.episodes):
+        episode_kwargs = episode_options(args, seed, options)
+        drawn.append(episode_kwargs)
         env = VisionObserver(
-            gym.make(f"observer_gym/{args.env}", obs_mode=args.obs_mode, **options),
+            gym.make(f"observer_gym/{args.env}", obs_mode=args.obs_mode, **episode_kwargs),
             observer=args.observer,
             **kwargs,
         )
@@ -103,6 +134,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 variances.append(np.diag(P).copy())
                 nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
                 new_frame.append(bool(info["estimate"]["measurement_used"]))
+                episode.append(seed - args.seed)
         finally:
             env.close()
     e, var = np.array(errors), np.array(variances)
@@ -113,12 +145,29 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     }
     if args.env == "BallCatcher-v1":
         out["catches"] = catches
+    episode_of = np.array(episode)
+    if args.ranges == "study":
+        out["episodes"] = [
+            {
+                "seed": args.seed + i,
+                "options": drawn[i],
+                "nees_per_dof_median": float(np.median(np.array(nees)[episode_of == i]))
+                if np.any(episode_of == i)
+                else None,
+            }
+            for i in range(args.episodes)
+        ]
     if args.observer == "learned":
         module = import_module(module_name)
         report = json.loads(module.WEIGHTS.with_suffix(".json").read_text())
         old = np.asarray(report.get(VARIANCE_SCALE_KEY, {}).get(args.obs_mode, np.ones(e.shape[1])))
         raw_var = var / old
-        out["scale"] = np.mean(e**2 / raw_var, axis=0).tolist()
+        ratio = e**2 / raw_var
+        if args.estimator == "mean":
+            out["scale"] = np.mean(ratio, axis=0).tolist()
+        else:  # geometric mean over the episodes of each episode's mean
+            per_episode = [ratio[episode_of == i].mean(axis=0) for i in np.unique(episode_of)]
+            out["scale"] = np.exp(np.mean(np.log(per_episode), axis=0)).tolist()
         z = (e / np.sqrt(raw_var))[np.array(new_frame)]
         z = z - z.mean(axis=0)
         out["autocorrelation_lag_1_to_8"] = [
@@ -146,10 +195,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=0)
     parser.add_argument("--fuse-every", type=int, default=None)
     parser.add_argument("--noise-px", type=float, default=None)
+    parser.add_argument("--ranges", default="fixed", choices=["fixed", "study"])
+    parser.add_argument("--estimator", default="mean", choices=["mean", "geometric"])
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args(argv)
     if args.write and args.observer != "learned":
         parser.error("--write fits the scale of --observer learned only")
+    if args.ranges == "study" and args.noise_px is not None:
+        parser.error("--noise-px fixes the noise of every episode; --ranges study draws it")
     print(json.dumps(run(args), indent=1))
     return 0
 

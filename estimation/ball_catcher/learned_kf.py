@@ -13,7 +13,8 @@ The viewline filter measures pixels through each camera's viewline rows and cann
 At each step that delivers a frame showing the ball, the network reads the newest frames
 of both cameras as ``learned`` does, at the step's time (the time it was trained at), and
 its ball position y (m) with the position block of the covariance it predicts (diagonal,
-m^2) as R is one measurement at that time. Its velocity outputs are not used: the filter
+m^2, times ``learned``'s variance scale: estimation/learned/variance_scale.py) as R is
+one measurement at that time. Its velocity outputs are not used: the filter
 makes its own from the ballistic model. NIS: d^T S^-1 d of the accepted position (3 dof).
 
 Its errors are correlated: the network reads each camera's last eight frames, so
@@ -29,7 +30,9 @@ it is (state augmentation with a Gauss-Markov error, or Bryson-Henrikson differe
 would change it); on those throws (ball position RMSE x, y, z mm; median NEES/dof;
 catches of 30) every step gave 12.5, 5.8, 5.4, 6.36, 14; every 2nd 12.9, 6.2, 5.5, 3.80,
 13; every 4th 13.2, 7.1, 5.5, 2.28, 11; every 8th (no shared frame) 15.2, 8.2, 6.8,
-1.61, 9; ``learned`` alone 12.0, 5.8, 5.2, 0.93, 8. Every 4th is the smallest spacing
+1.61, 9; ``learned`` alone 12.0, 5.8, 5.2, 0.93, 8 (these without the variance scale;
+with it, on the tests' throws every 4th gives 1.23 at 1 px and 2.41 at 2 px, where it
+gave 3.72, docs/results/consistency.md). Every 4th is the smallest spacing
 inside [1/3, 3]; every 8th would sit nearer 1 but errs by a fifth more and catches
 fewer: the intercept trusts the covariance, and the filter's gain is in the late flight.
 The honest covariance costs catches at every spacing (14 of 30 fusing every output
@@ -109,7 +112,7 @@ class LearnedKFObserver(BallCatcherObserver):
         now_s = float(info["time_s"])
         used = False
         if detected and self.gate.new_frame():  # else its window overlaps the last fused
-            ball, covariance = self.learned.net.predict(self.learned.features.vector(now_s))
+            ball, covariance = self.learned.predict(now_s)  # the variance scaled as learned's
             # one 3-D position (3 rows); rejections in a row restart the filter as kf's do
             result = self.filter.add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
             used = self._counted(result, NETWORK, now_s, dof=3)

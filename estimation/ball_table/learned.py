@@ -14,8 +14,9 @@ carry latency and drops; the history carries the rates.
 tanh), trained with the Gaussian negative log-likelihood, so each entry's variance is
 learned with its mean; the covariance it reports is diagonal, each variance times the
 scale of its report for the observation mode
-(:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 2.5 and 2.8
-for the ball's position, fitted on validation episodes; from frames none).
+(:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 3.5 and 3.4
+for the ball's position, fitted on validation episodes across the consistency study's
+pixel noise, latency and drops; from frames none).
 
 **Training data**
 (:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes

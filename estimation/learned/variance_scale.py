@@ -5,9 +5,15 @@ its variance on its training data; on the closed loop it drives (its own errors 
 the system), and from frames (the learned detector's errors, which it never saw in
 training), its variance can be too small. The scale is one factor per output entry and
 per observation mode (``"measurements"``, ``"rgb"``), fitted on validation episodes whose
-seeds are disjoint from the tests' (``benchmarks/learned_variance_scale.py``): the mean of
-``error^2 / variance`` per entry, so that the scaled variance matches the squared error
-on average. It is stored in the weight file's report (``<name>.json``, key
+seeds are disjoint from the tests' and the consistency study's
+(``benchmarks/learned_variance_scale.py``): the mean of ``error^2 / variance`` per entry,
+so that the scaled variance matches the squared error on average, or (``--ranges study
+--estimator geometric``) the geometric mean over episodes drawn across the consistency
+study's ranges of pixel noise, latency and drops of each episode's mean, so that the
+NEES/dof of those conditions sits around 1 on a log scale (BallCatcher's and BallTable's
+measurements scales: the command is in the report). One scale serves every condition:
+none of those options is an input of the network but through the frames' ages, and the
+scale does not read them. It is stored in the weight file's report (``<name>.json``, key
 ``"variance_scale"``, with the command that fitted it and its seeds); the observation
 mode is the env's configuration, known at run time, never the truth. A report without the
 key scales by 1 (the network as trained).
