@@ -187,9 +187,10 @@ def _study_arguments(parser: argparse.ArgumentParser) -> None:
     description = (
         "Train PPO agents reading the newest measurement, a stack of measurements, a "
         "latency-aware filter's belief, the same filter without latency handling, or the "
-        "true state, at no, moderate and heavy random camera delay, several seeds each; "
+        "true state, at no, moderate and heavy random camera delay, several seeds each "
+        "(BallTable also: the last camera frames, trained at moderate only); "
         "evaluate the moderate level's agents at every level; write the table (IQM and "
-        "95 %% bootstrap intervals) and learning curves. The same command again continues."
+        "95 % bootstrap intervals) and learning curves. The same command again continues."
     )
     sub = studies.add_parser(
         "delay-rl",
