@@ -25,7 +25,7 @@ from observer_gym.train.core.messages import error_line
 PROG = "observer-gym study delay-rl"
 # listed here so that parsing needs no heavy import; the plan checks them again
 LEVEL_NAMES = ("none", "moderate", "heavy")
-INPUT_NAMES = ("newest", "stack", "kf-latency", "kf", "truth")
+INPUT_NAMES = ("newest", "stack", "kf-latency", "kf", "truth", "pixels")
 
 
 def _names(allowed: tuple[str, ...], kind: str):
@@ -56,9 +56,10 @@ def _delay_rl_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--inputs",
         type=_names(INPUT_NAMES, "input"),
-        default=INPUT_NAMES,
+        default=None,
         metavar="I,I",
-        help="what the agents read (default: all: %(default)s)",
+        help="what the agents read: newest, stack, kf-latency, kf, truth, and on "
+        "BallTable pixels (trained at moderate only) (default: all of the system's)",
     )
     parser.add_argument(
         "--seeds",
@@ -139,7 +140,7 @@ def _delay_rl_run(args: argparse.Namespace) -> int:
     if missing:
         return _error(f"{', '.join(missing)} required (or --check DIR)")
     from observer_gym.train.core.checks import check_backend
-    from observer_gym.train.experiments.delay_rl import StudyPlan
+    from observer_gym.train.experiments.delay_rl import StudyPlan, inputs_for
     from observer_gym.train.experiments.delay_rl.run import check_study_folder
     from observer_gym.train.rl.hyperparams import resolve_hyperparams
 
@@ -151,7 +152,7 @@ def _delay_rl_run(args: argparse.Namespace) -> int:
         plan = StudyPlan(
             env_id=args.env,
             levels=tuple(args.levels),
-            inputs=tuple(args.inputs),
+            inputs=tuple(args.inputs or inputs_for(args.env)),
             seeds=tuple(args.seeds),
             timesteps=timesteps,
             eval_episodes=args.eval_episodes,
@@ -186,9 +187,10 @@ def _study_arguments(parser: argparse.ArgumentParser) -> None:
     description = (
         "Train PPO agents reading the newest measurement, a stack of measurements, a "
         "latency-aware filter's belief, the same filter without latency handling, or the "
-        "true state, at no, moderate and heavy random camera delay, several seeds each; "
+        "true state, at no, moderate and heavy random camera delay, several seeds each "
+        "(BallTable also: the last camera frames, trained at moderate only); "
         "evaluate the moderate level's agents at every level; write the table (IQM and "
-        "95 %% bootstrap intervals) and learning curves. The same command again continues."
+        "95 % bootstrap intervals) and learning curves. The same command again continues."
     )
     sub = studies.add_parser(
         "delay-rl",

@@ -2,8 +2,9 @@
 
 PPO agents of one recipe read, at each delay level, the newest measurement, a stack of
 the last few with their ages, a latency-aware filter's belief, the same filter without
-latency handling, or the true state; the agents trained at the moderate level are also
-evaluated at the others. :mod:`.plan` names the levels and inputs, :mod:`.delivery`
+latency handling, or the true state (on BallTable also the last camera frames, trained at
+the moderate level only); the agents trained at the moderate level are also evaluated at
+the others. :mod:`.plan` names the levels and inputs, :mod:`.delivery`
 measures how a level's frames arrive, :mod:`.run` runs a study into its folder
 (resumably) and :mod:`.table` derives its table from the per-seed records.
 """

@@ -6,7 +6,9 @@ jitter of each frame's latency (so frames can arrive out of capture order) and a
 probability that a frame is never delivered (:class:`DelayLevel`). An input is what a
 PPO agent reads (:class:`AgentInput`): the newest measurement alone, a stack of the last
 :data:`STACK_K` measurements with their ages, the latency-aware filter's belief, the
-same filter without latency handling, or the true state.
+same filter without latency handling, or the true state; on BallTable also the last
+camera frames (``train --obs rgb``, the system's tuned pixel recipe), trained at the
+:data:`SHIFT_FROM` level only and evaluated at every level.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ LEVELS: dict[str, DelayLevel] = {
 # the level whose agents are also evaluated at every other level (the shift)
 SHIFT_FROM = "moderate"
 STACK_K = 4  # measurements in the "stack" input
+PIXEL_FRAMES = 4  # frames in the "pixels" input: the tuned rgb recipe's frame_stack
 # system name -> the classical controller whose runs on each belief are the reference lines
 REFERENCE_CONTROLLERS = {"ball_table": "lqr", "ball_catcher": "intercept", "target_follower": "vtc"}
 
@@ -60,6 +63,17 @@ class AgentInput(NamedTuple):
     reference_observer: str | None  # the classical controller's reference line reads this
     delay_free: bool  # the delay does not reach it (the true state): trained once
     summary: str
+    # the one level it trains at (evaluated at every level when that is SHIFT_FROM);
+    # None: it trains at every level of the plan
+    trained_only_at: str | None = None
+
+    def setting(self) -> dict[str, Any]:
+        """The input as JSON types, as ``study.json`` records it (``trained_only_at`` only
+        when set, so the plans recorded before it existed still load)."""
+        data = {**self._asdict(), "hyperparams": dict(self.hyperparams)}
+        if self.trained_only_at is None:
+            del data["trained_only_at"]
+        return data
 
 
 # system name -> (the latency-aware filter, the same filter fusing at delivery, the
@@ -123,6 +137,32 @@ def inputs_for(env_id: str) -> dict[str, AgentInput]:
         "truth": AgentInput(
             "truth", "state", None, belief, "oracle", True, "the true state (upper line)"
         ),
+        **_pixel_inputs(system.name),
+    }
+
+
+# systems whose study also has the pixel input (the tuned ``rgb`` recipe of ppo.yml)
+PIXEL_SYSTEMS = ("ball_table",)
+
+
+def _pixel_inputs(system_name: str) -> dict[str, AgentInput]:
+    """The ``pixels`` input where the study has one: the agent reads what ``train --obs
+    rgb`` gives it (the system's tuned image options: the newest delivered frame of each
+    step, resized, read by the system's frozen frame encoder, the last few stacked), at
+    the moderate level only."""
+    if system_name not in PIXEL_SYSTEMS:
+        return {}
+    return {
+        "pixels": AgentInput(
+            "pixels",
+            "rgb",
+            None,
+            {},
+            None,
+            False,
+            f"the last {PIXEL_FRAMES} camera frames (84 x 84, the {system_name} frame encoder)",
+            trained_only_at=SHIFT_FROM,
+        )
     }
 
 
@@ -156,6 +196,13 @@ class StudyPlan:
         allowed = inputs_for(self.env_id)
         _check_names("level", self.levels, LEVELS)
         _check_names("input", self.inputs, allowed)
+        for name in self.inputs:
+            only_at = allowed[name].trained_only_at
+            if only_at is not None and only_at not in self.levels:
+                raise ValueError(
+                    f"input {name!r} trains at the {only_at} level only: add {only_at} to "
+                    f"the levels (got {', '.join(self.levels)})"
+                )
         object.__setattr__(self, "seeds", check_seeds(self.seeds))
         for name in ("timesteps", "eval_episodes", "curve_points", "curve_episodes"):
             value = getattr(self, name)
@@ -181,18 +228,24 @@ class StudyPlan:
 
     def train_cells(self) -> list[tuple[str, str]]:
         """(level, input) of every multi-seed training: each input at each level, but an
-        input the delay does not reach once, at the first level."""
-        cells = []
-        for level in self.levels:
-            for name, agent_input in self.input_records.items():
-                if agent_input.delay_free and level != self.levels[0]:
-                    continue
-                cells.append((level, name))
-        return cells
+        input the delay does not reach once, at the first level, and an input trained at
+        one level only (``trained_only_at``) at that level."""
+        return [
+            (level, name)
+            for level in self.levels
+            for name in self.inputs
+            if self.trained_at(level, name) == level
+        ]
 
-    def trained_at(self, level: str, name: str) -> str:
-        """The level the agent evaluated for (``level``, input ``name``) trained at."""
-        return self.levels[0] if self.input_records[name].delay_free else level
+    def trained_at(self, level: str, name: str) -> str | None:
+        """The level the agents that stand for input ``name`` at ``level`` (the table's
+        cell) trained at; None if no agents of that input train for that level."""
+        agent_input = self.input_records[name]
+        if agent_input.delay_free:
+            return self.levels[0]
+        if agent_input.trained_only_at is not None and agent_input.trained_only_at != level:
+            return None
+        return level
 
     def eval_cells(self) -> list[tuple[str, str, str]]:
         """(trained at, input, evaluated at) of every evaluation: each agent at its own
@@ -204,6 +257,14 @@ class StudyPlan:
                 cells.append((level, name, at))
         return cells
 
+    def extends(self, held: StudyPlan) -> bool:
+        """Whether this plan is ``held`` with inputs added and nothing else changed: a
+        folder of ``held`` continues as this plan, training only the added inputs."""
+        return (
+            set(held.inputs) < set(self.inputs)
+            and dataclasses.replace(self, inputs=held.inputs) == held
+        )
+
     def as_dict(self) -> dict[str, Any]:
         """The plan as JSON types, with each level's values and each input's settings."""
         return {
@@ -212,10 +273,7 @@ class StudyPlan:
             "inputs": list(self.inputs),
             "seeds": list(self.seeds),
             "level_values": {n: level._asdict() for n, level in self.level_records.items()},
-            "input_settings": {
-                n: {**i._asdict(), "hyperparams": dict(i.hyperparams)}
-                for n, i in self.input_records.items()
-            },
+            "input_settings": {n: i.setting() for n, i in self.input_records.items()},
         }
 
     @classmethod

@@ -12,7 +12,9 @@ The folder of one system's study::
 Every step writes its record once, whole (staged and renamed), and is skipped when its
 record is there, so running the same command again continues a study where it stopped:
 trainings resume from their last checkpoint (:func:`~observer_gym.train.rl.seeds.
-train_runs`), evaluations not yet recorded run again from their start.
+train_runs`), evaluations not yet recorded run again from their start. A command that
+names more inputs than the folder's study (the same levels, seeds and budget) adds them:
+``study.json`` records the larger plan and only the added inputs train and evaluate.
 """
 
 from __future__ import annotations
@@ -103,6 +105,8 @@ def run_study(
             write_json_atomic(
                 out_dir / PLAN_FILE, {**plan.as_dict(), "versions": package_versions()}
             )
+        else:
+            _add_inputs(out_dir, plan, say)
         if not (out_dir / DELIVERY_FILE).exists():
             write_json_atomic(out_dir / DELIVERY_FILE, _delivery(plan))
             say("measured how each level's frames arrive")
@@ -114,6 +118,24 @@ def run_study(
         table = derive_table(out_dir)
         write_table(out_dir, table)
     return StudyResult(out_dir, plan, table, time.perf_counter() - tic_s, trained, evaluations)
+
+
+def _add_inputs(out_dir: Path, plan: StudyPlan, say: Callable[[str], None]) -> None:
+    """Record ``plan`` in the folder if it adds inputs to the study held there (its
+    records stay; only the added inputs train and evaluate), keeping the versions the
+    study began with and listing each addition with the versions that made it."""
+    data = read_json(out_dir / PLAN_FILE)
+    held = StudyPlan.from_dict(data)
+    if held == plan:
+        return
+    check_study_folder(out_dir, plan)  # the folder may have changed since the first check
+    added = [name for name in plan.inputs if name not in held.inputs]
+    additions = [*data.get("inputs_added", []), {"inputs": added, "versions": package_versions()}]
+    write_json_atomic(
+        out_dir / PLAN_FILE,
+        {**plan.as_dict(), "versions": data.get("versions"), "inputs_added": additions},
+    )
+    say(f"added input(s) {', '.join(added)} to the study")
 
 
 def _log_time(out_dir: Path, wall_time_s: float, trained: int, evaluations: int) -> None:
@@ -133,15 +155,17 @@ def _log_time(out_dir: Path, wall_time_s: float, trained: int, evaluations: int)
 
 
 def check_study_folder(out_dir: Path, plan: StudyPlan) -> None:
-    """ValueError if ``out_dir`` holds something but this plan's study."""
+    """ValueError if ``out_dir`` holds something but this plan's study or a study this
+    plan extends with more inputs (:meth:`StudyPlan.extends`)."""
     recorded = out_dir / PLAN_FILE
     if recorded.exists():
         held = StudyPlan.from_dict(read_json(recorded))
-        if held != plan:
+        if held != plan and not plan.extends(held):
             raise ValueError(
                 f"{out_dir} holds another study ({held.env_id}, levels {','.join(held.levels)}, "
                 f"inputs {','.join(held.inputs)}, seeds {len(held.seeds)}, {held.timesteps} "
-                "steps); continue it with the same options or choose a new folder"
+                "steps); continue it with the same options (more inputs may be added) or "
+                "choose a new folder"
             )
     elif out_dir.exists() and any(p.name != LOCK_FILE for p in out_dir.iterdir()):
         raise ValueError(f"{out_dir} is not empty and holds no study; choose a new folder")

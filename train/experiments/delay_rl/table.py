@@ -198,6 +198,9 @@ def table_markdown(table: StudyTable) -> str:
         row = [f"{name}: {agent_input.summary}"]
         for level in plan.levels:
             trained_at = plan.trained_at(level, name)
+            if trained_at is None:
+                row.append(f"not trained ({agent_input.trained_only_at} only)")
+                continue
             found = cell.get((trained_at, name, level))
             row.append("" if found is None else _interval(found["metric"], table))
         rows.append(row)
@@ -238,6 +241,8 @@ def table_markdown(table: StudyTable) -> str:
                     if native is not None and not agent_input.delay_free:
                         gap = shifted["metric"]["iqm"] - native["metric"]["iqm"]
                         against = f", {_signed(gap, table)}"
+                    elif plan.trained_at(level, name) is None:
+                        against = ", not trained there"
                     text += f" ({_signed(change, table)}{against})"
                 row.append(text)
             rows.append(row)
@@ -296,10 +301,17 @@ def plot_curves(out_dir: Path, table: StudyTable) -> None:
 
     plan = StudyPlan.from_dict(table.plan)
     for level in plan.levels:
+        trained = [
+            (name, trained_at)
+            for name in plan.inputs
+            if (trained_at := plan.trained_at(level, name)) is not None
+        ]
+        if not trained:  # e.g. a folder of an input trained at another level only
+            continue
         fig = new_figure((7.5, 4.5))
         ax = fig.subplots()
-        for name in plan.inputs:
-            folder = cell_dir(out_dir, plan.trained_at(level, name), name)
+        for name, trained_at in trained:
+            folder = cell_dir(out_dir, trained_at, name)
             band = read_json(folder / "aggregate.json")["curve"]
             if not band["timesteps"]:
                 continue
