@@ -16,10 +16,10 @@ the study's values' span, the others at the study's defaults; the episodes' opti
 printed with their NEES/dof. In ``--obs-mode rgb`` the episodes vary the frames part's
 options in turn instead (``FRAME_SYSTEMS``: ``image_noise_std``, ``latency_s``).
 ``--estimator geometric`` fits the scale as the geometric mean over episodes of each
-episode's mean error^2 / variance (``mean``: the mean over every step), so that the episodes' NEES/dof sit around 1 on a log scale: the band
-[1/3, 3] is symmetric in log, and a few episodes far outside the network's training
-range (whose mean error^2 / variance can be 10-100) do not set the scale of all the
-others.
+episode's mean error^2 / variance (``mean``: the mean over every step), so that the
+episodes' NEES/dof sit around 1 on a log scale: the band [1/3, 3] is symmetric in log,
+and a few episodes far outside the network's training range (whose mean error^2 /
+variance can be 10-100) do not set the scale of all the others.
 
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
