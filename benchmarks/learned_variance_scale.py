@@ -13,12 +13,13 @@ With ``--write``, the scale of ``learned`` goes into the weight file's report un
 (train/experiments/consistency_study.py, ``OPTIONS``): episode i varies one option,
 pixel noise, latency (with the study's jitter) and drops in turn, drawn uniformly over
 the study's values' span, the others at the study's defaults; the episodes' options are
-printed with their NEES/dof. ``--estimator geometric`` fits the scale as the geometric
-mean over episodes of each episode's mean error^2 / variance (``mean``: the mean over
-every step), so that the episodes' NEES/dof sit around 1 on a log scale: the band
-[1/3, 3] is symmetric in log, and a few episodes far outside the network's training
-range (whose mean error^2 / variance can be 10-100) do not set the scale of all the
-others.
+printed with their NEES/dof. In ``--obs-mode rgb`` the episodes vary the frames part's
+options in turn instead (``FRAME_SYSTEMS``: ``image_noise_std``, ``latency_s``).
+``--estimator geometric`` fits the scale as the geometric mean over episodes of each
+episode's mean error^2 / variance (``mean``: the mean over every step), so that the
+episodes' NEES/dof sit around 1 on a log scale: the band [1/3, 3] is symmetric in log,
+and a few episodes far outside the network's training range (whose mean error^2 /
+variance can be 10-100) do not set the scale of all the others.
 
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
@@ -74,15 +75,17 @@ RANGED = ("measurement_noise_px", "latency_s", "frame_drop_prob")  # --ranges st
 
 def episode_options(args: argparse.Namespace, seed: int, base: dict[str, Any]) -> dict[str, Any]:
     """The env options of the episode of ``seed``: ``base`` (``--ranges fixed``), or the
-    study's defaults with one option of :data:`RANGED` drawn over the study's span."""
+    study's defaults with one option of :data:`RANGED` drawn over the study's span (rgb:
+    one of the frames part's options, ``FRAME_SYSTEMS``, over its span)."""
     if args.ranges == "fixed":
         return dict(base)
     from observer_gym.train.experiments import consistency_study as study
 
-    key = RANGED[(seed - args.seed) % len(RANGED)]
-    if args.obs_mode == "rgb" and key == "measurement_noise_px":
-        key = "latency_s"  # no pixel noise on rendered frames
-    low, high = min(study.OPTIONS[key]), max(study.OPTIONS[key])
+    # rgb: the frames part's options and values (image noise, latency), not the pixels'
+    ranges = study.FRAME_SYSTEMS[args.env].options if args.obs_mode == "rgb" else study.OPTIONS
+    ranged = tuple(ranges) if args.obs_mode == "rgb" else RANGED
+    key = ranged[(seed - args.seed) % len(ranged)]
+    low, high = min(ranges[key]), max(ranges[key])
     value = float(np.random.default_rng(seed).uniform(low, high))
     env_kwargs = study.SYSTEMS[args.env].env_kwargs
     return {**env_kwargs, **study.OPTION_ENV_KWARGS.get(key, {}), key: value}
@@ -203,6 +206,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--write fits the scale of --observer learned only")
     if args.ranges == "study" and args.noise_px is not None:
         parser.error("--noise-px fixes the noise of every episode; --ranges study draws it")
+    from observer_gym.train.experiments.consistency_study import FRAME_SYSTEMS
+
+    if args.ranges == "study" and args.obs_mode == "rgb" and args.env not in FRAME_SYSTEMS:
+        parser.error(
+            "--ranges study with --obs-mode rgb: the study's frames part has "
+            f"{', '.join(FRAME_SYSTEMS)} only, not {args.env}"
+        )
     print(json.dumps(run(args), indent=1))
     return 0
 

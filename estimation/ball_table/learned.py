@@ -16,7 +16,8 @@ learned with its mean; the covariance it reports is diagonal, each variance time
 scale of its report for the observation mode
 (:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 3.5 and 3.4
 for the ball's position, fitted on validation episodes across the consistency study's
-pixel noise, latency and drops; from frames none).
+pixel noise, latency and drops; from frames 7.3 and 6.1, fitted across its frames
+part's image noise and latency).
 
 **Training data**
 (:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes

@@ -11,7 +11,8 @@ so that the scaled variance matches the squared error on average, or (``--ranges
 --estimator geometric``) the geometric mean over episodes drawn across the consistency
 study's ranges of pixel noise, latency and drops of each episode's mean, so that the
 NEES/dof of those conditions sits around 1 on a log scale (BallCatcher's and BallTable's
-measurements scales: the command is in the report). One scale serves every condition:
+measurements scales; BallTable's rgb scale over the study's frames part's image noise and
+latency instead: the command is in the report). One scale serves every condition:
 none of those options is an input of the network but through the frames' ages, and the
 scale does not read them. It is stored in the weight file's report (``<name>.json``, key
 ``"variance_scale"``, with the command that fitted it and its seeds); the observation

@@ -118,9 +118,14 @@ def test_from_frames_the_estimate_has_the_state_layout_and_a_symmetric_covarianc
 # was 3.14 mm, NEES/dof 2.96, and 1.37 px, 0.94):
 #   BallTable (ball position, m): learned 5.67 mm, NEES/dof 1.89; learned-kf 4.38 mm, 1.72
 #   TargetFollower (X_i, px): learned 1.66 px, NEES/dof 0.38; learned-kf 1.64 px, 0.72
+# BallTable's re-measured on 2026-11-29 with the "rgb" variance scale (fitted across the
+# frames part's image noise and latency, estimation/ball_table/learned.json): learned
+# 5.67 mm, 0.28; learned-kf 4.14 mm, 0.35. The scale holds the study's per-episode mean
+# NEES/dof near 1 (tests/estimation/test_learned_frames_consistency.py); the frames'
+# errors are heavy-tailed, so the per-step median here falls below it.
 CLOSED_LOOP_BOUNDS = {
-    ("BallTable-v0", "learned"): (slice(0, 2), 0.0085, (0.95, 3.8)),
-    ("BallTable-v0", "learned-kf"): (slice(0, 2), 0.0066, (0.86, 3.44)),
+    ("BallTable-v0", "learned"): (slice(0, 2), 0.0085, (0.14, 0.56)),
+    ("BallTable-v0", "learned-kf"): (slice(0, 2), 0.0066, (0.17, 0.70)),
     ("TargetFollower-v0", "learned"): (slice(0, 3), 2.5, (0.19, 0.76)),
     ("TargetFollower-v0", "learned-kf"): (slice(0, 3), 2.46, (0.36, 1.44)),
 }
