@@ -31,12 +31,15 @@ floor of ~0.33 is not first-order Gauss-Markov either, and is not modelled.
 The network's covariance is scaled per entry by the variance scale in its report
 (estimation/learned/variance_scale.py), fitted on validation episodes on ``learned``: its
 own claimed about half its ball error. The scale depends on the newest frame's age, and
-``learned-kf`` takes it at the fused frame's age when it is delivered (the step's time
-minus its capture time), though the network itself reads that frame at its capture (age
-0 in its features): the age at delivery is the one the scale was fitted against, it is
-what grows with the sensor's latency (in the consistency study ``learned-kf``'s NEES/dof
-grew with the latency under one constant scale, to 2.07 at 0.2 s from measurements and
-3.39 from frames), and R at the capture's age would be the age-0 scale at every latency.
+is the ratio of ``learned``'s error to the network's variance with that age among its
+inputs; so R is ``learned``'s covariance of the same frames at the step that delivers the
+fused one (the network's variance with the frames' ages at delivery, times the scale at
+the fused frame's age then), while the mean is the network's at the capture. At no
+latency the two are the same features. Past the training latency the network's own
+variance with the capture's features (age 0) does not grow, and the age's scale alone
+on it (the first way built) left ``learned-kf`` from frames at 3.27 at 0.2 s; this R is
+the uncertainty of the frames' content as ``learned`` claims it at delivery, which a
+delivery-time fusion (``kf``'s plain drive) takes as of the step's time.
 Like ``learned`` its network is trained on the perfect detector's measurements and knows
 no calibration error: nothing of the calibration's offset is reported. From rendered
 frames (``learned-kf``, obs_mode "rgb") the learned detector
@@ -125,7 +128,9 @@ class LearnedKFObserver(BallTableObserver):
         features.new_frame(measurement, capture_s)
         if not self.gate.new_frame():  # its window overlaps the last fused one's
             return measurement, Fused(TiltBallDetection(None, None, None, None))
-        age_s = self._now_s - capture_s  # the frame's age when it is delivered
-        mean, cov = self.learned.predict(features.vector(capture_s, self._action), age_s)
+        mean, _ = self.learned.net.predict(features.vector(capture_s, self._action))
+        # R: learned's covariance of the same frames at delivery (see the module docstring)
+        age_s = self._now_s - capture_s
+        _, cov = self.learned.predict(features.vector(self._now_s, self._action), age_s)
         detection = TiltBallDetection(mean[4:6], mean[0:2], cov[4:6, 4:6], cov[0:2, 0:2])
         return measurement, Fused(detection)

@@ -139,13 +139,16 @@ def test_ball_tables_shipped_scale_grows_with_the_age_for_the_tilt(obs_mode):
     assert np.allclose(scale.at(0.5), scale.at(0.2))  # held at the last knot
 
 
-def _spy_ages(observer) -> list[float]:
-    """Record the newest frame's age each call of ``observer.predict`` scales by."""
+def _spy_ages(observer, feature_ages: list[float] | None = None) -> list[float]:
+    """Record the newest frame's age each call of ``observer.predict`` scales by (and the
+    newest frame's age its features carry into ``feature_ages``)."""
     ages: list[float] = []
     predict = observer.predict
 
     def spy(features, age_s):
         ages.append(age_s)
+        if feature_ages is not None:
+            feature_ages.append(float(features[13]))  # the newest frame's age input
         return predict(features, age_s)
 
     observer.predict = spy
@@ -193,13 +196,16 @@ def test_ball_tables_learned_kf_scales_its_r_by_the_frames_age_at_delivery():
         observer="learned-kf",
     )
     try:
-        ages = _spy_ages(env.pipeline.learned)
+        feature_ages: list[float] = []
+        ages = _spy_ages(env.pipeline.learned, feature_ages)
         env.reset(seed=0)
         for _ in range(20):
             env.step(np.zeros(2, dtype=np.float32))
         # fused outputs only (one in two frames), each at its delivery: the latency old,
-        # not 0 (the network itself reads the frame at its capture)
+        # not 0 (the network's mean reads the frame at its capture), and R is learned's
+        # covariance with the features at delivery (their newest age that same age)
         assert len(ages) >= 3
         assert all(latency_s - 1e-9 <= age <= latency_s + 0.02 for age in ages), ages
+        assert feature_ages == pytest.approx(ages)
     finally:
         env.close()
