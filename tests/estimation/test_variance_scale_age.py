@@ -3,6 +3,11 @@ AgeVarianceScale, fit_age_scale, the report's entry)."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -128,8 +133,6 @@ def test_ball_tables_shipped_scale_grows_with_the_age_for_the_tilt(obs_mode):
     """Past the network's training latency (0-0.05 s) its tilt and tilt rate (entries 4:8)
     err far more than it claims: the fitted scale grows with the age there (the ball's
     position does not: its own variance grows faster, docs/learned_observers.md)."""
-    import json
-
     from observer_gym.estimation.ball_table.learned import WEIGHTS
 
     report = json.loads(WEIGHTS.with_suffix(".json").read_text())
@@ -209,3 +212,64 @@ def test_ball_tables_learned_kf_scales_its_r_by_the_frames_age_at_delivery():
         assert feature_ages == pytest.approx(ages)
     finally:
         env.close()
+
+
+# benchmarks/learned_variance_scale.py --by-age
+
+BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "learned_variance_scale.py"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--by-age", "0,x"], "knots must be comma-separated, strictly increasing"),
+        (["--by-age", "0.1,0"], "knots must be comma-separated, strictly increasing"),
+        (["--by-age", "0,0.1"], "--by-age fits the geometric estimator by age"),
+    ],
+)
+def test_a_bad_by_age_is_one_line_and_exit_code_2(args, message):
+    result = subprocess.run(
+        [sys.executable, str(BENCHMARK), "--env", "BallTable-v0", *args],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr
+
+
+@pytest.mark.slow  # about 6 s: three short closed-loop episodes of the network
+def test_the_by_age_fit_prints_an_age_dependent_scale_without_writing():
+    from observer_gym.estimation.ball_table.learned import WEIGHTS
+
+    before = WEIGHTS.with_suffix(".json").read_bytes()
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(BENCHMARK),
+            "--env",
+            "BallTable-v0",
+            "--seed",
+            "3000000",
+            "--episodes",
+            "3",
+            "--steps",
+            "30",
+            "--ranges",
+            "study",
+            "--estimator",
+            "geometric",
+            "--by-age",
+            "0,0.2",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    out = json.loads(result.stdout)
+    scale = parse_entry(out["scale"], 8, "printed")
+    assert scale.knots_age_s.tolist() == [0.0, 0.2]
+    episodes = out["episodes_by_age"]
+    assert len(episodes) == 3 and all(0.0 <= e["mean_age_s"] <= 0.2 for e in episodes)
+    assert episodes[1]["mean_age_s"] > episodes[0]["mean_age_s"]  # the latency episode
+    assert WEIGHTS.with_suffix(".json").read_bytes() == before  # no --write, no change
