@@ -22,7 +22,8 @@ noise, latency and drops (from measurements) or its frames part's image noise an
 at 0.05 s, 0.5 and 0.7 at 0.2 s; for the tilt and its rate 1.5-1.8 at 0 s, 0.4-0.5 at
 0.05 s and 11-27 at 0.2 s: past its training latency (0-0.05 s) the network's own
 variance grows with the frames' age for the position faster than its error, and far
-slower for the tilt.
+slower for the tilt. From frames: position 5.4 and 8.0 at 0 s, 4.1 and 1.9 at 0.2 s;
+tilt and its rate 0.9-1.1 at 0 s, 7.9-19 at 0.2 s (the report holds every knot).
 
 **Training data**
 (:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes

@@ -36,10 +36,13 @@ inputs; so R is ``learned``'s covariance of the same frames at the step that del
 fused one (the network's variance with the frames' ages at delivery, times the scale at
 the fused frame's age then), while the mean is the network's at the capture. At no
 latency the two are the same features. Past the training latency the network's own
-variance with the capture's features (age 0) does not grow, and the age's scale alone
-on it (the first way built) left ``learned-kf`` from frames at 3.27 at 0.2 s; this R is
-the uncertainty of the frames' content as ``learned`` claims it at delivery, which a
-delivery-time fusion (``kf``'s plain drive) takes as of the step's time.
+variance with the capture's features (age 0) does not grow, and the age's scale on that
+variance left the consistency study's 0.2 s cells at 3.27 from frames and 2.45 from
+measurements (1.12 and 1.53 with this R, docs/results/consistency.md); this R is the
+uncertainty of the frames' content as ``learned`` claims it at delivery, which a
+delivery-time fusion (``kf``'s plain drive) takes as of the step's time. Fused at the
+capture time (``latency_aware``) it takes the same R, which then also counts the
+latency's prediction error: not measured.
 Like ``learned`` its network is trained on the perfect detector's measurements and knows
 no calibration error: nothing of the calibration's offset is reported. From rendered
 frames (``learned-kf``, obs_mode "rgb") the learned detector
