@@ -106,7 +106,7 @@ N_FEATURES = CAMERAS * HISTORY_FRAMES * PER_FRAME + 1  # + the time since the la
 # Each training episode's sensor: uniform in these ranges (a tuple of names: one of them,
 # uniformly).
 TRAINING_RANGES: dict[str, tuple[Any, ...]] = {
-    "measurement_noise_px": (0.0, 4.0),
+    "measurement_noise_px": (0.0, 2.0),
     "latency_s": (0.0, 0.01),
     "latency_jitter_s": (0.0, 0.003),
     "jitter_s": (0.0, 0.002),
