@@ -19,10 +19,19 @@ options in turn instead (``FRAME_SYSTEMS``: ``image_noise_std``, ``latency_s``).
 episode's mean error^2 / variance (``mean``: the mean over every step), so that the
 episodes' NEES/dof sit around 1 on a log scale: the band [1/3, 3] is symmetric in log,
 and a few episodes far outside the network's training range (whose mean error^2 /
-variance can be 10-100) do not set the scale of all the others.
+variance can be 10-100) do not set the scale of all the others. ``--by-age KNOTS``
+(with ``--estimator geometric``) fits a scale by the newest frame's age instead
+(:func:`~observer_gym.estimation.learned.variance_scale.fit_age_scale`: log(scale)
+piecewise linear over the comma-separated knots, s, against each episode's mean age of
+the newest frame received, the step's time minus its capture time, held at the end
+knots: steps before the first frame count at the last knot, as the observer's scale
+does); the episodes' mean ages and ratios are printed.
 
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
+    python benchmarks/learned_variance_scale.py --env BallTable-v0 --observer learned \
+        --seed 3000000 --episodes 36 --ranges study --estimator geometric \
+        --by-age 0,0.05,0.1,0.15,0.2 --write
 """
 
 from __future__ import annotations
@@ -41,7 +50,12 @@ from observer_gym.controllers import make_controller
 from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.envs.target_follower import StateIndex
 from observer_gym.estimation import VisionObserver
-from observer_gym.estimation.learned.variance_scale import VARIANCE_SCALE_KEY
+from observer_gym.estimation.learned.variance_scale import (
+    VARIANCE_SCALE_KEY,
+    fit_age_scale,
+    load_variance_scale,
+)
+from observer_gym.train.core.args import Parser
 from observer_gym.train.reports.outputs import write_text_atomic
 
 # env id -> (learned module, controller, steps per episode, options of the episodes, the
@@ -98,7 +112,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.noise_px is not None:
         options["measurement_noise_px"] = args.noise_px
     kwargs = {} if args.fuse_every is None else {"fuse_every": args.fuse_every}
-    errors, variances, nees, new_frame, episode = [], [], [], [], []
+    errors, variances, nees, new_frame, episode, ages_s = [], [], [], [], [], []
     catches = 0
     drawn = []
     for seed in range(args.seed, args.seed + args.episodes):
@@ -112,6 +126,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         try:
             controller = make_controller(controller_name, env)
             estimate, info = env.reset(seed=seed)
+            newest_capture_s = -np.inf  # the newest frame received so far
             for _ in range(steps):
                 if hasattr(controller, "observe_info"):
                     controller.observe_info(info)  # the intercept reads the throw's timing
@@ -120,6 +135,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 if terminated or truncated:
                     catches += bool(info.get("caught", False))
                     break
+                for frame in info["frames"]:
+                    newest_capture_s = max(newest_capture_s, float(frame["capture_time_s"]))
                 state = info["state"]
                 if args.env == "BallCatcher-v1" and not (
                     info["ball_in_flight"]
@@ -138,6 +155,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 nees.append(e.dot(np.linalg.solve(P, e)) / len(e))
                 new_frame.append(bool(info["estimate"]["measurement_used"]))
                 episode.append(seed - args.seed)
+                ages_s.append(float(info["time_s"]) - newest_capture_s)  # inf: no frame yet
         finally:
             env.close()
     e, var = np.array(errors), np.array(variances)
@@ -163,14 +181,32 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.observer == "learned":
         module = import_module(module_name)
         report = json.loads(module.WEIGHTS.with_suffix(".json").read_text())
-        old = np.asarray(report.get(VARIANCE_SCALE_KEY, {}).get(args.obs_mode, np.ones(e.shape[1])))
-        raw_var = var / old
+        old = load_variance_scale(report, args.obs_mode, e.shape[1])
+        ages = np.array(ages_s)
+        raw_var = var / np.array([old.at(age) for age in ages])
         ratio = e**2 / raw_var
         if args.estimator == "mean":
             out["scale"] = np.mean(ratio, axis=0).tolist()
-        else:  # geometric mean over the episodes of each episode's mean
-            per_episode = [ratio[episode_of == i].mean(axis=0) for i in np.unique(episode_of)]
-            out["scale"] = np.exp(np.mean(np.log(per_episode), axis=0)).tolist()
+        else:  # each episode's mean, over the episodes: geometric mean, or by the age
+            indices = np.unique(episode_of)
+            per_episode = np.array([ratio[episode_of == i].mean(axis=0) for i in indices])
+            if args.by_age is None:
+                out["scale"] = np.exp(np.mean(np.log(per_episode), axis=0)).tolist()
+            else:
+                # ages beyond the end knots (and before the first frame) count at them
+                clipped = np.clip(ages, args.by_age[0], args.by_age[-1])
+                mean_age_s = np.array([clipped[episode_of == i].mean() for i in indices])
+                fitted = fit_age_scale(mean_age_s, per_episode, args.by_age)
+                out["scale"] = fitted.to_entry()
+                out["episodes_by_age"] = [
+                    {
+                        "seed": args.seed + int(i),
+                        "mean_age_s": float(age),
+                        "ratio": ratio_i.tolist(),
+                        "fitted": fitted.at(age).tolist(),
+                    }
+                    for i, age, ratio_i in zip(indices, mean_age_s, per_episode, strict=True)
+                ]
         z = (e / np.sqrt(raw_var))[np.array(new_frame)]
         z = z - z.mean(axis=0)
         out["autocorrelation_lag_1_to_8"] = [
@@ -188,8 +224,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def knots_arg(text: str) -> list[float]:
+    """``--by-age``'s knots: comma-separated ages >= 0 s, strictly increasing."""
+    try:
+        knots = [float(part) for part in text.split(",")]
+    except ValueError:
+        knots = []
+    if not knots or any(k < 0 or not np.isfinite(k) for k in knots) or knots != sorted(set(knots)):
+        raise argparse.ArgumentTypeError(
+            f"knots must be comma-separated, strictly increasing ages >= 0 s, got {text!r}"
+        )
+    return knots
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", required=True, choices=sorted(SYSTEMS))
     parser.add_argument("--obs-mode", default="measurements", choices=["measurements", "rgb"])
     parser.add_argument("--observer", default="learned")
@@ -200,8 +249,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise-px", type=float, default=None)
     parser.add_argument("--ranges", default="fixed", choices=["fixed", "study"])
     parser.add_argument("--estimator", default="mean", choices=["mean", "geometric"])
+    parser.add_argument(
+        "--by-age",
+        type=knots_arg,
+        default=None,
+        metavar="KNOTS",
+        help="fit the scale by the newest frame's age over these comma-separated knots (s)",
+    )
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args(argv)
+    if args.by_age is not None and args.estimator != "geometric":
+        parser.error("--by-age fits the geometric estimator by age: add --estimator geometric")
     if args.write and args.observer != "learned":
         parser.error("--write fits the scale of --observer learned only")
     if args.ranges == "study" and args.noise_px is not None:

@@ -13,11 +13,16 @@ carry latency and drops; the history carries the rates.
 **Network**: :class:`~observer_gym.estimation.learned.network.GaussianMLP` (2 x 128
 tanh), trained with the Gaussian negative log-likelihood, so each entry's variance is
 learned with its mean; the covariance it reports is diagonal, each variance times the
-scale of its report for the observation mode
-(:mod:`~observer_gym.estimation.learned.variance_scale`; from measurements 3.5 and 3.4
-for the ball's position, fitted on validation episodes across the consistency study's
-pixel noise, latency and drops; from frames 7.3 and 6.1, fitted across its frames
-part's image noise and latency).
+scale of its report for the observation mode at the newest frame's age (the step's time
+minus that frame's capture time, the age the features carry;
+:mod:`~observer_gym.estimation.learned.variance_scale`): log-linear between the knots 0,
+0.05, 0.1 and 0.2 s, fitted on validation episodes across the consistency study's pixel
+noise, latency and drops (from measurements) or its frames part's image noise and latency
+(from frames). From measurements, for the ball's position 3.1 and 3.2 at 0 s, 12 and 7.8
+at 0.05 s, 0.5 and 0.7 at 0.2 s; for the tilt and its rate 1.5-1.8 at 0 s, 0.4-0.5 at
+0.05 s and 11-27 at 0.2 s: past its training latency (0-0.05 s) the network's own
+variance grows with the frames' age for the position faster than its error, and far
+slower for the tilt.
 
 **Training data**
 (:func:`~observer_gym.train.experiments.learned_observers.ball_table.collect`): episodes
@@ -62,7 +67,7 @@ from observer_gym.envs.ball_table import STATE_DIM, BallTableEnv
 from observer_gym.envs.ball_table.layout import BALL_PX, CORNERS_PX, DETECTED
 from observer_gym.estimation.ball_table import learned_detector
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
-from observer_gym.estimation.learned.variance_scale import variance_scale
+from observer_gym.estimation.learned.variance_scale import load_variance_scale
 from observer_gym.estimation.observer import (
     MAX_PIXEL_PX,
     Estimate,
@@ -132,6 +137,11 @@ class LearnedFeatures:
         pixels = np.concatenate([corners, ball, detected])
         self._frames = [_Frame(pixels, capture_s), *self._frames][:HISTORY_FRAMES]
 
+    def newest_age_s(self, now_s: float) -> float:
+        """The newest frame's age at ``now_s`` (s), as the features carry it
+        (:data:`MISSING_AGE_S` before the first frame)."""
+        return now_s - self._frames[0].capture_s if self._frames else MISSING_AGE_S
+
     def vector(self, now_s: float, action: np.ndarray | None) -> np.ndarray:
         out = np.zeros(N_FEATURES)
         for k in range(HISTORY_FRAMES):
@@ -179,7 +189,7 @@ class LearnedObserver:
 
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
         obs_mode = "rgb" if from_frames else "measurements"
-        self.variance_scale = variance_scale(self.report, obs_mode, STATE_DIM)
+        self.variance_scale = load_variance_scale(self.report, obs_mode, STATE_DIM)
         self.detector: LearnedDetector | None = None
         self.image_size_px = (int(env.config.image_width_px), int(env.config.image_height_px))
         if from_frames:
@@ -203,12 +213,13 @@ class LearnedObserver:
     def reset(self) -> None:
         self.features.reset()
 
-    def predict(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, features: np.ndarray, age_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The network's (mean, covariance) of ``features``, its variances times the
-        report's variance scale for this observation mode
-        (:mod:`~observer_gym.estimation.learned.variance_scale`)."""
+        report's variance scale for this observation mode at the newest frame's age
+        ``age_s`` (s; :mod:`~observer_gym.estimation.learned.variance_scale`)."""
         mean, covariance = self.net.predict(features)
-        return mean, covariance * self.variance_scale  # diagonal: scales each row's entry
+        # diagonal: scales each row's entry
+        return mean, covariance * self.variance_scale.at(age_s)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         used = False
@@ -219,6 +230,7 @@ class LearnedObserver:
             self.features.new_frame(measurement, capture_s)
             used = True
         now_s = float(info["time_s"])
-        mean, covariance = self.predict(self.features.vector(now_s, action))
+        age_s = self.features.newest_age_s(now_s)  # the age the network reads
+        mean, covariance = self.predict(self.features.vector(now_s, action), age_s)
         assert mean.shape == (STATE_DIM,)
         return Estimate(mean, covariance, used, measurement, now_s)

@@ -29,12 +29,19 @@ those seeds: 2. What it costs is RMSE (every 4th frame errs by more than the net
 alone, 3.6 and 3.1 mm); augmentation would keep every frame's information, but the
 floor of ~0.33 is not first-order Gauss-Markov either, and is not modelled.
 The network's covariance is scaled per entry by the variance scale in its report
-(estimation/learned/variance_scale.py), fitted on validation episodes: its own claimed
-about half its ball error. Like ``learned`` its network is trained
-on the perfect detector's measurements and knows no calibration error: nothing of the
-calibration's offset is reported. From rendered frames (``learned-kf``, obs_mode "rgb")
-the learned detector (estimation/ball_table/learned_detector.py) reads each frame in the
-perfect detector's place, as for ``learned``.
+(estimation/learned/variance_scale.py), fitted on validation episodes on ``learned``: its
+own claimed about half its ball error. The scale depends on the newest frame's age, and
+``learned-kf`` takes it at the fused frame's age when it is delivered (the step's time
+minus its capture time), though the network itself reads that frame at its capture (age
+0 in its features): the age at delivery is the one the scale was fitted against, it is
+what grows with the sensor's latency (in the consistency study ``learned-kf``'s NEES/dof
+grew with the latency under one constant scale, to 2.07 at 0.2 s from measurements and
+3.39 from frames), and R at the capture's age would be the age-0 scale at every latency.
+Like ``learned`` its network is trained on the perfect detector's measurements and knows
+no calibration error: nothing of the calibration's offset is reported. From rendered
+frames (``learned-kf``, obs_mode "rgb") the learned detector
+(estimation/ball_table/learned_detector.py) reads each frame in the perfect detector's
+place, as for ``learned``.
 """
 
 from __future__ import annotations
@@ -91,6 +98,7 @@ class LearnedKFObserver(BallTableObserver):
         # refuses a changed weight file; from frames, loads the learned detector
         self.learned = LearnedObserver(env, weights, detector_weights)
         self._action: np.ndarray | None = None
+        self._now_s = 0.0
         super().__init__(env, latency_aware=latency_aware)
 
     def reset(self) -> None:
@@ -101,6 +109,7 @@ class LearnedKFObserver(BallTableObserver):
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         self._action = action  # the network reads the last action with the frames
+        self._now_s = float(info["time_s"])  # the frame's age at delivery: R's scale
         return super().observe(obs, info, action)
 
     def _start_calibration(self) -> None:
@@ -116,6 +125,7 @@ class LearnedKFObserver(BallTableObserver):
         features.new_frame(measurement, capture_s)
         if not self.gate.new_frame():  # its window overlaps the last fused one's
             return measurement, Fused(TiltBallDetection(None, None, None, None))
-        mean, cov = self.learned.predict(features.vector(capture_s, self._action))
+        age_s = self._now_s - capture_s  # the frame's age when it is delivered
+        mean, cov = self.learned.predict(features.vector(capture_s, self._action), age_s)
         detection = TiltBallDetection(mean[4:6], mean[0:2], cov[4:6, 4:6], cov[0:2, 0:2])
         return measurement, Fused(detection)

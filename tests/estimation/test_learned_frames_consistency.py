@@ -29,6 +29,9 @@ CELLS = {
         "latency_s": 0.1,
         **OPTION_ENV_KWARGS["latency_s"],
     },
+    # four times the network's training latency, in the band by the scale by the age
+    ("learned", "latency 0.2 s"): {"latency_s": 0.2, **OPTION_ENV_KWARGS["latency_s"]},
+    ("learned-kf", "latency 0.2 s"): {"latency_s": 0.2, **OPTION_ENV_KWARGS["latency_s"]},
 }
 
 

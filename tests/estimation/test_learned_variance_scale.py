@@ -11,7 +11,11 @@ import pytest
 
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_table.learned import WEIGHTS
-from observer_gym.estimation.learned.variance_scale import FuseEvery, variance_scale
+from observer_gym.estimation.learned.variance_scale import (
+    FuseEvery,
+    load_variance_scale,
+    variance_scale,
+)
 
 
 def test_the_gate_passes_the_first_frame_and_then_one_in_every_n():
@@ -40,9 +44,8 @@ def test_a_report_without_a_scale_scales_by_one_and_a_bad_one_is_refused():
 
 
 def test_learned_reports_the_networks_variance_times_the_shipped_scale():
-    scale = np.array(
-        json.loads(WEIGHTS.with_suffix(".json").read_text())["variance_scale"]["measurements"]
-    )
+    report = json.loads(WEIGHTS.with_suffix(".json").read_text())
+    scale = load_variance_scale(report, "measurements", 8)
     env = VisionObserver(
         gym.make("observer_gym/BallTable-v0", obs_mode="measurements"), observer="learned"
     )
@@ -50,8 +53,10 @@ def test_learned_reports_the_networks_variance_times_the_shipped_scale():
         env.reset(seed=0)
         _, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
         observer = env.pipeline  # the LearnedObserver
-        features = observer.features.vector(float(info["time_s"]), np.zeros(2))
+        now_s = float(info["time_s"])
+        features = observer.features.vector(now_s, np.zeros(2))
         _, raw = observer.net.predict(features)
-        assert np.allclose(np.diag(info["estimate"]["covariance"]), np.diag(raw) * scale)
+        at_age = scale.at(observer.features.newest_age_s(now_s))
+        assert np.allclose(np.diag(info["estimate"]["covariance"]), np.diag(raw) * at_age)
     finally:
         env.close()
