@@ -3,8 +3,7 @@
 latency jitter can deliver two frames of one camera in one step, and the reader
 (train/experiments/learned_observers/recorded.py) then gives the features the observer
 computes at run time from every delivered frame, bit for bit. Before, such a step was
-refused, and the training command stopped (one throw in about 35 of the training ranges
-has one)."""
+refused, and the training command stopped (at the shipped ranges, at its 35th throw)."""
 
 from __future__ import annotations
 
