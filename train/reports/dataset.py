@@ -99,7 +99,11 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
     - BallCatcher: ``ball_in_flight`` () (``info["ball_in_flight"]``: before the ball's
       first touch of the box) and, in the measurements obs mode, ``frame_uv_px`` (C, 2),
       px: the newest delivered frame's ball pixel as the frame reports it
-      (``info["frames"][i]["uv_px"]``, float64), NaN without a detection or a frame.
+      (``info["frames"][i]["uv_px"]``, float64), NaN without a detection or a frame;
+      ``frame_earlier_uv_px`` (C, 2), px, and ``frame_earlier_capture_time_s`` (C,), s:
+      the frame of the camera delivered before its newest in the same step (latency
+      jitter can deliver two), NaN if none (a third one is counted in ``frame_count``
+      only).
     """
     cameras = int(env.unwrapped.rig.num_cameras)  # type: ignore[attr-defined]
     row: dict[str, np.ndarray] = {
@@ -128,9 +132,17 @@ def step_info(env: gym.Env, info: Mapping[str, Any]) -> dict[str, np.ndarray]:
         base.observation_space, "spaces", {}
     ):  # each delivered frame's own measurement (BallCatcher), float64 as the info has it
         row["frame_uv_px"] = np.full((cameras, 2), np.nan)
+        row["frame_earlier_uv_px"] = np.full((cameras, 2), np.nan)
+        row["frame_earlier_capture_time_s"] = np.full(cameras, np.nan)
+        capture_s = np.full(cameras, np.nan)
         for frame in info["frames"]:  # in delivery order: the last of a camera's wins
+            c = int(frame["camera_id"])
+            if not np.isnan(capture_s[c]):  # a second frame of the camera in this step
+                row["frame_earlier_uv_px"][c] = row["frame_uv_px"][c]
+                row["frame_earlier_capture_time_s"][c] = capture_s[c]
             uv = frame.get("uv_px")
-            row["frame_uv_px"][int(frame["camera_id"])] = np.nan if uv is None else uv
+            row["frame_uv_px"][c] = np.nan if uv is None else uv
+            capture_s[c] = float(frame["capture_time_s"])
     if "ball_in_flight" in info:
         row["ball_in_flight"] = np.asarray(bool(info["ball_in_flight"]))
     if "applied_action" in info:  # None before the first action (BallTable's reset)

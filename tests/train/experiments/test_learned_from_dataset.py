@@ -342,7 +342,7 @@ def test_a_dagger_round_is_recorded_into_the_data_folder(tmp_path):
     assert not (tmp_path / "again.pt").exists()
 
 
-def test_ball_catchers_reader_refuses_two_frames_of_one_camera_in_a_step(tmp_path):
+def test_ball_catchers_reader_refuses_more_frames_of_one_camera_than_recorded(tmp_path):
     from observer_gym.train.experiments.learned_observers.recorded import ball_catcher_arrays
     from observer_gym.train.reports.dataset import RecordedEpisode
 
@@ -352,9 +352,15 @@ def test_ball_catchers_reader_refuses_two_frames_of_one_camera_in_a_step(tmp_pat
     assert len(ball_catcher_arrays([episode], config)[0]) > 0  # as recorded: read
     counts = episode.infos["frame_count"].copy()
     step = int(np.flatnonzero(counts[:, 0])[0])
-    counts[step, 0] = 2  # as if camera 0 had delivered two frames at that step
-    doubled = RecordedEpisode(
+    counts[step, 0] = 3  # as if camera 0 had delivered three frames at that step
+    tripled = RecordedEpisode(
         **{**vars(episode), "infos": {**episode.infos, "frame_count": counts}}
     )
-    with pytest.raises(ValueError, match=f"step {step} delivered 2 frames of one camera"):
+    with pytest.raises(ValueError, match=f"step {step} delivered 3 frames of one camera; "):
+        ball_catcher_arrays([tripled], config)
+    # a recording made before the earlier frame was kept: two frames are refused
+    counts[step, 0] = 2
+    infos = {k: v for k, v in episode.infos.items() if not k.startswith("frame_earlier")}
+    doubled = RecordedEpisode(**{**vars(episode), "infos": {**infos, "frame_count": counts}})
+    with pytest.raises(ValueError, match=f"step {step} delivered 2 frames .* 1 newest only"):
         ball_catcher_arrays([doubled], config)

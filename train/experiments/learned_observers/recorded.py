@@ -127,8 +127,9 @@ def ball_catcher_arrays(episodes: Sequence[RecordedEpisode], config: Mapping[str
     steps only (``ball_in_flight``).
 
     Raises:
-        ValueError: a step delivered two frames of one camera (a recording keeps a
-            camera's newest only), or the recording lacks ``frame_uv_px``.
+        ValueError: a step delivered more frames of one camera than the recording keeps
+            (its two newest; its newest only in a recording made before
+            ``frame_earlier_uv_px`` was), or the recording lacks ``frame_uv_px``.
     """
     import gymnasium as gym
 
@@ -149,13 +150,20 @@ def ball_catcher_arrays(episodes: Sequence[RecordedEpisode], config: Mapping[str
             features = LearnedFeatures(base.num_cameras, image_centre_px(base))
         finally:
             env.close()
+        earlier = "frame_earlier_uv_px" in infos  # recorded since 2026-11-29
+        kept = 2 if earlier else 1
         for t in range(len(episode.actions)):
             counts = infos["frame_count"][t]
-            if counts.max(initial=0) > 1:
+            if counts.max(initial=0) > kept:
                 raise ValueError(
                     f"episode {index} step {t} delivered {int(counts.max())} frames of one "
-                    "camera; a recording keeps each camera's newest only"
+                    f"camera; a recording keeps each camera's {kept} newest only"
                 )
+            for camera in np.flatnonzero(counts > 1):  # the step's earlier frame first
+                uv = infos["frame_earlier_uv_px"][t, camera]
+                frame = {"uv_px": None if np.isnan(uv).any() else uv}
+                capture_s = float(infos["frame_earlier_capture_time_s"][t, camera])
+                features.add(int(camera), capture_s, pixels.detect(frame))
             for camera in np.flatnonzero(counts):
                 uv = infos["frame_uv_px"][t, camera]
                 frame = {"uv_px": None if np.isnan(uv).any() else uv}
