@@ -25,7 +25,10 @@ variance can be 10-100) do not set the scale of all the others. ``--by-age KNOTS
 piecewise linear over the comma-separated knots, s, against each episode's mean age of
 the newest frame received, the step's time minus its capture time, held at the end
 knots: steps before the first frame count at the last knot, as the observer's scale
-does); the episodes' mean ages and ratios are printed.
+does); the episodes' mean ages and ratios are printed. ``--hold-to AGE_S`` (one of the
+knots) keeps the report's scale at the knots up to it and fits the later ones only
+(BallCatcher: its constant scale, fitted across every condition, where the frames are
+young; written with the held scale's own command before it).
 
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
@@ -196,7 +199,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 # ages beyond the end knots (and before the first frame) count at them
                 clipped = np.clip(ages, args.by_age[0], args.by_age[-1])
                 mean_age_s = np.array([clipped[episode_of == i].mean() for i in indices])
-                fitted = fit_age_scale(mean_age_s, per_episode, args.by_age)
+                # --hold-to: the report's scale up to that age stays (fitted before, across
+                # every condition); the age adds what the later episodes measure
+                held = None if args.hold_to is None else (args.hold_to, old.at(args.hold_to))
+                fitted = fit_age_scale(mean_age_s, per_episode, args.by_age, held)
                 out["scale"] = fitted.to_entry()
                 out["episodes_by_age"] = [
                     {
@@ -218,7 +224,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             report = json.loads(path.read_text())
             entry = report.setdefault(VARIANCE_SCALE_KEY, {})
             entry[args.obs_mode] = out["scale"]
-            entry.setdefault("commands", {})[args.obs_mode] = "python " + shlex.join(sys.argv)
+            command = "python " + shlex.join(sys.argv)
+            commands = entry.setdefault("commands", {})
+            if args.hold_to is not None and args.obs_mode in commands:
+                # the held part's own command first: the two together re-make the scale
+                command = commands[args.obs_mode].split(" && ")[0] + " && " + command
+            commands[args.obs_mode] = command
             path_text = json.dumps(report, indent=2) + "\n"
             write_text_atomic(path, path_text)
     return out
@@ -256,10 +267,20 @@ def main(argv: list[str] | None = None) -> int:
         metavar="KNOTS",
         help="fit the scale by the newest frame's age over these comma-separated knots (s)",
     )
+    parser.add_argument(
+        "--hold-to",
+        type=float,
+        default=None,
+        metavar="AGE_S",
+        help="with --by-age: hold the report's scale at the knots up to this one (s) and "
+        "fit the later knots only",
+    )
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args(argv)
     if args.by_age is not None and args.estimator != "geometric":
         parser.error("--by-age fits the geometric estimator by age: add --estimator geometric")
+    if args.hold_to is not None and (args.by_age is None or args.hold_to not in args.by_age[:-1]):
+        parser.error("--hold-to must be one of --by-age's knots but the last")
     if args.write and args.observer != "learned":
         parser.error("--write fits the scale of --observer learned only")
     if args.ranges == "study" and args.noise_px is not None:

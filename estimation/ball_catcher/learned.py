@@ -21,7 +21,9 @@ state's first six entries, with a diagonal covariance (each entry's variance lea
 its mean: Gaussian negative log-likelihood), times the variance scale of its report for
 the observation mode (:mod:`~observer_gym.estimation.learned.variance_scale`; from
 measurements 2.9, 1.1, 1.4 for the position and 1.1-1.4 for the velocity, fitted on
-validation throws across the consistency study's noise, latency and drops; from frames
+validation throws across the consistency study's noise, latency and drops, while the
+newest kept frame is at most 0.05 s old; beyond, by that age, 10.8, 0.9, 5.7 and
+1.6-12.9 at 0.2 s, where the network errs most along the throw; from frames
 none). The box's entries are what the env reports
 as the robot's own kinematics (``info["box_pos_world_m"]``, ``info["box_vel_world_mps"]``)
 with zero variance, as ``kf`` fills them; the network does not read them (the ball's
@@ -83,7 +85,7 @@ from observer_gym.envs.ball_catcher import BallCatcherEnv
 from observer_gym.estimation.ball_catcher.frames import FrameReader
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
-from observer_gym.estimation.learned.variance_scale import variance_scale
+from observer_gym.estimation.learned.variance_scale import load_variance_scale
 from observer_gym.estimation.observer import Estimate
 from observer_gym.extras import TORCH_MODULES, require_rl
 
@@ -171,6 +173,10 @@ class LearnedFeatures:
         out[-1] = now_s
         return out
 
+    def newest_capture_s(self) -> float:
+        """The capture time (s) of the newest frame kept of any camera (-inf: none yet)."""
+        return max((kept[0][0] for kept in self._frames if kept), default=-np.inf)
+
     def frames_kept(self, camera: int) -> int:
         return len(self._frames[camera])
 
@@ -219,7 +225,7 @@ class LearnedObserver:
         self.net, self.report = load_network(Path(weights) if weights else WEIGHTS)
         cameras = (self.net.n_in - 1) // (HISTORY_FRAMES * PER_FRAME)
         env = checked_env(env, "LearnedObserver", cameras)
-        self.variance_scale = variance_scale(self.report, env.config.obs_mode, self.net.n_out)
+        self.variance_scale = load_variance_scale(self.report, env.config.obs_mode, self.net.n_out)
         detector = None
         if env.config.obs_mode == "rgb":
             from observer_gym.estimation.ball_catcher.learned_detector import (
@@ -250,10 +256,13 @@ class LearnedObserver:
 
     def predict(self, now_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The network's ball state and diagonal covariance at ``now_s`` from the frames
-        kept, its variances times the report's variance scale for the observation mode
-        (:mod:`~observer_gym.estimation.learned.variance_scale`)."""
+        kept, its variances times the report's variance scale for the observation mode at
+        the newest kept frame's age (:mod:`~observer_gym.estimation.learned.variance_scale`;
+        no frame yet: held at the last knot's scale)."""
         mean, covariance = self.net.predict(self.features.vector(now_s))
-        return mean, covariance * self.variance_scale  # diagonal: scales each row's entry
+        age_s = now_s - self.features.newest_capture_s()
+        # diagonal: scales each row's entry
+        return mean, covariance * self.variance_scale.at(age_s)
 
     def observe(self, obs: Any, info: dict, action: np.ndarray | None) -> Estimate:
         used, measurements = self.read_frames(info)

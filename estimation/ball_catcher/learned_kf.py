@@ -13,7 +13,8 @@ The viewline filter measures pixels through each camera's viewline rows and cann
 At each step that delivers a frame showing the ball, the network reads the newest frames
 of both cameras as ``learned`` does, at the step's time (the time it was trained at), and
 its ball position y (m) with the position block of the covariance it predicts (diagonal,
-m^2, times ``learned``'s variance scale: estimation/learned/variance_scale.py) as R is
+m^2, times ``learned``'s variance scale at the newest frame's age:
+estimation/learned/variance_scale.py) as R is
 one measurement at that time. Its velocity outputs are not used: the filter
 makes its own from the ballistic model. NIS: d^T S^-1 d of the accepted position (3 dof).
 

@@ -11,10 +11,11 @@ so that the scaled variance matches the squared error on average, or (``--ranges
 --estimator geometric``) the geometric mean over episodes drawn across the consistency
 study's ranges of pixel noise, latency and drops of each episode's mean, so that the
 NEES/dof of those conditions sits around 1 on a log scale (BallCatcher's measurements
-scale). One constant scale serves every condition: none of those options is an input of
-the network but through the frames' ages. BallTable's scales, from measurements and from
-frames (over the study's frames part's image noise and latency), are fitted the same way
-but by the newest frame's age (below): the command is in the report.
+scale up to 0.05 s of the newest frame's age). One constant scale serves every
+condition: none of those options is an input of the network but through the frames'
+ages. BallTable's scales, from measurements and from frames (over the study's frames
+part's image noise and latency), are fitted the same way but by the newest frame's age,
+and BallCatcher's beyond 0.05 s of it (below): the command is in the report.
 It is stored in the weight file's report (``<name>.json``, key ``"variance_scale"``, with
 the command that fitted it and its seeds); the observation mode is the env's
 configuration, known at run time, never the truth. A report without the key scales by 1
@@ -40,7 +41,12 @@ the knots (an age beyond the last knot is held at the last knot's scale rather t
 extrapolated; before any frame arrives a network's missing-frame age is such an age).
 :func:`fit_age_scale` fits it by least squares on the log of each validation episode's
 mean ``error^2 / variance`` against the episode's mean newest-frame age: with one knot
-that is the geometric mean over the episodes, the constant scale. In the report a plain
+that is the geometric mean over the episodes, the constant scale. ``held`` keeps the
+knots up to an age at a given scale and fits the later ones: BallCatcher's constant
+scale, fitted across every condition, stays where its frames are young (a free fit of
+the young ages would be set by pixel noise, which is no input of the network: 4 px went
+from 4.6 to 6.0), and the age adds what its latency episodes beyond 0.05 s measure. In
+the report a plain
 list is a constant scale; an age-dependent one is ``{"knots_age_s": [...], "scale":
 [[...] per knot]}`` (positive factors, ``n_out`` per knot).
 
@@ -203,6 +209,7 @@ def fit_age_scale(
     ages_s: Sequence[float] | np.ndarray,
     ratios: Sequence[Sequence[float]] | np.ndarray,
     knots_age_s: Sequence[float] | np.ndarray,
+    held: tuple[float, Sequence[float] | np.ndarray] | None = None,
 ) -> AgeVarianceScale:
     """Fit :class:`AgeVarianceScale` to validation episodes: ``ages_s`` (E,) each episode's
     mean newest-frame age (s), ``ratios`` (E, n_out) its mean ``error^2 / variance`` of
@@ -210,10 +217,18 @@ def fit_age_scale(
     basis of ``knots_age_s`` (ages outside the knots count at the end knot). One knot:
     the geometric mean over the episodes.
 
+    ``held = (hold_to_s, scale)`` holds the knots up to ``hold_to_s`` (itself a knot) at
+    the given (n_out,) factors and fits only the later ones, the held knots' part of each
+    episode's log ratio taken out first: a scale fitted across every condition (such as
+    BallCatcher's constant one, where pixel noise, which is no input of the network, sets
+    the young ages' factors) stays as it is where the frames are young, and the age adds
+    only what the latency episodes beyond ``hold_to_s`` measure.
+
     Raises:
         ValueError: the shapes differ, a ratio is not positive and finite, the knots are
-            not increasing, or a knot has no episode to fit it (the basis is rank-deficient:
-            fewer knots, or episodes at those ages).
+            not increasing, a knot has no episode to fit it (the basis is rank-deficient:
+            fewer knots, or episodes at those ages), or ``held`` is not a knot with
+            ``n_out`` positive factors and a later knot to fit.
     """
     ages = np.asarray(ages_s, dtype=float)
     ratio = np.asarray(ratios, dtype=float)
@@ -230,12 +245,27 @@ def fit_age_scale(
         raise ValueError(f"fit: ages_s must be finite, got {ages.tolist()}")
     # the hat functions of the knots at each episode's age (np.interp clamps at the ends)
     basis = np.stack([np.interp(ages, knots, row) for row in np.eye(len(knots))], axis=1)
-    if np.linalg.matrix_rank(basis) < len(knots):
+    fixed = np.zeros(len(knots), dtype=bool)
+    log_scale = np.zeros((len(knots), log_ratio.shape[1]))
+    if held is not None:
+        hold_to_s, held_scale = held
+        fixed = knots <= hold_to_s
+        if not np.any(np.isclose(knots, hold_to_s)) or fixed.all():
+            raise ValueError(
+                f"fit: hold_to_s must be one of the knots {knots.tolist()} s but the last, "
+                f"got {hold_to_s!r}"
+            )
+        n_out = log_ratio.shape[1]
+        log_scale[fixed] = np.log(_positive_finite(held_scale, (n_out,), "fit: held scale"))
+        # the held knots' part of each episode's log ratio, taken out before the fit
+        log_ratio = log_ratio - basis[:, fixed] @ log_scale[fixed]
+    free = basis[:, ~fixed]
+    if np.linalg.matrix_rank(free) < free.shape[1]:
         raise ValueError(
             f"fit: the episodes' ages {np.round(ages, 4).tolist()} s do not determine a scale "
-            f"at every knot {knots.tolist()} s: use fewer knots or episodes at those ages"
+            f"at every knot {knots[~fixed].tolist()} s: use fewer knots or episodes at those ages"
         )
-    log_scale, *_ = np.linalg.lstsq(basis, log_ratio, rcond=None)
+    log_scale[~fixed], *_ = np.linalg.lstsq(free, log_ratio, rcond=None)
     return AgeVarianceScale(knots, np.exp(log_scale))
 
 

@@ -2,7 +2,9 @@
 beyond their networks' training ranges, held there by the variance scale fitted on
 validation throws drawn across the study's ranges (estimation/learned/variance_scale.py,
 ``benchmarks/learned_variance_scale.py --ranges study --estimator geometric``, seeds
-3000000-3000029; the study's seeds are 0-4, these 10**6 to 10**6 + 9), and the same
+3000000-3000029, and for BallCatcher beyond 0.05 s of the newest frame's age its scale by
+that age, ``--by-age 0,0.05,0.1,0.2 --hold-to 0.05``, seeds 3000000-3000059; the study's
+seeds are 0-4, these 10**6 to 10**6 + 9), and the same
 scale's other side: at 0 px, inside the training range, it does not make ``learned``
 claim too much. Against the simulator's truth, from measurements, BallCatcher's
 ``intercept``. Measured on 2026-11-29, median NEES/dof with the scale (without)."""
@@ -21,15 +23,18 @@ LATENCY = {"latency_jitter_s": 0.01}  # the consistency study's jitter on its la
 
 # (observer, cell): the env options on top of 0 px (the study's default)
 BALL_CATCHER = {
-    # training range 0-0.01 s: 2.73 (3.99)
+    # training range 0-0.01 s: 1.18 with the scale by the newest frame's age (2.73 with
+    # the constant scale alone, 3.99 with none)
     ("learned", "latency 0.15 s"): {"latency_s": 0.15, **LATENCY},
+    # twenty times the training range: 1.12 (3.21 with the constant scale alone)
+    ("learned", "latency 0.2 s"): {"latency_s": 0.2, **LATENCY},
     # training range 0-0.1: 1.81 (2.47; the study's mean 2.59, 3.52 without)
     ("learned", "drops 0.5"): {"frame_drop_prob": 0.5},
     # inside the training range: 0.35 (0.57): the scale's lower side, near the band's edge
     ("learned", "0 px"): {},
     # 0.86 (1.52)
     ("learned-kf", "0 px"): {},
-    # 1.96 (1.76)
+    # 1.24 (1.96 with the constant scale alone, 1.76 with none)
     ("learned-kf", "latency 0.2 s"): {"latency_s": 0.2, **LATENCY},
 }
 

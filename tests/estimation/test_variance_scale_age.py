@@ -119,6 +119,32 @@ def test_a_fit_with_a_knot_no_episode_reaches_is_refused():
         fit_age_scale([0.0, 0.1], [[1.0], [2.0]], [0.1, 0.1])
 
 
+def test_a_held_fit_keeps_the_held_knots_and_recovers_the_later_ones():
+    """Episodes from a scale that is 2 (entry 0) and 1 (entry 1) up to 0.1 s and grows
+    to 10 and 5 at 0.2 s: held at (2, 1) up to 0.1 s, the fit finds the 0.2 s knot from
+    the later episodes alone; a free fit of the same data on the knots 0 and 0.2 s
+    cannot hold the young ages."""
+    rng = np.random.default_rng(1)
+    ages = rng.uniform(0.0, 0.2, 200)
+    true_x = np.exp(np.interp(ages, [0.0, 0.1, 0.2], np.log([2.0, 2.0, 10.0])))
+    ratios = np.stack([true_x, true_x / 2.0], axis=1)
+    held = fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [2.0, 1.0]))
+    assert np.array_equal(held.scale[:2], [[2.0, 1.0], [2.0, 1.0]])
+    assert np.allclose(held.scale[2], [10.0, 5.0])
+    free = fit_age_scale(ages, ratios, [0.0, 0.2])
+    assert free.at(0.0)[0] < 1.5 and free.at(0.1)[0] > 2.5  # 1.28 and 2.95, not 2
+
+
+def test_a_bad_hold_is_refused_with_what_is_wrong():
+    ages, ratios = [0.0, 0.1, 0.2], [[1.0], [2.0], [4.0]]
+    with pytest.raises(ValueError, match="hold_to_s must be one of the knots"):
+        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.05, [1.0]))
+    with pytest.raises(ValueError, match="hold_to_s must be one of the knots"):
+        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.2, [1.0]))  # nothing to fit
+    with pytest.raises(ValueError, match="held scale must be 1 positive"):
+        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [-1.0]))
+
+
 def test_a_hand_built_record_evaluates_per_entry():
     scale = AgeVarianceScale(np.array([0.0, 1.0]), np.array([[1.0, 1.0], [np.e, 1.0]]))
     assert scale.n_out == 2
@@ -225,6 +251,11 @@ BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "learned_varian
         (["--by-age", "0,x"], "knots must be comma-separated, strictly increasing"),
         (["--by-age", "0.1,0"], "knots must be comma-separated, strictly increasing"),
         (["--by-age", "0,0.1"], "--by-age fits the geometric estimator by age"),
+        (["--hold-to", "0.1"], "--hold-to must be one of --by-age's knots but the last"),
+        (
+            ["--estimator", "geometric", "--by-age", "0,0.1", "--hold-to", "0.1"],
+            "--hold-to must be one of --by-age's knots but the last",
+        ),
     ],
 )
 def test_a_bad_by_age_is_one_line_and_exit_code_2(args, message):
