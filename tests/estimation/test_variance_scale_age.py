@@ -184,16 +184,20 @@ def _spy_ages(observer, feature_ages: list[float] | None = None) -> list[float]:
     return ages
 
 
-def test_ball_tables_learned_scales_by_the_newest_frames_age_from_its_stamps():
+def _ball_table(observer: str, latency_s: float):
     import gymnasium as gym
 
     from observer_gym.estimation import VisionObserver
 
-    latency_s = 0.1
-    env = VisionObserver(
+    return VisionObserver(
         gym.make("observer_gym/BallTable-v0", obs_mode="measurements", latency_s=latency_s),
-        observer="learned",
+        observer=observer,
     )
+
+
+def test_ball_tables_learned_scales_by_the_newest_frames_age_from_its_stamps():
+    latency_s = 0.1
+    env = _ball_table("learned", latency_s)
     try:
         observer = env.pipeline  # the LearnedObserver
         ages = _spy_ages(observer)
@@ -215,15 +219,8 @@ def test_ball_tables_learned_scales_by_the_newest_frames_age_from_its_stamps():
 
 
 def test_ball_tables_learned_kf_scales_its_r_by_the_frames_age_at_delivery():
-    import gymnasium as gym
-
-    from observer_gym.estimation import VisionObserver
-
     latency_s = 0.1
-    env = VisionObserver(
-        gym.make("observer_gym/BallTable-v0", obs_mode="measurements", latency_s=latency_s),
-        observer="learned-kf",
-    )
+    env = _ball_table("learned-kf", latency_s)
     try:
         feature_ages: list[float] = []
         ages = _spy_ages(env.pipeline.learned, feature_ages)
