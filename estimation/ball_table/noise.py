@@ -33,12 +33,16 @@ Every R is the rule's times ``r_scale`` (1; sensitivity studies).
 
 **Calibration**: the declared calibration uncertainty through the geometry stage
 (estimation/calibration.py: the stage run with the camera moved along each calibration
-parameter) gives the covariance of the constant offset it puts on the tilt and the ball's
-position (and, through the observers' rate g (u - tilt), on the tilt rate); ``kf`` adds
-it to the covariance it reports (:meth:`reported`), not to R (no innovation sees a
-constant offset). The tilt's offset also offsets the gravity input the ball filter
-computes from the tilt, an acceleration the real ball does not have: ``kf`` estimates
-that offset as two states (observer.py, ``gravity_offset_cov``). ``ekf`` reports the
+parameter) gives the covariance of the offset it puts on the tilt and the ball's
+position (and, through the observers' rate g (u - tilt), on the tilt rate). ``kf``'s tilt
+filter carries the tilt's offset as states (observer.py, ``TiltBallFilters``), which
+move with the scene as the Jacobian does (:meth:`take_offset_change`; re-linearised
+every ``CALIBRATION_REUSE_PX``); ``kf`` adds the ball position's offset to the
+covariance it reports (:meth:`reported`), not to R (it is the same for every frame of a
+calm ball, and the ball filter follows the measured position). The tilt's offset also
+offsets the gravity input the ball filter computes from the tilt where the estimate
+keeps part of it, an acceleration the real ball does not have: ``kf`` estimates that
+offset as two states (observer.py, ``gravity_offset_cov``). ``ekf`` reports the
 offset as its own pixel model reads the frame (estimation/ball_table/pixel_ekf.py,
 ``fit_calibration_cov``, through :meth:`reported`):
 it takes the part a translation of the table explains in its state, and under a focal
@@ -119,7 +123,7 @@ from observer_gym.envs.sensor import SensorSpec
 from observer_gym.estimation.ball_table.features import RED_TOP, BallTableFeatures
 from observer_gym.estimation.ball_table.geometry_stage import BallTableDetector
 from observer_gym.estimation.ball_table.models import ROLLING_ACCEL_FACTOR, RollingBallParams
-from observer_gym.estimation.calibration import calibration_covariance, calibration_variances
+from observer_gym.estimation.calibration import calibration_jacobian, calibration_variances
 from observer_gym.estimation.r_scale import checked_r_scale
 
 __all__ = [
@@ -139,6 +143,10 @@ __all__ = [
 PERFECT_PIXELS_BALL_STD_M = 3e-5
 PERFECT_PIXELS_TILT_STD_RAD = 2e-7
 JACOBIAN_REUSE_PX = 2.0
+# The calibration's Jacobian is re-linearised when a pixel moved more than this: kf's
+# tilt offset moves with it, and at 2 px the steps it takes lagged the offset's motion
+# (kf's NEES/dof 6.3 on one of 3 episodes at 1 degree of rotation error; 0.6 at 0.5 px)
+CALIBRATION_REUSE_PX = 0.5
 # ekf's rolling model's acceleration error (see the module docstring), over MODEL_STEP_S:
 # its 99th percentile before the model had the table's angular acceleration, kept as the
 # margin that also covers single pushes.
@@ -232,13 +240,16 @@ class BallTableNoiseRule:
         )
         self._linearised: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._calibration_variances = calibration_variances(sensor)
-        # the declared calibration's covariance of (tilt, ball), and the pixels it was
-        # taken at
-        self._calibrated: tuple[np.ndarray, np.ndarray] | None = None
+        # the declared calibration's covariance of (tilt, ball), the pixels it was taken
+        # at and its Jacobian in the calibration's parameters
+        self._calibrated: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # the covariance (4, 4) of the offset's change since take_offset_change
+        self._offset_change: np.ndarray | None = None
 
     def reset(self) -> None:
         self._linearised = None
         self._calibrated = None
+        self._offset_change = None
 
     @property
     def declares_calibration(self) -> bool:
@@ -251,7 +262,7 @@ class BallTableNoiseRule:
     ) -> np.ndarray | None:
         """The declared calibration uncertainty's covariance (4, 4) of (tilt, ball position)
         at these features (estimation/calibration.py), None without calibration error
-        or a table and ball; kept while no pixel moves more than ``JACOBIAN_REUSE_PX``."""
+        or a table and ball; kept while no pixel moves more than ``CALIBRATION_REUSE_PX``."""
         if not self._calibration_variances:
             return None
         pixels = _measured_pixels(features)
@@ -261,7 +272,7 @@ class BallTableNoiseRule:
         if (
             cached is not None
             and cached[0].size == pixels.size
-            and np.all(np.abs(pixels - cached[0]) <= JACOBIAN_REUSE_PX)
+            and np.all(np.abs(pixels - cached[0]) <= CALIBRATION_REUSE_PX)
         ):
             return cached[1]
 
@@ -271,26 +282,52 @@ class BallTableNoiseRule:
                 return None
             return np.concatenate([detection.tilt_rad, detection.ball_pos_table_m])
 
-        sigma = calibration_covariance(detected, K, T_world_cam, self._calibration_variances)
-        if sigma is None:
+        jacobian = calibration_jacobian(detected, K, T_world_cam, self._calibration_variances)
+        if jacobian is None:
             return None if cached is None else cached[1]
-        self._calibrated = (pixels, sigma)
+        J, var = jacobian
+        # Sigma = J diag(var) J^T
+        sigma = (J * var).dot(J.T)
+        sigma = 0.5 * (sigma + sigma.T)
+        if cached is not None:
+            # the offset d = J c moved with the scene: d_new - d_old = (J_new - J_old) c
+            dJ = J - cached[2]
+            change = (dJ * var).dot(dJ.T)
+            change = 0.5 * (change + change.T)
+            self._offset_change = (
+                change if self._offset_change is None else self._offset_change + change
+            )
+        self._calibrated = (pixels, sigma, J)
         return sigma
 
+    def take_offset_change(self) -> np.ndarray | None:
+        """The covariance (4, 4) of how far the calibration's offset of (tilt, ball) moved
+        since the last call (None: it was not re-linearised since): the offset is J c for
+        the fixed calibration error c, and J follows the scene, so each new Jacobian moves
+        it by (J_new - J_old) c, of covariance dJ diag(var) dJ^T."""
+        change, self._offset_change = self._offset_change, None
+        return change
+
     def reported(
-        self, cov: np.ndarray, calibration: np.ndarray | None, rate_gain_per_s: float
+        self,
+        cov: np.ndarray,
+        calibration: np.ndarray | None,
+        rate_gain_per_s: float,
+        tilt_estimated: bool = False,
     ) -> np.ndarray:
         """The covariance an observer reports (the env's state layout, a new array): its
-        filters' ``cov`` plus the calibration's offset d = (d_tilt, d_ball), which no
-        innovation sees, on the ball's position (0:2), the tilt (4:6) and the tilt rate
-        (6:8), which the observers compute as g (u - tilt): an offset d_tilt on the tilt
-        is -g d_tilt on the rate. Added: A Sigma A^T with the rows of A mapping d to
-        those entries."""
+        filters' ``cov`` plus the calibration's offset d = (d_tilt, d_ball), which the
+        filters do not hold, on the ball's position (0:2), the tilt (4:6) and the tilt
+        rate (6:8), which the observers compute as g (u - tilt): an offset d_tilt on the
+        tilt is -g d_tilt on the rate. Added: A Sigma A^T with the rows of A mapping d
+        to those entries. ``tilt_estimated``: the filters carry d_tilt as states (``kf``'s
+        tilt filter), so their ``cov`` holds the tilt's share; only d_ball is added."""
         if calibration is None:
             return cov
         A = np.zeros((cov.shape[0], 4))
-        A[4:6, 0:2] = np.eye(2)  # tilt += d_tilt
-        A[6:8, 0:2] = -rate_gain_per_s * np.eye(2)  # rate += -g d_tilt
+        if not tilt_estimated:
+            A[4:6, 0:2] = np.eye(2)  # tilt += d_tilt
+            A[6:8, 0:2] = -rate_gain_per_s * np.eye(2)  # rate += -g d_tilt
         A[0:2, 2:4] = np.eye(2)  # ball position += d_ball
         out = np.array(cov, dtype=float) + A.dot(calibration).dot(A.T)
         out.flags.writeable = False

@@ -37,16 +37,23 @@ ball did over its frames' age (the filter holds the ball of the capture). The ti
 filter's Q is the arm's measured departure from the lag model over a step, a floor and
 a term in the lag model's angular acceleration (:func:`tilt_departure_q`; under latency
 a delivery-time ``kf`` keeps the white rate noise ``tilt_rate_noise_std_radps``).
-Under a declared calibration error the tilt the filters estimate is offset by d_tilt
-(the camera's pose error read as a table pose), and the ball's gravity input computed from
-it by the constant b = (5/7) g J d_tilt, which the real ball does not feel: the ball
-filter then carries b as two more states, a random constant with the prior J Sigma J^T
-(Sigma the declared calibration's covariance of d_tilt, :meth:`BallTableNoiseRule.
-calibration_cov`, at the first frame, or at the nominal scene when the filters start
-before any frame arrives, as under latency), entering as the input does. The ball's
-motion against the model makes b observable; without it a calm ball's velocity kept a
-4-5 mm/s bias at 1 degree of rotation error (NEES/dof 10.6). The tilt's own offset is
-reported, not estimated (noise.py, "Calibration").
+Under a declared calibration error every measured tilt is offset by d_tilt (the camera's
+pose error read as a table pose). The tilt filter carries d_tilt as two more states,
+z = theta + d_tilt + e, a constant with the prior Sigma (the declared calibration's
+covariance of d_tilt, :meth:`BallTableNoiseRule.calibration_cov`, at the first frame, or
+at the nominal scene when the filters start before any frame arrives, as under latency)
+that moves with the scene by what the calibration's Jacobian says (a random-walk step of
+:meth:`BallTableNoiseRule.take_offset_change`'s covariance at each frame). The commands
+drive theta through the lag model and not d_tilt, which makes the two separable. Without
+these states, once the tilt filter's Q was the arm's measured departure from the lag
+model, the filter held theta to the commands while every frame reported it off by
+d_tilt: the innovations carried the whole offset and S none of it (NIS/dof 13716-220245
+at 0.5-2 degrees of rotation error). Where theta is not pinned down (Q's white rate noise
+under latency) the estimate keeps part of d_tilt, and the ball's gravity input computed
+from it an offset b = (5/7) g J d_tilt the real ball does not feel: the ball filter
+carries b as two more states, a random constant with the prior J Sigma J^T, entering as
+the input does. The ball's motion against the model makes b observable; without it a calm
+ball's velocity kept a 4-5 mm/s bias at 1 degree of rotation error (NEES/dof 10.6).
 When a frame is dropped or the ball is not seen, the estimate is the prediction. A
 detection with a non-finite tilt or ball position (NaN, inf: e.g. from NaN pixels in a
 measurement) is no detection of that part: it neither updates a filter nor counts as a
@@ -141,6 +148,9 @@ class TiltBallDetection(NamedTuple):
     ball_pos_table_m: np.ndarray | None
     tilt_R: np.ndarray | None = None
     ball_R: np.ndarray | None = None
+    # the covariance (2, 2) of how far the calibration's tilt offset moved since the last
+    # frame (BallTableNoiseRule.take_offset_change), None: not moved or no offset
+    tilt_offset_change: np.ndarray | None = None
 
 
 class TiltBallFilters:
@@ -162,8 +172,9 @@ class TiltBallFilters:
         noise: the noise rule whose timing term R gains (None: none), and the start's R
             (``start_R``: the tilt's and the ball's, None for the rgb detector's).
         tilt_offset_cov: the declared calibration's covariance (2, 2) of the tilt's
-            offset d_tilt, or None (no calibration error): with it the ball filter carries
-            the gravity input's offset b (see the module docstring).
+            offset d_tilt, or None (no calibration error): with it the tilt filter carries
+            d_tilt and the ball filter the gravity input's offset b (see the module
+            docstring).
     """
 
     def __init__(
@@ -206,16 +217,48 @@ class TiltBallFilters:
             None if tilt_offset_cov is None else gravity_offset_cov(tilt_offset_cov)
         )
         self._ball_C = ball_model.C if self._offset_prior is None else _padded(ball_model.C)
+        # d_tilt's prior covariance (2, 2), or None: the tilt filter's offset states
+        self._tilt_offset_prior = (
+            None if tilt_offset_cov is None else np.array(tilt_offset_cov, dtype=float)
+        )
+        self._tilt_C = (
+            tilt_model.C
+            if self._tilt_offset_prior is None
+            else np.hstack([tilt_model.C, np.eye(2)])
+        )
         self.tilt_kf = self._start_tilt(tilt, start_R[0])
         self.ball_kf = self._start_ball(ball, start_R[1])
 
     def _start_tilt(self, tilt_rad: np.ndarray | None, R: np.ndarray | None) -> KalmanFilter:
+        """The tilt filter from a measured tilt (None: unseen) and its R; with the offset
+        states, (theta, d_tilt) from z = theta + d_tilt + e: theta = z - d_tilt - e, so
+        cov(theta) = R + Sigma, cov(theta, d_tilt) = -Sigma, d_tilt ~ N(0, Sigma)."""
         if tilt_rad is None:
             x0, P0 = np.zeros(2), np.eye(2) * self.params.start_tilt_std_rad**2
         else:
             x0 = np.asarray(tilt_rad, dtype=float)
             P0 = np.array(self._tilt_R if R is None else R, dtype=float)
+        Sigma = self._tilt_offset_prior
+        if Sigma is not None:
+            x0 = np.concatenate([x0, np.zeros(2)])
+            cross = np.zeros((2, 2)) if tilt_rad is None else -Sigma
+            P0 = np.block([[P0 + (0.0 if tilt_rad is None else Sigma), cross], [cross.T, Sigma]])
         return KalmanFilter(x0, P0, converged_rtol=self.params.converged_rtol)
+
+    @property
+    def estimates_tilt_offset(self) -> bool:
+        """The tilt filter carries the calibration's tilt offset d_tilt as states."""
+        return self._tilt_offset_prior is not None
+
+    @property
+    def tilt_rad(self) -> np.ndarray:
+        """The estimated tilt (2,) (without the offset states)."""
+        return self.tilt_kf.x[0:2]
+
+    @property
+    def tilt_cov(self) -> np.ndarray:
+        """The estimated tilt's covariance (2, 2)."""
+        return self.tilt_kf.P[0:2, 0:2]
 
     def _start_ball(
         self,
@@ -274,7 +317,7 @@ class TiltBallFilters:
         if dt_s <= 0.0:
             return
         self._settle()
-        tilt_before = self.tilt_kf.x
+        tilt_before = self.tilt_rad
         lag_before = self._lag_tilt
         # the lag model's tilt rate just before the new command (where the last interval ended)
         rate_before = self.tilt_model.rate(lag_before, self.tilt_cmd)
@@ -288,6 +331,8 @@ class TiltBallFilters:
             # covers its frames' age (tilt_departure_q says why)
             rate_after = self.tilt_model.rate(lag_after, self.tilt_cmd)
             Q = tilt_departure_q((rate_after - rate_before) / dt_s, dt_s)
+        if self._tilt_offset_prior is not None:
+            Phi, Gamma, Q = with_constant_states(Phi, np.zeros_like(Gamma), Gamma, Q)
         self.tilt_kf.predict(Phi, Q, Gamma, self.tilt_cmd)
         self._lag_tilt = lag_after
         self._pending = (dt_s, tilt_before, lag_before, rate_before)
@@ -301,10 +346,15 @@ class TiltBallFilters:
             R = self._tilt_R if detection.tilt_R is None else detection.tilt_R
             if self.noise is not None:
                 # the timing term: the tilt moved at theta' = g (u - theta) meanwhile
-                P_tilt = self.tilt_kf.P
-                rate = self.tilt_model.rate(self.tilt_kf.x, self.tilt_cmd)
+                P_tilt = self.tilt_cov
+                rate = self.tilt_model.rate(self.tilt_rad, self.tilt_cmd)
                 R = self.noise.with_timing(R, rate, self.tilt_model.rate_gain_per_s**2 * P_tilt)
-            result = self.tilt_kf.update(detection.tilt_rad, self.tilt_model.C, R)
+            change = detection.tilt_offset_change
+            if change is not None and self.estimates_tilt_offset:
+                # d_tilt moved with the scene: a random-walk step of that covariance
+                self.tilt_kf.predict(np.eye(4), _block_diag_zero_first(change))
+            # z = theta (+ d_tilt with the offset states) + e
+            result = self.tilt_kf.update(detection.tilt_rad, self._tilt_C, R)
             if result.accepted:
                 measurement.add_nis(result.nis, 2)
             used = result.accepted
@@ -345,7 +395,7 @@ class TiltBallFilters:
         dt_s, tilt_before, lag_before, rate_before = self._pending
         self._pending = None
         model = self.ball_model
-        tilt_after = self.tilt_kf.x
+        tilt_after = self.tilt_rad
         # B(t) from the table's rotation over the interval (trapezoid of the two ends).
         u = model.gravity_acceleration(up_in_table(*(0.5 * (tilt_before + tilt_after))))
         Phi, Gamma, Q = model.matrices(dt_s)
@@ -401,7 +451,7 @@ class TiltBallFilters:
     # --- output in the env's state layout ---------------------------------------------
     def mean(self) -> np.ndarray:
         self._settle()
-        tilt = self.tilt_kf.x
+        tilt = self.tilt_rad
         mean = np.empty(STATE_DIM)
         mean[0:4] = self.ball_kf.x[0:4]
         mean[4:6] = tilt
@@ -416,7 +466,7 @@ class TiltBallFilters:
         age_sq_s2 = self.noise.age_sq_s2
         v = self.ball_kf.x[2:4]
         # the acceleration the model drives the ball with: gravity at the tilt + w2 (+ b)
-        accel = self.ball_model.gravity_acceleration(up_in_table(*self.tilt_kf.x))
+        accel = self.ball_model.gravity_acceleration(up_in_table(*self.tilt_rad))
         accel = accel + self.ball_kf.x[4:6]
         if self._offset_prior is not None:
             accel = accel + self.ball_kf.x[6:8]
@@ -431,12 +481,13 @@ class TiltBallFilters:
         """Read-only; the same array while both filters keep their P (converged), unless
         the rate's variance follows the motion (``measured_model_error``)."""
         self._settle()
-        P_ball, P_tilt = self.ball_kf.P, self.tilt_kf.P
+        P_ball, P_tilt_filter = self.ball_kf.P, self.tilt_kf.P
+        P_tilt = P_tilt_filter[0:2, 0:2]
         cached = self._cov_cache
         if (
             cached is not None
             and cached[0] is P_ball
-            and cached[1] is P_tilt
+            and cached[1] is P_tilt_filter
             and not self.measured_model_error
         ):
             return cached[2]
@@ -451,7 +502,7 @@ class TiltBallFilters:
         )
         tilt_covariance_blocks(cov, P_tilt, self.tilt_model.rate_gain_per_s, rate_var)
         cov.flags.writeable = False
-        self._cov_cache = (P_ball, P_tilt, cov)
+        self._cov_cache = (P_ball, P_tilt_filter, cov)
         return cov
 
 
@@ -465,9 +516,34 @@ def gravity_offset_cov(tilt_offset_cov: np.ndarray) -> np.ndarray:
     return J.dot(np.asarray(tilt_offset_cov, dtype=float)).dot(J.T)
 
 
+def _block_diag_zero_first(cov: np.ndarray) -> np.ndarray:
+    """diag(0 (2, 2), ``cov`` (2, 2)): process noise on the offset states alone."""
+    out = np.zeros((4, 4))
+    out[2:4, 2:4] = cov
+    return out
+
+
 def _padded(C: np.ndarray) -> np.ndarray:
     """The ball's measurement matrix (2, 6) with zero columns for b: (2, 8)."""
     return np.hstack([C, np.zeros((C.shape[0], 2))])
+
+
+def with_constant_states(
+    Phi: np.ndarray, coupling: np.ndarray, Gamma: np.ndarray, Q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A model's step (Phi, Gamma, Q) with constant states c (2,) appended, which enter
+    the state through ``coupling`` (n, 2) and stay, x' = Phi x + coupling c + Gamma u,
+    c' = c:
+
+        [x; c]' = [[Phi, coupling], [0, I]] [x; c] + [Gamma; 0] u,   Q' = diag(Q, 0)"""
+    n = Phi.shape[0]
+    Phi_c = np.eye(n + 2)
+    Phi_c[:n, :n] = Phi
+    Phi_c[:n, n:] = coupling
+    Gamma_c = np.vstack([Gamma, np.zeros((2, Gamma.shape[1]))])
+    Q_c = np.zeros((n + 2, n + 2))
+    Q_c[:n, :n] = Q
+    return Phi_c, Gamma_c, Q_c
 
 
 def with_gravity_offset(
@@ -475,17 +551,8 @@ def with_gravity_offset(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ball model's step (Phi, Gamma, Q) with the constant offset b (2,) of its
     gravity input appended to the state: b enters as the input does and stays,
-    x' = Phi x + Gamma (a + b), b' = b:
-
-        [x; b]' = [[Phi, Gamma], [0, I]] [x; b] + [Gamma; 0] a,   Q' = diag(Q, 0)"""
-    n = Phi.shape[0]
-    Phi_b = np.eye(n + 2)
-    Phi_b[:n, :n] = Phi
-    Phi_b[:n, n:] = Gamma
-    Gamma_b = np.vstack([Gamma, np.zeros((2, Gamma.shape[1]))])
-    Q_b = np.zeros((n + 2, n + 2))
-    Q_b[:n, :n] = Q
-    return Phi_b, Gamma_b, Q_b
+    x' = Phi x + Gamma (a + b), b' = b (:func:`with_constant_states`)."""
+    return with_constant_states(Phi, Gamma, Gamma, Q)
 
 
 def motion_model_error_q(
@@ -698,7 +765,9 @@ class BallTableObserver(FusedObserver):
         tilt, ball = detected_parts(detection)
         tilt_R, ball_R = self.noise.detection_R(features, K, T_world_cam)
         self._track_calibration(features, K, T_world_cam)
-        return detection, Fused(TiltBallDetection(tilt, ball, tilt_R, ball_R))
+        change = self.noise.take_offset_change()
+        tilt_change = None if change is None else change[0:2, 0:2]
+        return detection, Fused(TiltBallDetection(tilt, ball, tilt_R, ball_R, tilt_change))
 
     def _start(self, time_s: float, measurement: Fused | None) -> tuple[TiltBallFilters, bool]:
         detection = TiltBallDetection(None, None) if measurement is None else measurement.value
@@ -715,6 +784,14 @@ class BallTableObserver(FusedObserver):
             tilt_offset_cov=self._start_calibration(),
         )
         return core, tilt is not None or ball is not None
+
+    def _reported(self, covariance: np.ndarray) -> np.ndarray:
+        """The core's ``covariance`` plus the calibration's offset of the ball's position;
+        the tilt's is in the core when its tilt filter carries it (:class:`TiltBallFilters`)."""
+        tilt_estimated = self.core is not None and self.core.estimates_tilt_offset
+        return self.noise.reported(
+            covariance, self._calibration, self.rate_gain_per_s, tilt_estimated=tilt_estimated
+        )
 
     def _start_calibration(self) -> np.ndarray | None:
         """The declared calibration's covariance (2, 2) of the tilt's offset for the
