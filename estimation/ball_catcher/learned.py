@@ -23,8 +23,9 @@ the observation mode (:mod:`~observer_gym.estimation.learned.variance_scale`; fr
 measurements 2.9, 1.1, 1.4 for the position and 1.1-1.4 for the velocity, fitted on
 validation throws across the consistency study's noise, latency and drops, while the
 newest kept frame is at most 0.05 s old; beyond, by that age, 10.8, 0.9, 5.7 and
-1.6-12.9 at 0.2 s, where the network errs most along the throw; from frames
-none). The box's entries are what the env reports
+1.6-12.9 at 0.2 s, where the network errs most along the throw; from frames 1 while
+the newest frame is at most 0.05 s old, beyond, by that age, 9.7, 1.0, 5.9 and 1.4-11.2
+at 0.2 s). The box's entries are what the env reports
 as the robot's own kinematics (``info["box_pos_world_m"]``, ``info["box_vel_world_mps"]``)
 with zero variance, as ``kf`` fills them; the network does not read them (the ball's
 flight up to its first touch of the box does not depend on the box).

@@ -21,9 +21,13 @@ from observer_gym.train.experiments.consistency_study import (
 
 
 def test_every_frame_observer_reads_rendered_frames():
-    from observer_gym.train.core.tasks import ball_table, target_follower
+    from observer_gym.train.core.tasks import ball_catcher, ball_table, target_follower
 
-    tasks = {"BallTable-v0": ball_table, "TargetFollower-v0": target_follower}
+    tasks = {
+        "BallTable-v0": ball_table,
+        "BallCatcher-v1": ball_catcher,
+        "TargetFollower-v0": target_follower,
+    }
     for env_id, frame_study in FRAME_SYSTEMS.items():
         assert env_id in SYSTEMS
         for observer in frame_study.observers:
@@ -37,7 +41,7 @@ def test_every_frame_observer_reads_rendered_frames():
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--frames", "--systems", "BallCatcher-v1"], "--systems: ['BallCatcher-v1']"),
+        (["--frames", "--systems", "BallCatcher-v2"], "--systems: ['BallCatcher-v2']"),
         (["--frames", "--options", "measurement_noise_px"], "--options: ['measurement_noise_px']"),
         (["--options", "image_noise_std"], "--options: ['image_noise_std']"),
     ],

@@ -115,10 +115,3 @@ def test_learned_kf_fuses_the_scaled_variance_as_r(monkeypatch):
         assert not np.allclose(seen[0], raw[BALL_POS, BALL_POS])
     finally:
         env.close()
-
-
-def test_from_frames_no_scale_is_shipped():
-    from observer_gym.estimation.learned.variance_scale import variance_scale
-
-    report = json.loads(WEIGHTS.with_suffix(".json").read_text())
-    assert np.array_equal(variance_scale(report, "rgb", 6), np.ones(6))
