@@ -10,7 +10,11 @@ from collections.abc import Collection, Iterable, Mapping
 import pytest
 
 from observer_gym.estimation import VisionObserver
-from observer_gym.train.experiments.consistency_study import measure_consistency
+from observer_gym.train.experiments.consistency_study import (
+    SYSTEMS,
+    ConsistencyRun,
+    measure_consistency,
+)
 
 LOW, HIGH = 1.0 / 3.0, 3.0
 CONDITIONS = {
@@ -39,6 +43,26 @@ def median_nees(
     )
     print(f"\n{observer} {dict(env_kwargs)} {options}: NEES/dof {run.nees_ratios}")
     return run.median_nees_ratio
+
+
+def study_cell(
+    env_id: str, observer: str, env_options: Mapping, episodes: int, seed: int
+) -> ConsistencyRun:
+    """``observer``'s episodes in a consistency-study cell of ``env_id`` (its reference
+    controller, step cap and env options, plus ``env_options``), seeds ``seed``,
+    ``seed + 1``, ..., each episode's NEES/dof printed for ``pytest -s``."""
+    study = SYSTEMS[env_id]
+    run = measure_consistency(
+        f"observer_gym/{env_id}",
+        observer,
+        study.controller,
+        episodes,
+        study.steps,
+        {**study.env_kwargs, **env_options},
+        seed=seed,
+    )
+    print(f"\n{env_id} {observer} {dict(env_options)}: NEES/dof {run.nees_ratios}")
+    return run
 
 
 def band_cells(

@@ -19,15 +19,11 @@ import json
 
 import numpy as np
 import pytest
-from consistency_cells import HIGH, LOW
+from consistency_cells import HIGH, LOW, study_cell
 
 from observer_gym.estimation.ball_catcher import learned
 from observer_gym.estimation.learned.variance_scale import load_variance_scale
-from observer_gym.train.experiments.consistency_study import (
-    OPTION_ENV_KWARGS,
-    SYSTEMS,
-    measure_consistency,
-)
+from observer_gym.train.experiments.consistency_study import OPTION_ENV_KWARGS
 
 SEED = 10**6 + 700
 EPISODES = 3
@@ -53,15 +49,5 @@ def test_the_rgb_scale_is_one_while_frames_are_young_and_grows_after():
 @pytest.mark.slow
 @pytest.mark.parametrize("cell", list(CELLS), ids=" ".join)
 def test_learned_from_frames_is_within_the_band(cell):
-    study = SYSTEMS["BallCatcher-v1"]
-    run = measure_consistency(
-        "observer_gym/BallCatcher-v1",
-        cell[0],
-        study.controller,
-        EPISODES,
-        study.steps,
-        {**study.env_kwargs, **CELLS[cell]},
-        seed=SEED,
-    )
-    print(f"\n{cell}: NEES/dof {run.nees_ratios}")
+    run = study_cell("BallCatcher-v1", cell[0], CELLS[cell], EPISODES, SEED)
     assert LOW <= run.median_nees_ratio <= HIGH, run.nees_ratios

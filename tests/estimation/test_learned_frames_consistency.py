@@ -16,13 +16,9 @@ and 3.39 with it, 2.18 and 1.12 with the scale by the age."""
 from __future__ import annotations
 
 import pytest
-from consistency_cells import HIGH, LOW
+from consistency_cells import HIGH, LOW, study_cell
 
-from observer_gym.train.experiments.consistency_study import (
-    OPTION_ENV_KWARGS,
-    SYSTEMS,
-    measure_consistency,
-)
+from observer_gym.train.experiments.consistency_study import OPTION_ENV_KWARGS
 
 SEED = 10**6 + 700
 EPISODES = 3
@@ -42,15 +38,5 @@ CELLS = {
 @pytest.mark.slow
 @pytest.mark.parametrize("cell", list(CELLS), ids=" ".join)
 def test_learned_from_frames_is_within_the_band(cell):
-    study = SYSTEMS["BallTable-v0"]
-    run = measure_consistency(
-        "observer_gym/BallTable-v0",
-        cell[0],
-        study.controller,
-        EPISODES,
-        study.steps,
-        {**study.env_kwargs, **CELLS[cell]},
-        seed=SEED,
-    )
-    print(f"\n{cell}: NEES/dof {run.nees_ratios}")
+    run = study_cell("BallTable-v0", cell[0], CELLS[cell], EPISODES, SEED)
     assert LOW <= run.median_nees_ratio <= HIGH, run.nees_ratios
