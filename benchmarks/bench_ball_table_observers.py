@@ -5,9 +5,13 @@ Records episodes first (the ball circling under a PD law on the true state, the 
 latency as given), then times only ``pipeline.observe`` frame by frame in episode order:
 the median and the 90th percentile per frame of each observer, each on the same recorded
 steps. From rgb the image stage (~0.4 ms, benchmarks/bench_detector.py) is in every
-observer's time; ``kf-latency`` with latency rewinds and replays its filter every frame.
+observer's time; ``kf-latency`` with latency rewinds and replays its filter every frame;
+``kf`` under a declared calibration error (``--calib-rotation-deg``) re-linearises the
+calibration's offset whenever a pixel moved by more than 0.5 px (estimation/ball_table/
+noise.py, ``CALIBRATION_REUSE_PX``), for its tilt filter's offset states.
 
-    python benchmarks/bench_ball_table_observers.py [--frames 400] [--latency-s 0.05]
+    python benchmarks/bench_ball_table_observers.py [--frames 400] [--latency-s 0.05] \
+        [--calib-rotation-deg 0.5]
 """
 
 from __future__ import annotations
@@ -74,6 +78,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=400)
     parser.add_argument("--repeats", type=int, default=2, help="timed passes over the frames")
     parser.add_argument("--latency-s", type=float, default=0.05, help="for a second kf-latency row")
+    parser.add_argument("--calib-rotation-deg", type=float, default=0.5, help="for a second kf row")
     args = parser.parse_args()
     os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     cv2.setNumThreads(1)
@@ -82,6 +87,8 @@ def main() -> None:
     cases = [(mode, {}, name) for mode in ("measurements", "rgb") for name in OBSERVERS]
     latency = {"latency_s": args.latency_s}
     cases += [(mode, latency, "kf-latency") for mode in ("measurements", "rgb")]
+    calibration = {"calib_rotation_error_deg": args.calib_rotation_deg}
+    cases += [(mode, calibration, "kf") for mode in ("measurements", "rgb")]
     recorded: dict = {}
     for mode, options, name in cases:
         key = (mode, tuple(options.items()))
@@ -90,7 +97,7 @@ def main() -> None:
         episodes, env = recorded[key]
         times = time_observer(name, env.unwrapped, episodes, args.repeats)
         label = name + "".join(f" ({k} {v})" for k, v in options.items())
-        print(f"{mode:13s} {label:28s} {np.median(times):10.1f} {np.percentile(times, 90):8.1f}")
+        print(f"{mode:13s} {label:36s} {np.median(times):10.1f} {np.percentile(times, 90):8.1f}")
     for _, env in recorded.values():
         env.close()
 
