@@ -83,7 +83,7 @@ def main() -> None:
     os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     cv2.setNumThreads(1)
     print(f"BallTable observers, {args.frames} frames per mode, one core ({platform.machine()})")
-    print(f"{'mode':13s} {'observer':28s} {'median us':>10s} {'p90 us':>8s}")
+    print(f"{'mode':13s} {'observer':36s} {'median us':>10s} {'p90 us':>8s}")
     cases = [(mode, {}, name) for mode in ("measurements", "rgb") for name in OBSERVERS]
     latency = {"latency_s": args.latency_s}
     cases += [(mode, latency, "kf-latency") for mode in ("measurements", "rgb")]
