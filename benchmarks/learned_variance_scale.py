@@ -11,8 +11,9 @@ With ``--write``, the scale of ``learned`` goes into the weight file's report un
 
 ``--ranges study`` draws each episode's sensor across the consistency study's ranges
 (train/experiments/consistency_study.py, ``OPTIONS``): episode i varies one option,
-pixel noise, latency (with the study's jitter) and drops in turn, drawn uniformly over
-the study's values' span, the others at the study's defaults; the episodes' options are
+pixel noise, latency (with the study's jitter) and drops in turn (``--vary`` names
+others, such as the calibration errors), drawn uniformly over the study's values' span,
+the others at the study's defaults; the episodes' options are
 printed with their NEES/dof. In ``--obs-mode rgb`` the episodes vary the frames part's
 options in turn instead (``FRAME_SYSTEMS``: ``image_noise_std``, ``latency_s``).
 ``--estimator geometric`` fits the scale as the geometric mean over episodes of each
@@ -21,14 +22,18 @@ episodes' NEES/dof sit around 1 on a log scale: the band [1/3, 3] is symmetric i
 and a few episodes far outside the network's training range (whose mean error^2 /
 variance can be 10-100) do not set the scale of all the others. ``--by-age KNOTS``
 (with ``--estimator geometric``) fits a scale by the newest frame's age instead
-(:func:`~observer_gym.estimation.learned.variance_scale.fit_age_scale`: log(scale)
+(:func:`~observer_gym.estimation.learned.variance_scale.fit_variance_scale`: log(scale)
 piecewise linear over the comma-separated knots, s, against each episode's mean age of
 the newest frame received, the step's time minus its capture time, held at the end
 knots: steps before the first frame count at the last knot, as the observer's scale
 does); the episodes' mean ages and ratios are printed. ``--hold-to AGE_S`` (one of the
 knots) keeps the report's scale at the knots up to it and fits the later ones only
 (BallCatcher: its constant scale, fitted across every condition, where the frames are
-young; written with the held scale's own command before it).
+young; written with the held scale's own command before it). ``--by-declared
+NAME=KNOTS`` (with ``--by-age``; repeatable) adds a term by each episode's declared
+sensor number NAME (a field of ``env.sensor_spec``, the data sheet ``kf``'s R reads, such
+as ``measurement_noise_std_px``), log-linear over those knots and 1 at the first, fitted
+jointly with the age; the observer then reads that number of its env's declared sensor.
 
     python benchmarks/learned_variance_scale.py --env BallTable-v0 --obs-mode measurements \
         --observer learned --seed 2000000 --episodes 6 --write
@@ -54,8 +59,9 @@ from observer_gym.envs.ball_catcher.layout import BALL
 from observer_gym.envs.target_follower import StateIndex
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.learned.variance_scale import (
+    SENSOR_FIELDS,
     VARIANCE_SCALE_KEY,
-    fit_age_scale,
+    fit_variance_scale,
     load_variance_scale,
 )
 from observer_gym.train.core.args import Parser
@@ -100,7 +106,7 @@ def episode_options(args: argparse.Namespace, seed: int, base: dict[str, Any]) -
 
     # rgb: the frames part's options and values (image noise, latency), not the pixels'
     ranges = study.FRAME_SYSTEMS[args.env].options if args.obs_mode == "rgb" else study.OPTIONS
-    ranged = tuple(ranges) if args.obs_mode == "rgb" else RANGED
+    ranged = tuple(ranges) if args.obs_mode == "rgb" else tuple(args.vary)
     key = ranged[(seed - args.seed) % len(ranged)]
     low, high = min(ranges[key]), max(ranges[key])
     value = float(np.random.default_rng(seed).uniform(low, high))
@@ -115,7 +121,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.noise_px is not None:
         options["measurement_noise_px"] = args.noise_px
     kwargs = {} if args.fuse_every is None else {"fuse_every": args.fuse_every}
+    if args.r_inflation is not None:
+        kwargs["r_inflation"] = args.r_inflation
     errors, variances, nees, new_frame, episode, ages_s = [], [], [], [], [], []
+    declared: list[dict[str, float]] = []  # each step's declared sensor numbers
     catches = 0
     drawn = []
     for seed in range(args.seed, args.seed + args.episodes):
@@ -127,6 +136,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             **kwargs,
         )
         try:
+            spec = env.unwrapped.sensor_spec
+            numbers = {name: float(getattr(spec, name)) for name in SENSOR_FIELDS}
             controller = make_controller(controller_name, env)
             estimate, info = env.reset(seed=seed)
             newest_capture_s = -np.inf  # the newest frame received so far
@@ -159,6 +170,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 new_frame.append(bool(info["estimate"]["measurement_used"]))
                 episode.append(seed - args.seed)
                 ages_s.append(float(info["time_s"]) - newest_capture_s)  # inf: no frame yet
+                declared.append(numbers)
         finally:
             env.close()
     e, var = np.array(errors), np.array(variances)
@@ -186,7 +198,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         report = json.loads(module.WEIGHTS.with_suffix(".json").read_text())
         old = load_variance_scale(report, args.obs_mode, e.shape[1])
         ages = np.array(ages_s)
-        raw_var = var / np.array([old.at(age) for age in ages])
+        raw_var = var / np.array([old.at(a, d) for a, d in zip(ages, declared, strict=True)])
         ratio = e**2 / raw_var
         if args.estimator == "mean":
             out["scale"] = np.mean(ratio, axis=0).tolist()
@@ -199,19 +211,28 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 # ages beyond the end knots (and before the first frame) count at them
                 clipped = np.clip(ages, args.by_age[0], args.by_age[-1])
                 mean_age_s = np.array([clipped[episode_of == i].mean() for i in indices])
+                # each episode's declared numbers (one sensor an episode)
+                first = [int(np.flatnonzero(episode_of == i)[0]) for i in indices]
+                by = {
+                    name: (np.array([declared[j][name] for j in first]), knots)
+                    for name, knots in (args.by_declared or {}).items()
+                }
                 # --hold-to: the report's scale up to that age stays (fitted before, across
                 # every condition); the age adds what the later episodes measure
                 held = None if args.hold_to is None else (args.hold_to, old.at(args.hold_to))
-                fitted = fit_age_scale(mean_age_s, per_episode, args.by_age, held)
+                fitted = fit_variance_scale(mean_age_s, per_episode, args.by_age, held, by)
                 out["scale"] = fitted.to_entry()
                 out["episodes_by_age"] = [
                     {
                         "seed": args.seed + int(i),
                         "mean_age_s": float(age),
+                        "declared": {name: declared[j][name] for name in by},
                         "ratio": ratio_i.tolist(),
-                        "fitted": fitted.at(age).tolist(),
+                        "fitted": fitted.at(age, declared[j]).tolist(),
                     }
-                    for i, age, ratio_i in zip(indices, mean_age_s, per_episode, strict=True)
+                    for i, j, age, ratio_i in zip(
+                        indices, first, mean_age_s, per_episode, strict=True
+                    )
                 ]
         z = (e / np.sqrt(raw_var))[np.array(new_frame)]
         z = z - z.mean(axis=0)
@@ -248,6 +269,36 @@ def knots_arg(text: str) -> list[float]:
     return knots
 
 
+def vary_arg(text: str) -> list[str]:
+    """``--vary``'s options: comma-separated names of the consistency study's options."""
+    from observer_gym.train.experiments.consistency_study import OPTIONS
+
+    names = text.split(",")
+    if not names or any(name not in OPTIONS for name in names) or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"options must be comma-separated, distinct names of the study's options, "
+            f"{', '.join(OPTIONS)}; got {text!r}"
+        )
+    return names
+
+
+def declared_arg(text: str) -> tuple[str, list[float]]:
+    """``--by-declared``'s NAME=KNOTS: a declared sensor number and its knots."""
+    name, _, knots = text.partition("=")
+    if name not in SENSOR_FIELDS:
+        raise argparse.ArgumentTypeError(
+            "NAME must be a number of the declared sensor, one of "
+            f"{', '.join(sorted(SENSOR_FIELDS))}; got {text!r}"
+        )
+    try:
+        return name, knots_arg(knots)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"{name}'s knots must be comma-separated, strictly increasing values >= 0, "
+            f"got {knots!r}"
+        ) from None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", required=True, choices=sorted(SYSTEMS))
@@ -257,9 +308,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--steps", type=int, default=0)
     parser.add_argument("--fuse-every", type=int, default=None)
+    parser.add_argument("--r-inflation", type=float, default=None, help="learned-kf's R factor")
     parser.add_argument("--noise-px", type=float, default=None)
     parser.add_argument("--ranges", default="fixed", choices=["fixed", "study"])
     parser.add_argument("--estimator", default="mean", choices=["mean", "geometric"])
+    parser.add_argument(
+        "--vary",
+        type=vary_arg,
+        default=list(RANGED),
+        metavar="OPTIONS",
+        help="with --ranges study, from measurements: the study's options the episodes "
+        f"vary in turn, comma-separated (default: {','.join(RANGED)})",
+    )
     parser.add_argument(
         "--by-age",
         type=knots_arg,
@@ -275,10 +335,28 @@ def main(argv: list[str] | None = None) -> int:
         help="with --by-age: hold the report's scale at the knots up to this one (s) and "
         "fit the later knots only",
     )
+    parser.add_argument(
+        "--by-declared",
+        type=declared_arg,
+        action="append",
+        default=None,
+        metavar="NAME=KNOTS",
+        help="with --by-age: add a term by the declared sensor's number NAME (a "
+        "SensorSpec field) over these comma-separated knots, fitted jointly with the age "
+        "(repeatable)",
+    )
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args(argv)
     if args.by_age is not None and args.estimator != "geometric":
         parser.error("--by-age fits the geometric estimator by age: add --estimator geometric")
+    if args.vary != list(RANGED) and (args.ranges != "study" or args.obs_mode != "measurements"):
+        parser.error("--vary names the options of --ranges study from measurements")
+    if args.by_declared is not None:
+        args.by_declared = dict(args.by_declared)
+        if args.by_age is None:
+            parser.error("--by-declared adds terms to a scale by age: add --by-age")
+        if args.hold_to is not None:
+            parser.error("--hold-to holds a scale by age alone: drop it with --by-declared")
     if args.hold_to is not None and (args.by_age is None or args.hold_to not in args.by_age[:-1]):
         parser.error("--hold-to must be one of --by-age's knots but the last")
     if args.write and args.observer != "learned":

@@ -59,14 +59,15 @@ from observer_gym.envs.ball_catcher.layout import BALL_POS
 from observer_gym.estimation.ball_catcher.learned import LearnedObserver, checked_env
 from observer_gym.estimation.ball_catcher.observer import BallCatcherObserver
 from observer_gym.estimation.ball_catcher.state_layout import state_estimate
-from observer_gym.estimation.learned.variance_scale import FuseEvery
+from observer_gym.estimation.learned.variance_scale import FuseEvery, checked_r_inflation
 from observer_gym.estimation.observer import Estimate
 from observer_gym.extras import TORCH_MODULES
 
-__all__ = ["FUSE_EVERY", "LearnedKFObserver"]
+__all__ = ["FUSE_EVERY", "R_INFLATION", "LearnedKFObserver"]
 
 NETWORK = "network"  # the rejection runs' key for the network's measurements
 FUSE_EVERY = 4  # one network output fused in every four steps showing the ball: see above
+R_INFLATION = 2.0  # R = this x learned's scaled variance: see above
 
 
 class LearnedKFObserver(BallCatcherObserver):
@@ -81,6 +82,8 @@ class LearnedKFObserver(BallCatcherObserver):
             shipped one; refused if changed).
         fuse_every: fuse the network's output of one step showing the ball in this many
             (default :data:`FUSE_EVERY`; 1 fuses every one).
+        r_inflation: R is ``learned``'s (scaled) position variance times this (>= 1;
+            default :data:`R_INFLATION`).
         **options: the filter's options as for ``kf`` (``gate_p``, ``accel_noise_std``,
             ``reacquire_after``); its pixel noise is not used.
     """
@@ -94,10 +97,12 @@ class LearnedKFObserver(BallCatcherObserver):
         weights: str | Path | None = None,
         detector_weights: str | Path | None = None,
         fuse_every: int = FUSE_EVERY,
+        r_inflation: float = R_INFLATION,
         **options: Any,
     ) -> None:
         checked_env(env, "LearnedKFObserver", 2)  # the cheap checks before torch
         self.gate = FuseEvery(fuse_every)  # refuses a bad value before torch loads
+        self.r_inflation = checked_r_inflation(r_inflation, "learned-kf of BallCatcher-v1")
         # refuses a changed weight file; from frames, loads the learned detector
         self.learned = LearnedObserver(env, weights, detector_weights)
         super().__init__(env, consider_calibration=False, **options)
@@ -115,7 +120,8 @@ class LearnedKFObserver(BallCatcherObserver):
         if detected and self.gate.new_frame():  # else its window overlaps the last fused
             ball, covariance = self.learned.predict(now_s)  # the variance scaled as learned's
             # one 3-D position (3 rows); rejections in a row restart the filter as kf's do
-            result = self.filter.add_position(now_s, ball[BALL_POS], covariance[BALL_POS, BALL_POS])
+            R_m2 = self.r_inflation * covariance[BALL_POS, BALL_POS]
+            result = self.filter.add_position(now_s, ball[BALL_POS], R_m2)
             used = self._counted(result, NETWORK, now_s, dof=3)
         mean, covariance = state_estimate(*self.filter.predicted(now_s), info)
         return Estimate(

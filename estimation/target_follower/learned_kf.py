@@ -56,7 +56,7 @@ import numpy as np
 
 from observer_gym.envs.target_follower import TargetFollowerEnv
 from observer_gym.estimation.learned.inputs import require_frames_or_measurements
-from observer_gym.estimation.learned.variance_scale import FuseEvery
+from observer_gym.estimation.learned.variance_scale import FuseEvery, checked_r_inflation
 from observer_gym.estimation.observer import Estimate
 from observer_gym.estimation.target_follower.filters import VisualStateEstimator
 from observer_gym.estimation.target_follower.frames import FrameDetection
@@ -132,11 +132,7 @@ class LearnedKFObserver(TargetFollowerObserver):
     ) -> None:
         require_frames_or_measurements(env, "learned-kf of TargetFollower-v0")
         self.gate = FuseEvery(fuse_every)  # refuses a bad value before torch loads
-        if not (isinstance(r_inflation, int | float) and np.isfinite(r_inflation)):
-            raise ValueError(f"learned-kf: r_inflation must be a number >= 1, got {r_inflation!r}")
-        if r_inflation < 1.0:
-            raise ValueError(f"learned-kf: r_inflation must be >= 1, got {r_inflation!r}")
-        self.r_inflation = float(r_inflation)
+        self.r_inflation = checked_r_inflation(r_inflation, "learned-kf")
         # refuses a changed weight file; from frames, loads the learned detector
         self.learned = LearnedObserver(env, weights, detector_weights)
         self.noise = LearnedNoise(env.sensor_spec, env.config, env.calibration, r_scale, True)

@@ -1,6 +1,8 @@
 """BallCatcher's shipped variance scale in use (estimation/learned/variance_scale.py):
-``learned`` reports the network's variance times the report's scale for measurements and
-none for frames, and ``learned-kf`` fuses the network's position with the scaled
+``learned`` reports the network's variance times the report's scale for measurements (by
+the newest frame's age and the env's declared pixel noise, drop probability and
+calibration errors) and by
+the age alone from frames, and ``learned-kf`` fuses the network's position with the scaled
 variance as R."""
 
 from __future__ import annotations
@@ -14,38 +16,89 @@ import pytest
 from observer_gym.envs.ball_catcher.layout import BALL, BALL_POS
 from observer_gym.estimation import VisionObserver
 from observer_gym.estimation.ball_catcher.learned import WEIGHTS
-from observer_gym.estimation.learned.variance_scale import AgeVarianceScale, load_variance_scale
+from observer_gym.estimation.learned.variance_scale import VarianceScale, load_variance_scale
 
 pytest.importorskip("torch")
 
+DECLARED = (
+    "measurement_noise_std_px",
+    "frame_drop_prob",
+    "calib_rotation_error_deg",
+    "calib_focal_error",
+)
 
-def _shipped() -> AgeVarianceScale:
+
+def _shipped() -> VarianceScale:
     report = json.loads(WEIGHTS.with_suffix(".json").read_text())
     return load_variance_scale(report, "measurements", 6)
 
 
-def _shipped_scale() -> np.ndarray:
-    """The scale where the frames are young (held at the constant up to 0.05 s)."""
-    return _shipped().at(0.0)
+def _declared(
+    noise_px: float = 0.5, drop: float = 0.0, rotation_deg: float = 0.0, focal: float = 0.0
+) -> dict[str, float]:
+    return dict(zip(DECLARED, (noise_px, drop, rotation_deg, focal), strict=True))
+
+
+def _spec_numbers(env) -> dict[str, float]:
+    spec = env.unwrapped.sensor_spec
+    return {name: float(getattr(spec, name)) for name in DECLARED}
 
 
 def test_the_shipped_scale_is_fitted_and_says_how():
     report = json.loads(WEIGHTS.with_suffix(".json").read_text())
-    scale = _shipped_scale()
-    assert scale.shape == (6,) and np.all(scale > 0) and not np.allclose(scale, 1.0)
-    command = report["variance_scale"]["commands"]["measurements"]
-    assert "--ranges study" in command and "--hold-to 0.05" in command
-
-
-def test_the_shipped_scale_is_the_constant_up_to_0_05_s_and_grows_along_the_throw_after():
-    """Held at the constant scale fitted across every condition where the frames are
-    young (so pixel noise and drops keep it), larger for the position along the throw (x)
-    and in height (z) at 0.2 s, where the network errs 248 and 90 mm."""
     scale = _shipped()
-    assert np.array_equal(scale.at(0.0), scale.at(0.05))
-    assert np.array_equal(scale.at(0.0), scale.at(0.03))
-    grown = scale.at(0.2) / scale.at(0.0)
+    assert scale.declared_names == DECLARED
+    assert not np.allclose(scale.at(0.0, _declared()), 1.0)
+    command = report["variance_scale"]["commands"]["measurements"]
+    assert "--ranges study" in command and "--by-age 0,0.05,0.1,0.2" in command
+    for name in DECLARED:
+        assert f"--by-declared {name}=" in command
+
+
+def test_the_shipped_scale_grows_with_the_declared_noise_drops_and_age():
+    """The network, trained to 2 px, 10 % drops and no calibration error, claims too
+    little beyond: the scale at 4 px is larger than at the default 0.5 px in every entry
+    (the lateral position y and the height z most: 23 and 17 times as fitted), at half
+    the frames dropped and at 1 degree of rotation error larger than at none, and at
+    0.2 s of age larger along the throw (x) and in height (z) than at 0, where the
+    network errs 248 and 90 mm."""
+    scale = _shipped()
+    noisy = scale.at(0.0, _declared(4.0)) / scale.at(0.0, _declared(0.5))
+    assert np.all(noisy > 2.0) and noisy[1] > 10 and noisy[2] > 10, noisy
+    dropped = scale.at(0.0, _declared(0.5, 0.5)) / scale.at(0.0, _declared(0.5, 0.0))
+    assert np.all(dropped > 1.5), dropped
+    rotated = scale.at(0.0, _declared(rotation_deg=1.0)) / scale.at(0.0, _declared())
+    assert np.all(rotated > 1.5) and rotated[0] > 4.0, rotated
+    grown = scale.at(0.2, _declared()) / scale.at(0.0, _declared())
     assert grown[0] > 2.0 and grown[2] > 2.0, grown
+
+
+@pytest.mark.parametrize(
+    ("options", "noise_px", "drop"),
+    [
+        ({}, 0.5, 0.0),
+        (
+            {"measurement_noise_px": 4.0, "frame_drop_prob": 0.3, "calib_rotation_error_deg": 1.0},
+            4.0,
+            0.3,
+        ),
+    ],
+)
+def test_the_observer_reads_its_envs_declared_sensor(options, noise_px, drop):
+    """The scale's declared numbers are the env's data sheet (``sensor_spec``, as kf's R
+    reads it), not a default: 4 px, 30 % drops and 1 degree declared, those are read."""
+    env = VisionObserver(
+        gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements", **options),
+        observer="learned",
+    )
+    try:
+        read = env.pipeline.declared
+        assert read == _spec_numbers(env)
+        assert read["frame_drop_prob"] == drop
+        assert abs(read["measurement_noise_std_px"] - noise_px) < 1e-3
+        assert read["calib_rotation_error_deg"] == options.get("calib_rotation_error_deg", 0.0)
+    finally:
+        env.close()
 
 
 def test_learned_scales_by_the_newest_kept_frames_age():
@@ -60,8 +113,9 @@ def test_learned_scales_by_the_newest_kept_frames_age():
         later_s = observer.features.newest_capture_s() + 0.2
         _, reported = observer.predict(later_s)
         _, raw = observer.net.predict(observer.features.vector(later_s))
-        assert np.allclose(np.diag(reported), np.diag(raw) * _shipped().at(0.2))
-        assert not np.allclose(np.diag(reported), np.diag(raw) * _shipped_scale())
+        declared = _spec_numbers(env)
+        assert np.allclose(np.diag(reported), np.diag(raw) * _shipped().at(0.2, declared))
+        assert not np.allclose(np.diag(reported), np.diag(raw) * _shipped().at(0.0, declared))
         assert float(info["time_s"]) - observer.features.newest_capture_s() < 0.05
     finally:
         env.close()
@@ -85,13 +139,24 @@ def test_learned_reports_the_networks_variance_times_the_shipped_scale():
         observer = env.pipeline  # the LearnedObserver
         _, raw = observer.net.predict(observer.features.vector(float(info["time_s"])))
         reported = np.diag(info["estimate"]["covariance"][BALL, BALL])
-        assert np.allclose(reported, np.diag(raw) * _shipped_scale())
+        age_s = float(info["time_s"]) - observer.features.newest_capture_s()
+        assert np.allclose(reported, np.diag(raw) * _shipped().at(age_s, _spec_numbers(env)))
     finally:
         env.close()
 
 
 def test_learned_kf_fuses_the_scaled_variance_as_r(monkeypatch):
+    """R is R_INFLATION (2) times ``learned``'s scaled position variance; an inflation
+    below 1 or not a number is refused by name."""
     from observer_gym.estimation.ball_catcher.filters import ViewlineKalmanFilter
+    from observer_gym.estimation.ball_catcher.learned_kf import R_INFLATION, LearnedKFObserver
+
+    assert R_INFLATION == 2.0
+    env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements")
+    for bad in (0.5, float("nan"), "2", True):
+        with pytest.raises(ValueError, match="learned-kf of BallCatcher-v1: r_inflation"):
+            LearnedKFObserver(env.unwrapped, r_inflation=bad)
+    env.close()
 
     seen = []
     real = ViewlineKalmanFilter.add_position
@@ -110,7 +175,9 @@ def test_learned_kf_fuses_the_scaled_variance_as_r(monkeypatch):
         observer = env.pipeline  # the LearnedKFObserver
         features = observer.learned.features.vector(float(info["time_s"]))
         _, raw = observer.learned.net.predict(features)
-        expected = raw[BALL_POS, BALL_POS] * _shipped_scale()[BALL_POS]
+        age_s = float(info["time_s"]) - observer.learned.features.newest_capture_s()
+        scale = _shipped().at(age_s, _spec_numbers(env))
+        expected = R_INFLATION * raw[BALL_POS, BALL_POS] * scale[BALL_POS]
         assert np.allclose(seen[0], expected)
         assert not np.allclose(seen[0], raw[BALL_POS, BALL_POS])
     finally:

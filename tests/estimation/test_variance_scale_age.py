@@ -1,5 +1,5 @@
 """The variance scale by the newest frame's age (estimation/learned/variance_scale.py:
-AgeVarianceScale, fit_age_scale, the report's entry)."""
+VarianceScale, fit_variance_scale, the report's entry)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from observer_gym.estimation.learned.variance_scale import (
-    AgeVarianceScale,
-    fit_age_scale,
+    VarianceScale,
+    fit_variance_scale,
     load_variance_scale,
     parse_entry,
     variance_scale,
@@ -32,7 +32,7 @@ def test_the_fit_recovers_a_known_log_linear_scale_from_noisy_episodes():
     rng = np.random.default_rng(0)
     ages = rng.uniform(0.0, 0.2, size=400)
     ratios = np.exp(true_log_scale(ages) + rng.normal(0.0, 0.3, size=(400, 2)))
-    fitted = fit_age_scale(ages, ratios, KNOTS_S)
+    fitted = fit_variance_scale(ages, ratios, KNOTS_S)
     assert fitted.knots_age_s.tolist() == KNOTS_S
     # standard error of a knot's log ~ 0.3 / sqrt(~80 episodes) = 0.03
     assert np.allclose(np.log(fitted.scale), true_log_scale(np.array(KNOTS_S)), atol=0.1)
@@ -43,9 +43,9 @@ def test_the_fit_recovers_a_known_log_linear_scale_from_noisy_episodes():
 def test_without_noise_the_fit_is_exact_and_one_knot_is_the_geometric_mean():
     ages = np.linspace(0.0, 0.2, 9)
     ratios = np.exp(true_log_scale(ages))
-    fitted = fit_age_scale(ages, ratios, KNOTS_S)
+    fitted = fit_variance_scale(ages, ratios, KNOTS_S)
     assert np.allclose(np.log(fitted.scale), true_log_scale(np.array(KNOTS_S)), atol=1e-12)
-    constant = fit_age_scale(ages, ratios, [0.0])
+    constant = fit_variance_scale(ages, ratios, [0.0])
     assert np.allclose(constant.at(0.17), np.exp(np.mean(np.log(ratios), axis=0)))
     assert constant.to_entry() == pytest.approx(np.exp(np.mean(np.log(ratios), axis=0)).tolist())
 
@@ -65,7 +65,7 @@ def test_ages_outside_the_knots_are_held_at_the_end_knots():
 
 def test_the_fit_clamps_episodes_beyond_the_last_knot_to_it():
     # episodes at 0.3 s count at 0.2 s: with ratios of 4 there and at 0.2 s the knot is 4
-    fitted = fit_age_scale([0.0, 0.2, 0.3], [[1.0], [4.0], [4.0]], [0.0, 0.2])
+    fitted = fit_variance_scale([0.0, 0.2, 0.3], [[1.0], [4.0], [4.0]], [0.0, 0.2])
     assert np.allclose(fitted.scale[:, 0], [1.0, 4.0])
 
 
@@ -104,19 +104,19 @@ def test_a_bad_entry_is_refused_with_what_is_wrong(entry, message):
 
 def test_the_constant_reader_refuses_an_age_dependent_scale():
     report = {"variance_scale": {"rgb": {"knots_age_s": [0.0, 0.2], "scale": [[1.0], [2.0]]}}}
-    with pytest.raises(ValueError, match="depends on the newest frame's age"):
+    with pytest.raises(ValueError, match="depends on the newest frame's age or the declared"):
         variance_scale(report, "rgb", 1)
 
 
 def test_a_fit_with_a_knot_no_episode_reaches_is_refused():
     with pytest.raises(ValueError, match="do not determine a scale at every knot"):
-        fit_age_scale([0.0, 0.01, 0.02], [[1.0], [1.0], [1.0]], [0.0, 0.1, 0.2])
+        fit_variance_scale([0.0, 0.01, 0.02], [[1.0], [1.0], [1.0]], [0.0, 0.1, 0.2])
     with pytest.raises(ValueError, match="positive and finite"):
-        fit_age_scale([0.0, 0.1], [[1.0], [0.0]], [0.0])
+        fit_variance_scale([0.0, 0.1], [[1.0], [0.0]], [0.0])
     with pytest.raises(ValueError, match=r"ages_s must be \(E,\)"):
-        fit_age_scale([0.0, 0.1, 0.2], [[1.0], [2.0]], [0.0])
+        fit_variance_scale([0.0, 0.1, 0.2], [[1.0], [2.0]], [0.0])
     with pytest.raises(ValueError, match="strictly increasing"):
-        fit_age_scale([0.0, 0.1], [[1.0], [2.0]], [0.1, 0.1])
+        fit_variance_scale([0.0, 0.1], [[1.0], [2.0]], [0.1, 0.1])
 
 
 def test_a_held_fit_keeps_the_held_knots_and_recovers_the_later_ones():
@@ -128,25 +128,25 @@ def test_a_held_fit_keeps_the_held_knots_and_recovers_the_later_ones():
     ages = rng.uniform(0.0, 0.2, 200)
     true_x = np.exp(np.interp(ages, [0.0, 0.1, 0.2], np.log([2.0, 2.0, 10.0])))
     ratios = np.stack([true_x, true_x / 2.0], axis=1)
-    held = fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [2.0, 1.0]))
+    held = fit_variance_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [2.0, 1.0]))
     assert np.array_equal(held.scale[:2], [[2.0, 1.0], [2.0, 1.0]])
     assert np.allclose(held.scale[2], [10.0, 5.0])
-    free = fit_age_scale(ages, ratios, [0.0, 0.2])
+    free = fit_variance_scale(ages, ratios, [0.0, 0.2])
     assert free.at(0.0)[0] < 1.5 and free.at(0.1)[0] > 2.5  # 1.28 and 2.95, not 2
 
 
 def test_a_bad_hold_is_refused_with_what_is_wrong():
     ages, ratios = [0.0, 0.1, 0.2], [[1.0], [2.0], [4.0]]
     with pytest.raises(ValueError, match="hold_to_s must be one of the knots"):
-        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.05, [1.0]))
+        fit_variance_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.05, [1.0]))
     with pytest.raises(ValueError, match="hold_to_s must be one of the knots"):
-        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.2, [1.0]))  # nothing to fit
+        fit_variance_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.2, [1.0]))  # nothing to fit
     with pytest.raises(ValueError, match="held scale must be 1 positive"):
-        fit_age_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [-1.0]))
+        fit_variance_scale(ages, ratios, [0.0, 0.1, 0.2], held=(0.1, [-1.0]))
 
 
 def test_a_hand_built_record_evaluates_per_entry():
-    scale = AgeVarianceScale(np.array([0.0, 1.0]), np.array([[1.0, 1.0], [np.e, 1.0]]))
+    scale = VarianceScale(np.array([0.0, 1.0]), np.array([[1.0, 1.0], [np.e, 1.0]]))
     assert scale.n_out == 2
     assert np.allclose(scale.at(0.5), [np.exp(0.5), 1.0])
 
@@ -253,6 +253,19 @@ BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "learned_varian
             ["--estimator", "geometric", "--by-age", "0,0.1", "--hold-to", "0.1"],
             "--hold-to must be one of --by-age's knots but the last",
         ),
+        (["--by-declared", "noise=0,1"], "NAME must be a number of the declared sensor"),
+        (["--vary", "latency_s,bogus"], "options must be comma-separated, distinct names"),
+        (["--vary", "latency_s,latency_s"], "options must be comma-separated, distinct names"),
+        (["--vary", "latency_s"], "--vary names the options of --ranges study"),
+        (["--by-declared", "frame_drop_prob=0.5,0"], "frame_drop_prob's knots must be"),
+        (["--by-declared", "frame_drop_prob=0,0.5"], "--by-declared adds terms to a scale by age"),
+        (
+            [
+                *("--estimator", "geometric", "--by-age", "0,0.1,0.2", "--hold-to", "0.1"),
+                *("--by-declared", "frame_drop_prob=0,0.5"),
+            ],
+            "--hold-to holds a scale by age alone",
+        ),
     ],
 )
 def test_a_bad_by_age_is_one_line_and_exit_code_2(args, message):
@@ -301,3 +314,113 @@ def test_the_by_age_fit_prints_an_age_dependent_scale_without_writing():
     assert len(episodes) == 3 and all(0.0 <= e["mean_age_s"] <= 0.2 for e in episodes)
     assert episodes[1]["mean_age_s"] > episodes[0]["mean_age_s"]  # the latency episode
     assert WEIGHTS.with_suffix(".json").read_bytes() == before  # no --write, no change
+
+
+# --- terms by the declared sensor's numbers (DeclaredTerm)
+
+
+def true_declared_log(noise_px: np.ndarray, drop: np.ndarray) -> np.ndarray:
+    """A known additive log scale, 0 at 0 px and no drops, linear in the declared noise
+    and the drop probability: entry 0 times 3 per px and 4 at half the frames dropped,
+    entry 1 times 20 at 4 px (a network that claims too little past its training range)."""
+    noise_px, drop = np.asarray(noise_px, dtype=float), np.asarray(drop, dtype=float)
+    return np.stack(
+        [np.log(3.0) * noise_px + np.log(4.0) * drop / 0.5, np.log(20.0) * noise_px / 4.0],
+        axis=-1,
+    )
+
+
+def test_the_joint_fit_recovers_age_and_declared_terms_from_noisy_episodes():
+    """Episodes vary the age, the declared noise or the drops in turn (the others at a
+    default), as the study's do; the joint fit finds each term, 1 at its first knot."""
+    rng = np.random.default_rng(2)
+    n = 600
+    which = np.arange(n) % 3
+    ages = np.where(which == 0, rng.uniform(0.0, 0.2, n), 0.0)
+    noise = np.where(which == 1, rng.uniform(0.0, 4.0, n), 0.5)
+    drop = np.where(which == 2, rng.uniform(0.0, 0.5, n), 0.0)
+    log_true = true_log_scale(ages) + true_declared_log(noise, drop)
+    ratios = np.exp(log_true + rng.normal(0.0, 0.3, size=(n, 2)))
+    declared = {
+        "measurement_noise_std_px": (noise, [0.0, 1.0, 2.0, 4.0]),
+        "frame_drop_prob": (drop, [0.0, 0.25, 0.5]),
+    }
+    fitted = fit_variance_scale(ages, ratios, KNOTS_S, declared=declared)
+    assert fitted.declared_names == ("measurement_noise_std_px", "frame_drop_prob")
+    assert all(np.array_equal(term.scale[0], [1.0, 1.0]) for term in fitted.declared)
+    for age, noise_px, p in [(0.0, 0.5, 0.0), (0.1, 4.0, 0.0), (0.0, 0.5, 0.5), (0.2, 2.0, 0.3)]:
+        got = np.log(fitted.at(age, {"measurement_noise_std_px": noise_px, "frame_drop_prob": p}))
+        expected = true_log_scale(age) + true_declared_log(noise_px, p)
+        assert np.allclose(got, expected, atol=0.15), (age, noise_px, p, got, expected)
+    # and it round-trips through the report's entry
+    again = parse_entry(json.loads(json.dumps(fitted.to_entry())), 2, "x")
+    assert np.allclose(
+        again.at(0.1, {"measurement_noise_std_px": 3.0, "frame_drop_prob": 0.2}),
+        fitted.at(0.1, {"measurement_noise_std_px": 3.0, "frame_drop_prob": 0.2}),
+    )
+
+
+def test_an_age_only_fit_of_the_same_episodes_misses_the_noise():
+    """Without the declared term the 4 px episodes' ratio (x 20 in entry 1) is averaged
+    into the young ages' factor: at 4 px it claims too little by far more than the band."""
+    rng = np.random.default_rng(3)
+    noise = rng.uniform(0.0, 4.0, 300)
+    ratios = np.exp(true_declared_log(noise, np.zeros(300)))
+    age_only = fit_variance_scale(np.zeros(300), ratios, [0.0])
+    assert np.exp(true_declared_log(4.0, 0.0))[1] / age_only.at(0.0)[1] > 3.0
+
+
+def test_a_scale_with_a_declared_term_needs_its_number():
+    scale = parse_entry(
+        {
+            "knots_age_s": [0.0],
+            "scale": [[2.0]],
+            "declared": {
+                "measurement_noise_std_px": {"knots": [0.0, 4.0], "scale": [[1.0], [16.0]]}
+            },
+        },
+        1,
+        "x",
+    )
+    assert not scale.is_constant
+    assert np.allclose(scale.at(0.3, {"measurement_noise_std_px": 2.0}), [8.0])  # 2 x 4
+    assert np.allclose(scale.at(0.3, {"measurement_noise_std_px": 9.0}), [32.0])  # held
+    with pytest.raises(ValueError, match="depends on the declared measurement_noise_std_px"):
+        scale.at(0.3)
+    with pytest.raises(ValueError, match="depends on the declared measurement_noise_std_px"):
+        scale.at(0.3, {"frame_drop_prob": 0.1})
+
+
+@pytest.mark.parametrize(
+    ("declared", "message"),
+    [
+        ({"noise": {"knots": [0.0], "scale": [[1.0]]}}, "not a number of the declared sensor"),
+        ({"image_size_px": {"knots": [0.0], "scale": [[1.0]]}}, "not a number of the declared"),
+        ({"frame_drop_prob": {"knots": [0.0]}}, "needs 'knots' and 'scale'"),
+        (
+            {"frame_drop_prob": {"knots": [0.2, 0.1], "scale": [[1.0], [1.0]]}},
+            "strictly increasing values >= 0",
+        ),
+        (
+            {"frame_drop_prob": {"knots": [0.0, 0.5], "scale": [[2.0], [1.0]]}},
+            "first knot must be 1",
+        ),
+        ({"frame_drop_prob": {"knots": [0.0, 0.5], "scale": [[1.0], [-1.0]]}}, "positive finite"),
+        ([1.0], "must map sensor numbers to terms"),
+    ],
+)
+def test_a_bad_declared_term_is_refused_with_what_is_wrong(declared, message):
+    entry = {"knots_age_s": [0.0], "scale": [[1.0]], "declared": declared}
+    with pytest.raises(ValueError, match=message) as caught:
+        parse_entry(entry, 1, "variance scale for 'measurements'")
+    assert "benchmarks/learned_variance_scale.py" in str(caught.value)
+
+
+def test_a_declared_term_no_episode_varies_is_refused():
+    with pytest.raises(ValueError, match="do not determine a scale at every knot"):
+        fit_variance_scale(
+            [0.0, 0.0, 0.0],
+            [[1.0], [2.0], [3.0]],
+            [0.0],
+            declared={"measurement_noise_std_px": ([0.5, 0.5, 0.5], [0.0, 1.0])},
+        )
