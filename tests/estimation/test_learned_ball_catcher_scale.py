@@ -146,13 +146,17 @@ def test_learned_reports_the_networks_variance_times_the_shipped_scale():
 
 
 def test_learned_kf_fuses_the_scaled_variance_as_r(monkeypatch):
-    """R is R_INFLATION (2) times ``learned``'s scaled position variance; an inflation
-    below 1 or not a number is refused by name."""
+    """R is R_INFLATION (2 from measurements, 1 from frames) times ``learned``'s scaled
+    position variance; an inflation below 1 or not a number is refused by name."""
     from observer_gym.estimation.ball_catcher.filters import ViewlineKalmanFilter
     from observer_gym.estimation.ball_catcher.learned_kf import R_INFLATION, LearnedKFObserver
 
-    assert R_INFLATION == 2.0
+    assert R_INFLATION == {"measurements": 2.0, "rgb": 1.0}
     env = gym.make("observer_gym/BallCatcher-v1", obs_mode="measurements")
+    assert LearnedKFObserver(env.unwrapped).r_inflation == 2.0
+    frames = gym.make("observer_gym/BallCatcher-v1", obs_mode="rgb")
+    assert LearnedKFObserver(frames.unwrapped).r_inflation == 1.0
+    frames.close()
     for bad in (0.5, float("nan"), "2", True):
         with pytest.raises(ValueError, match="learned-kf of BallCatcher-v1: r_inflation"):
             LearnedKFObserver(env.unwrapped, r_inflation=bad)
@@ -177,7 +181,7 @@ def test_learned_kf_fuses_the_scaled_variance_as_r(monkeypatch):
         _, raw = observer.learned.net.predict(features)
         age_s = float(info["time_s"]) - observer.learned.features.newest_capture_s()
         scale = _shipped().at(age_s, _spec_numbers(env))
-        expected = R_INFLATION * raw[BALL_POS, BALL_POS] * scale[BALL_POS]
+        expected = 2.0 * raw[BALL_POS, BALL_POS] * scale[BALL_POS]
         assert np.allclose(seen[0], expected)
         assert not np.allclose(seen[0], raw[BALL_POS, BALL_POS])
     finally:
