@@ -253,15 +253,20 @@ def test_the_oracle_entry_measures_what_the_references_measured(tmp_path):
 @pytest.mark.parametrize("env_id", ["BallTable-v0", "BallCatcher-v1", "TargetFollower-v0"])
 def test_the_oracle_entry_scores_one_on_every_level(env_id, tmp_path):
     """The official suite for the oracle with the reference controller: each level's
-    score is 1 (its references were measured on the same seeds), within its interval."""
+    score is 1 (its references were measured on the same seeds), within its interval.
+
+    To 1e-6, not to the last bit: the episodes are deterministic on one machine, but the
+    rounding of vectorised maths differs between CPUs, and closed-loop episodes carry it.
+    BallTable's `lab` mean, measured on another machine, read 1.1e-9 below its reference
+    (the other two levels to the bit); one episode more or less moves a mean by ~1e-3."""
     suite = load_suite(env_id)
     request = check_benchmark(env_id, "oracle", suite.controller, workers=2)
     result = run_benchmark(request, tmp_path / "oracle", progress=False)
     assert result.official
     for level in result.scores.levels:
-        assert level.score.value == pytest.approx(1.0, abs=1e-9), level
+        assert level.score.value == pytest.approx(1.0, abs=1e-6), level
         assert level.score.low <= 1.0 <= level.score.high
-        assert level.metric_mean == pytest.approx(suite.references[level.level].oracle, rel=1e-12)
+        assert level.metric_mean == pytest.approx(suite.references[level.level].oracle, rel=1e-6)
     assert check_folder(tmp_path / "oracle").startswith(f"{tmp_path / 'oracle'}: OK")
 
 
